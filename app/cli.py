@@ -1,0 +1,53 @@
+"""The `skelasm` command: precompute, evaluate, landscape, simulate, bench, report, gui."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: Subcommand name -> module in app.commands providing add_parser(subparsers) and run(args).
+COMMANDS = ("precompute", "evaluate", "landscape", "simulate", "bench", "gui")
+
+
+class UserError(Exception):
+    """A problem the user can fix (bad file, bad option): printed as one message, exit 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered."""
+    parser = argparse.ArgumentParser(
+        prog="skelasm",
+        description="Force-guided assembly of CAD parts with skeletal densities and "
+        "Fourier correlations.",
+    )
+    parser.add_argument("--version", action="version", version="skelasm 0.1.0")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMANDS:
+        module = importlib.import_module(f"app.commands.{name}")
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `skelasm` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except KeyboardInterrupt:
+        print("skelasm: interrupted", file=sys.stderr)
+        return 130
+    except (UserError, ValueError, OSError) as exc:
+        # Every engine error meant for the user is a ValueError/OSError subclass with a message
+        # that names the problem and the fix; a traceback would only hide it.
+        print(f"skelasm {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:
+        print(f"skelasm {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,38 @@
+"""`skelasm bench WHAT`: measured tables and plots (descriptor, correlation, loop).
+
+Each benchmark lives in the top-level ``bench`` package as a module with
+``add_arguments(parser)`` and ``run(args)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+BENCHMARKS = {
+    "descriptor": "seconds per part to compute descriptors, per backend, and the error",
+    "correlation": "microseconds per 6-DOF evaluation against accuracy, per mode count",
+    "loop": "achieved engine rate and period distribution, headless or with the GUI",
+}
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("bench", help="run a benchmark, print its table, write its plot")
+    which = parser.add_subparsers(dest="benchmark", metavar="BENCHMARK")
+    which.required = True
+    for name, text in BENCHMARKS.items():
+        p = which.add_parser(name, help=text)
+        try:
+            module = importlib.import_module(f"bench.{name}")
+        except ImportError:
+            p.set_defaults(run=_missing(name))
+            continue
+        module.add_arguments(p)
+        p.set_defaults(run=module.run)
+
+
+def _missing(name: str):
+    def run(args: argparse.Namespace) -> int:
+        raise RuntimeError(f"the {name} benchmark is not available in this installation")
+
+    return run

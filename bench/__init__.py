@@ -1,0 +1,1 @@
+"""Benchmarks behind `skelasm bench`: each prints a table and writes a plot (PNG)."""
