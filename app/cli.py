@@ -25,9 +25,24 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:
-        module = importlib.import_module(f"app.commands.{name}")
+        try:
+            module = importlib.import_module(f"app.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"app.commands.{name}":
+                raise
+            sub.add_parser(name, help="(not available in this installation)").set_defaults(
+                run=_unavailable(name)
+            )
+            continue
         module.add_parser(sub)
     return parser
+
+
+def _unavailable(name: str):
+    def run(args: argparse.Namespace) -> int:
+        raise UserError(f"the `{name}` command is not available in this installation")
+
+    return run
 
 
 def main(argv: list[str] | None = None) -> int:
