@@ -1,0 +1,642 @@
+"""Simulation settings of a scene: the ``[simulation]``, ``[coupling]``, ``[effects]`` and
+``[device]`` tables and the per-part ``mass`` / ``density`` / ``inertia`` keys.
+
+The scene loader (``engine.scene``) hands the raw tables over in ``Scene.sections``; this
+module validates them into frozen parameter dataclasses (:class:`SimConfig`) and, once the
+moving part's mesh is known, resolves the defaults that scale with the part's size
+(:func:`resolve_physics` -> :class:`Physics`).
+
+Scale invariance. Every default is tied to the moving part's length ``L`` (largest side of
+its bounding box) and to its mass, so that the same pair drawn in metres and in millimetres
+moves alike:
+
+- mass: ``mass`` if given, else ``density * volume`` if ``density`` is given, else 1 (a
+  dimensionless unit mass); inertia from the mesh with the same density.
+- coupling: a spring-damper with natural frequency ``frequency_hz`` (default 10 Hz) and
+  damping ratio ``damping_ratio`` (1) for the body's mass and mean inertia, so the stiffness
+  in force per length is ``m (2 pi f)^2`` whatever the length unit.
+- kappa (geometric force gain): the correlation energy is an integral over volume of two
+  dimensionless densities, so its gradient scales with an area ``L^2``; the default
+  ``kappa = guidance_gain * k / L`` (``k`` the linear coupling stiffness) makes the ratio of
+  geometric to coupling force independent of the unit.
+- gravity: off by default; ``gravity = true`` means 9.81 m/s^2 converted to the scene's unit
+  along ``gravity_direction`` (part 1's frame), the only physical, not scaled, default.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from engine.errors import InputError
+
+#: Degrees of freedom, in part 1's frame: three translations, three rotations.
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+GUIDANCE = ("skeletal", "collision", "none")
+DEVICES = ("mouse", "trajectory", "spacemouse", "openhaptics", "udp")
+
+#: Length of one scene unit in metres (for gravity).
+UNIT_METRES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "um": 1e-6, "in": 0.0254, "ft": 0.3048}
+
+
+class SimConfigError(InputError):
+    """A bad key or value in a scene's simulation tables; the message names the line."""
+
+
+@dataclass(frozen=True)
+class SimulationParams:
+    """The ``[simulation]`` table.
+
+    Attributes
+    ----------
+    rate_hz : float
+        Engine rate; the fixed time step is ``1 / rate_hz`` seconds.
+    kappa : float or None
+        Geometric force gain ``E = -kappa Re f``; ``None``: the scale-invariant default.
+    guidance_gain : float
+        Dimensionless factor in the default kappa (see the module docstring).
+    body_damping_ratio : float
+        Viscous damping of the free body (relative to its coupling frequency), applied when
+        effects.damping is on; keeps the body from ringing inside a stiff geometric well.
+    seconds : float
+        Default duration of a headless run.
+    """
+
+    rate_hz: float = 1000.0
+    kappa: float | None = None
+    guidance_gain: float = 1.0
+    body_damping_ratio: float = 0.5
+    seconds: float = 5.0
+
+    @property
+    def dt(self) -> float:
+        """Fixed time step in seconds."""
+        return 1.0 / self.rate_hz
+
+
+@dataclass(frozen=True)
+class CouplingParams:
+    """The ``[coupling]`` table: six-axis spring-damper between proxy and part.
+
+    Absolute gains (``stiffness`` in force/length, ``angular_stiffness`` in torque/radian,
+    ``damping``, ``angular_damping``) override the scale-free ``frequency_hz`` /
+    ``damping_ratio`` defaults.
+    """
+
+    frequency_hz: float = 10.0
+    damping_ratio: float = 1.0
+    stiffness: float | None = None
+    angular_stiffness: float | None = None
+    damping: float | None = None
+    angular_damping: float | None = None
+
+
+@dataclass(frozen=True)
+class Effects:
+    """The ``[effects]`` table: what the simulation computes. Switched-off work is skipped.
+
+    Attributes
+    ----------
+    guidance : {"skeletal", "collision", "none"}
+        Skeletal densities (geometric guidance), the collision-only indicator density (the
+        paper's baseline) or no geometric force at all (no correlator is built).
+    axes : tuple of str
+        Free degrees of freedom among ``x y z rx ry rz`` (part 1's frame). No rotational axis:
+        rotation is locked, no torque is computed and the translational landscape is looked
+        up instead of summing modes.
+    damping : bool
+        Coupling and body damping on; off conserves energy (for tests).
+    gravity : tuple of 3 float or None
+        Gravity acceleration in scene units per second squared, part 1's frame.
+    """
+
+    guidance: str = "skeletal"
+    axes: tuple[str, ...] = AXES
+    damping: bool = True
+    gravity: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.guidance not in GUIDANCE:
+            raise ValueError(f"guidance must be one of {', '.join(GUIDANCE)}; got {self.guidance!r}")
+        bad = [a for a in self.axes if a not in AXES]
+        if bad:
+            raise ValueError(f"unknown axes {bad}; valid axes are {', '.join(AXES)}")
+        object.__setattr__(self, "axes", tuple(a for a in AXES if a in self.axes))
+
+    @property
+    def rotation(self) -> bool:
+        """True when any rotational axis is free."""
+        return any(a.startswith("r") for a in self.axes)
+
+    @property
+    def translation_mask(self) -> np.ndarray:
+        """(3,) float64: 1 for free translation axes, 0 for locked ones."""
+        return np.array([float(a in self.axes) for a in AXES[:3]])
+
+    @property
+    def rotation_mask(self) -> np.ndarray:
+        """(3,) float64: 1 for free rotation axes, 0 for locked ones."""
+        return np.array([float(a in self.axes) for a in AXES[3:]])
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    """The ``[device]`` table: which input drives the proxy and how force is rendered.
+
+    Attributes
+    ----------
+    kind : {"mouse", "trajectory", "spacemouse", "openhaptics", "udp"}
+    max_force : float or None
+        Clamp of the rendered force norm (device units); None: the device's own maximum.
+    force_scale : float
+        Device force per simulation force.
+    options : tuple of (str, value)
+        Device-specific keys (``file`` for a trajectory, ``port``/``host`` for udp, ...).
+    """
+
+    kind: str = "mouse"
+    max_force: float | None = None
+    force_scale: float = 1.0
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.kind not in DEVICES:
+            raise ValueError(f"device must be one of {', '.join(DEVICES)}; got {self.kind!r}")
+
+    def option(self, key: str, default: Any = None) -> Any:
+        """A device-specific option."""
+        return dict(self.options).get(key, default)
+
+
+@dataclass(frozen=True)
+class MassSpec:
+    """Per-part ``mass``, ``density``, ``inertia`` (3x3 or 3 principal) and ``center_of_mass``."""
+
+    mass: float | None = None
+    density: float | None = None
+    inertia: tuple[tuple[float, float, float], ...] | None = None
+    center_of_mass: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """All simulation settings of a scene (validated, defaults not yet resolved)."""
+
+    simulation: SimulationParams = field(default_factory=SimulationParams)
+    coupling: CouplingParams = field(default_factory=CouplingParams)
+    effects: Effects = field(default_factory=Effects)
+    device: DeviceConfig = field(default_factory=DeviceConfig)
+    masses: tuple[MassSpec, ...] = ()
+    units: str = "mm"
+
+
+@dataclass(frozen=True)
+class Physics:
+    """Resolved constants of the moving body and its coupling (MuJoCo's "model").
+
+    Attributes
+    ----------
+    mass : float
+    inertia : (3, 3) float64
+        Inertia tensor about the centre of mass, in the part's own frame.
+    center : (3,) float64
+        Centre of mass in the part's own frame.
+    length : float
+        The part's characteristic length L (largest bounding-box side).
+    k_lin, c_lin, k_rot, c_rot : float
+        Coupling stiffness/damping (force/length, force*time/length, torque/rad, ...).
+    body_c_lin, body_c_rot : float
+        Viscous damping of the body against the world (0 with damping off).
+    kappa : float
+        Geometric force gain.
+    gravity : (3,) float64
+        Gravity acceleration (zeros when off).
+    dt : float
+        Fixed time step in seconds.
+    """
+
+    mass: float
+    inertia: np.ndarray
+    center: np.ndarray
+    length: float
+    k_lin: float
+    c_lin: float
+    k_rot: float
+    c_rot: float
+    body_c_lin: float
+    body_c_rot: float
+    kappa: float
+    gravity: np.ndarray
+    dt: float
+
+
+# ---------------------------------------------------------------------------------------------
+# parsing
+
+
+def _line_of(text: str | None, section: str | None, key: str) -> int | None:
+    """1-based line of ``key = ...`` inside ``[section]`` (or top level / ``[[part]]`` n)."""
+    if not text:
+        return None
+    current: str | None = None
+    part_index = -1
+    target_part = None
+    if section and section.startswith("part#"):
+        target_part = int(section[5:])
+    key_re = re.compile(rf"^\s*{re.escape(key)}\s*=")
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if stripped.startswith("[[") and stripped.endswith("]]"):
+            current = stripped[2:-2].strip()
+            if current == "part":
+                part_index += 1
+            continue
+        if stripped.startswith("[") and stripped.endswith("]"):
+            current = stripped[1:-1].strip()
+            continue
+        if not key_re.match(line):
+            continue
+        if target_part is not None:
+            if current == "part" and part_index == target_part:
+                return number
+        elif current == section:
+            return number
+    return None
+
+
+def _header_line(text: str | None, section: str) -> int | None:
+    if not text:
+        return None
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.strip() == f"[{section}]":
+            return number
+    return None
+
+
+class _Reader:
+    """Reads one table, remembering keys used, raising SimConfigError with the line."""
+
+    def __init__(self, table: Mapping[str, Any], section: str, path: str, text: str | None):
+        if not isinstance(table, Mapping):
+            raise SimConfigError(
+                f"{path}: [{section}] must be a table of key = value lines, got {table!r}"
+            )
+        self.table = dict(table)
+        self.section = section
+        self.path = path
+        self.text = text
+        self.used: set[str] = set()
+
+    def where(self, key: str) -> str:
+        line = _line_of(self.text, self.section, key)
+        name = self.section if not self.section.startswith("part#") else "[part]"
+        head = f"{self.path}:{line}" if line else self.path
+        label = f"[{name}]" if not name.startswith("[") else name
+        return f"{head}: {label} {key}"
+
+    def fail(self, key: str, problem: str) -> SimConfigError:
+        return SimConfigError(f"{self.where(key)}: {problem}")
+
+    def number(self, key: str, default, *, positive=False, minimum=None, allow_none=False):
+        self.used.add(key)
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        if allow_none and (value == "auto" or value is None):
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            extra = ' or "auto"' if allow_none else ""
+            raise self.fail(key, f"must be a number{extra}, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise self.fail(key, f"must be finite, got {value!r}")
+        if positive and value <= 0:
+            raise self.fail(key, f"must be positive, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise self.fail(key, f"must be at least {minimum}, got {value!r}")
+        return value
+
+    def boolean(self, key: str, default: bool) -> bool:
+        self.used.add(key)
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        if not isinstance(value, bool):
+            raise self.fail(key, f"must be true or false, got {value!r}")
+        return value
+
+    def choice(self, key: str, default: str, valid: tuple[str, ...]) -> str:
+        self.used.add(key)
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        if value not in valid:
+            raise self.fail(key, f"must be one of {', '.join(valid)}; got {value!r}")
+        return value
+
+    def vector(self, key: str, default, n=3):
+        self.used.add(key)
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        if (
+            not isinstance(value, (list, tuple))
+            or len(value) != n
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            or not all(math.isfinite(float(v)) for v in value)
+        ):
+            raise self.fail(key, f"must be a list of {n} numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+
+    def finish(self, allowed_extra: tuple[str, ...] = ()) -> None:
+        unknown = [k for k in self.table if k not in self.used and k not in allowed_extra]
+        if unknown:
+            known = ", ".join(sorted(self.used))
+            raise self.fail(unknown[0], f"unknown key; known keys here are: {known}")
+
+
+def parse_simconfig(
+    sections: Mapping[str, Any],
+    *,
+    parts: tuple[Mapping[str, Any], ...] = (),
+    units: str = "mm",
+    path: str = "<scene>",
+    text: str | None = None,
+) -> SimConfig:
+    """Validate the raw simulation tables of a scene.
+
+    Parameters
+    ----------
+    sections : mapping
+        Raw TOML tables by name; only ``simulation``, ``coupling``, ``effects`` and
+        ``device`` are read (missing ones take their defaults).
+    parts : tuple of mapping
+        Per-part extra keys (``mass``, ``density``, ``inertia``, ``center_of_mass``), one
+        mapping per ``[[part]]`` in file order.
+    units : str
+        The scene's length unit (for gravity).
+    path, text : str
+        Scene file name and text, to name the line of a bad key.
+
+    Returns
+    -------
+    SimConfig
+
+    Raises
+    ------
+    SimConfigError
+        Unknown key or bad value; the message has ``path:line: [table] key: problem``.
+    """
+    sim = _Reader(sections.get("simulation", {}), "simulation", path, text)
+    simulation = SimulationParams(
+        rate_hz=sim.number("rate_hz", 1000.0, positive=True),
+        kappa=sim.number("kappa", None, minimum=0.0, allow_none=True),
+        guidance_gain=sim.number("guidance_gain", 1.0, minimum=0.0),
+        body_damping_ratio=sim.number("body_damping_ratio", 0.5, minimum=0.0),
+        seconds=sim.number("seconds", 5.0, positive=True),
+    )
+    sim.finish()
+
+    cpl = _Reader(sections.get("coupling", {}), "coupling", path, text)
+    coupling = CouplingParams(
+        frequency_hz=cpl.number("frequency_hz", 10.0, positive=True),
+        damping_ratio=cpl.number("damping_ratio", 1.0, minimum=0.0),
+        stiffness=cpl.number("stiffness", None, positive=True, allow_none=True),
+        angular_stiffness=cpl.number("angular_stiffness", None, positive=True, allow_none=True),
+        damping=cpl.number("damping", None, minimum=0.0, allow_none=True),
+        angular_damping=cpl.number("angular_damping", None, minimum=0.0, allow_none=True),
+    )
+    cpl.finish()
+    if coupling.frequency_hz * 2 * math.pi / simulation.rate_hz > 1.0:
+        raise cpl.fail(
+            "frequency_hz",
+            f"{coupling.frequency_hz} Hz is too stiff for the {simulation.rate_hz} Hz rate "
+            f"(needs 2 pi f dt <= 1); lower it or raise [simulation] rate_hz",
+        )
+
+    eff = _Reader(sections.get("effects", {}), "effects", path, text)
+    guidance = eff.choice("guidance", "skeletal", GUIDANCE)
+    eff.used.add("axes")
+    axes_value = eff.table.get("axes", "all")
+    if axes_value == "all":
+        axes = AXES
+    elif axes_value == "translation":
+        axes = AXES[:3]
+    elif axes_value == "rotation":
+        axes = AXES[3:]
+    elif isinstance(axes_value, (list, tuple)) and all(a in AXES for a in axes_value):
+        axes = tuple(axes_value)
+    else:
+        raise eff.fail(
+            "axes",
+            f'must be "all", "translation", "rotation" or a list of {", ".join(AXES)}; '
+            f"got {axes_value!r}",
+        )
+    damping = eff.boolean("damping", True)
+    eff.used.add("gravity")
+    gvalue = eff.table.get("gravity", False)
+    direction = eff.vector("gravity_direction", (0.0, 0.0, -1.0))
+    gravity: tuple[float, float, float] | None
+    if gvalue is False:
+        gravity = None
+    elif gvalue is True:
+        if units not in UNIT_METRES:
+            raise eff.fail("gravity", f"unit {units!r} unknown; give gravity as [gx, gy, gz]")
+        norm = float(np.linalg.norm(direction))
+        if norm == 0:
+            raise eff.fail("gravity_direction", "must not be the zero vector")
+        g = 9.81 / UNIT_METRES[units]
+        gravity = tuple(float(g * d / norm) for d in direction)  # type: ignore[assignment]
+    else:
+        gravity = eff.vector("gravity", None)
+    eff.finish()
+    effects = Effects(guidance=guidance, axes=axes, damping=damping, gravity=gravity)
+
+    dev = _Reader(sections.get("device", {}), "device", path, text)
+    kind = dev.choice("kind", "mouse", DEVICES)
+    max_force = dev.number("max_force", None, positive=True, allow_none=True)
+    force_scale = dev.number("force_scale", 1.0, positive=True)
+    per_kind = {
+        "mouse": (),
+        "trajectory": ("file",),
+        "spacemouse": ("translation_speed", "rotation_speed"),
+        "openhaptics": ("name",),
+        "udp": ("host", "port", "reply_port", "timeout"),
+    }[kind]
+    options = tuple((k, dev.table[k]) for k in per_kind if k in dev.table)
+    dev.used.update(per_kind)
+    dev.finish()
+    if kind == "trajectory" and not dict(options).get("file"):
+        raise dev.fail("kind", 'a trajectory device needs file = "path/to.csv" in [device]')
+    device = DeviceConfig(kind=kind, max_force=max_force, force_scale=force_scale, options=options)
+
+    masses = []
+    for i, extras in enumerate(parts):
+        pr = _Reader(extras, f"part#{i}", path, text)
+        mass = pr.number("mass", None, positive=True)
+        density = pr.number("density", None, positive=True)
+        pr.used.add("inertia")
+        inertia = None
+        if "inertia" in pr.table:
+            raw = pr.table["inertia"]
+            try:
+                arr = np.asarray(raw, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.zeros(0)
+            if arr.shape == (3,):
+                arr = np.diag(arr)
+            if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
+                raise pr.fail("inertia", f"must be 3 principal moments or a 3x3 list, got {raw!r}")
+            if not np.allclose(arr, arr.T) or np.any(np.linalg.eigvalsh(arr) <= 0):
+                raise pr.fail("inertia", "must be symmetric positive definite")
+            inertia = tuple(tuple(float(v) for v in row) for row in arr)
+        com = pr.vector("center_of_mass", None)
+        pr.finish(allowed_extra=_PART_KEYS)
+        masses.append(MassSpec(mass=mass, density=density, inertia=inertia, center_of_mass=com))
+    return SimConfig(simulation, coupling, effects, device, tuple(masses), units)
+
+
+#: Keys of a [[part]] table the scene loader owns (not ours to reject).
+_PART_KEYS = ("name", "file", "pose", "fixed")
+
+
+def simconfig_from_scene(scene: Any) -> SimConfig:
+    """:func:`parse_simconfig` for an ``engine.scene.Scene`` (reads its file for line numbers)."""
+    path = str(getattr(scene, "path", "<scene>"))
+    text = None
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError:
+        pass
+    parts = tuple(dict(getattr(p, "extras", {}) or {}) for p in getattr(scene, "parts", ()))
+    return parse_simconfig(
+        getattr(scene, "sections", {}) or {},
+        parts=parts,
+        units=str(getattr(scene, "units", "mm")),
+        path=path,
+        text=text,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# resolving size-dependent defaults
+
+
+def mass_properties(
+    vertices: np.ndarray, faces: np.ndarray, spec: MassSpec
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, (3, 3) inertia about the centre of mass, (3,) centre, from a mesh and a MassSpec.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    spec : MassSpec
+
+    Notes
+    -----
+    Uses trimesh's mass properties (exact for a closed mesh). A mesh that is not closed or
+    whose volume comes out non-positive falls back to its bounding box, uniformly filled.
+    Without density or mass the density is chosen so the mass is 1.
+    """
+    import trimesh
+
+    mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces), process=False)
+    volume = float(mesh.volume) if len(faces) else 0.0
+    if volume > 0 and mesh.is_watertight:
+        center = np.asarray(mesh.center_mass, float)
+        unit_inertia = np.asarray(mesh.moment_inertia, float) / volume  # per unit mass
+    else:
+        lo, hi = np.min(vertices, axis=0), np.max(vertices, axis=0)
+        size = np.maximum(hi - lo, 1e-12)
+        volume = float(np.prod(size))
+        center = 0.5 * (lo + hi)
+        unit_inertia = np.diag(
+            [(size[1] ** 2 + size[2] ** 2), (size[0] ** 2 + size[2] ** 2),
+             (size[0] ** 2 + size[1] ** 2)]
+        ) / 12.0
+    if spec.mass is not None:
+        mass = spec.mass
+    elif spec.density is not None:
+        mass = spec.density * volume
+    else:
+        mass = 1.0
+    inertia = mass * unit_inertia
+    if spec.inertia is not None:
+        inertia = np.asarray(spec.inertia, float)
+    if spec.center_of_mass is not None:
+        center = np.asarray(spec.center_of_mass, float)
+    return float(mass), inertia, center
+
+
+def resolve_physics(
+    config: SimConfig,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    part_index: int = 1,
+    effects: Effects | None = None,
+    kappa: float | None = None,
+) -> Physics:
+    """Scale the defaults to the moving part.
+
+    Parameters
+    ----------
+    config : SimConfig
+    vertices : (n, 3) float64
+        The moving part's mesh, in its own frame.
+    faces : (m, 3) int64
+    part_index : int
+        Which MassSpec applies (the moving part is 1).
+    effects : Effects, optional
+        Overrides ``config.effects`` (live changes from the GUI).
+    kappa : float, optional
+        Overrides the scene's / the default kappa.
+    """
+    effects = effects or config.effects
+    spec = config.masses[part_index] if len(config.masses) > part_index else MassSpec()
+    mass, inertia, center = mass_properties(vertices, faces, spec)
+    v = np.asarray(vertices, float)
+    length = float(np.max(np.ptp(v, axis=0))) if len(v) else 1.0
+    length = length if length > 0 else 1.0
+    i_mean = float(np.trace(inertia) / 3.0)
+    omega = 2 * math.pi * config.coupling.frequency_hz
+    zeta = config.coupling.damping_ratio
+    c = config.coupling
+    k_lin = c.stiffness if c.stiffness is not None else mass * omega**2
+    k_rot = c.angular_stiffness if c.angular_stiffness is not None else i_mean * omega**2
+    c_lin = c.damping if c.damping is not None else 2 * zeta * math.sqrt(k_lin * mass)
+    c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
+        k_rot * i_mean
+    )
+    zb = config.simulation.body_damping_ratio
+    body_c_lin = 2 * zb * math.sqrt(k_lin * mass)
+    body_c_rot = 2 * zb * math.sqrt(k_rot * i_mean)
+    if not effects.damping:
+        c_lin = c_rot = body_c_lin = body_c_rot = 0.0
+    if kappa is None:
+        kappa = config.simulation.kappa
+    if kappa is None:
+        kappa = config.simulation.guidance_gain * k_lin / length
+    gravity = np.zeros(3) if effects.gravity is None else np.asarray(effects.gravity, float)
+    return Physics(
+        mass=mass,
+        inertia=inertia,
+        center=center,
+        length=length,
+        k_lin=float(k_lin),
+        c_lin=float(c_lin),
+        k_rot=float(k_rot),
+        c_rot=float(c_rot),
+        body_c_lin=float(body_c_lin),
+        body_c_rot=float(body_c_rot),
+        kappa=float(kappa),
+        gravity=gravity,
+        dt=config.simulation.dt,
+    )
