@@ -1,0 +1,559 @@
+"""Fourier correlation of two descriptors: score, energy, force and torque for any pose.
+
+Works on two descriptor fields (``.rho`` (nx, ny, nz) complex64 on ``.grid``, one shared
+spacing ``h``): part 1 fixed, part 2 moved by ``(R, t)`` (a point ``q`` of part 2 goes to
+``R q + t`` in part 1's frame). With ``^`` the continuous Fourier transform and
+``v2(q) = q rho2(q)`` (DESIGN.md section 2)::
+
+    f(R, t)   = sum_w rho1^(w) rho2^(-R^T w) exp(2 pi i w.t) dw
+    E = -kappa Re f,   F = -dE/dt = kappa Re df/dt,   T = -dE/dtheta = kappa Re df/dtheta
+    df/dt     = sum_w (2 pi i w) rho1^(w) rho2^(-R^T w) exp(2 pi i w.t) dw
+    df/dtheta = sum_w 2 pi i ((R v2^(-R^T w)) x w) rho1^(w) exp(2 pi i w.t) dw
+
+How it is evaluated
+-------------------
+* Both fields are zero-padded to one FFT size ``N`` (even, 2-3-5-7 smooth) large enough
+  that no periodic image of the rotated part 2 reaches part 1 for any pose at which the
+  two grid boxes overlap (``N h >= L1 + 2 r2 + 3 h``, ``r2`` the half-diagonal of part 2's
+  grid box). Where the boxes cannot overlap, the result is exactly zero.
+* Spectra are centred on each grid's centre (:mod:`engine.spectrum`), so the rotated
+  spectrum of part 2 is smooth and interpolated trilinearly on a lattice ``q`` times finer
+  than part 1's (``q`` = ``oversample`` relative to part 2's extent, at least 1, so that at
+  ``R = I`` every needed sample lies on the lattice: no interpolation there). The centring
+  phases combine with ``exp(2 pi i w.t)`` into ``exp(2 pi i w.(t + R c2 - c1))``, which is
+  separable over the kept cube of modes: three tables of ``K`` values per call.
+* The kept modes are the cube of the ``K`` lowest frequencies per axis (``m' = K^3``).
+  :meth:`Correlator.set_modes` only re-slices precomputed spectra.
+
+Per-pose backends: ``numpy`` (reference, vectorised), ``numba`` (compiled in process; the
+fast path on CPUs, DESIGN.md section 4) and ``opencl`` (one fused kernel, buffers kept on
+the device; :mod:`engine.correlation_cl`). ``auto`` measures the compiled ones at start-up
+and keeps the faster; :attr:`Correlator.backend_name` says which and why.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from engine.landscape import Landscape
+from engine.spectrum import Spectrum, compute_spectrum, fast_size, kept_indices
+
+PER_POSE_BACKENDS = ("numpy", "numba", "opencl")
+BACKEND_CHOICES = ("auto",) + PER_POSE_BACKENDS
+TWO_PI = 2.0 * math.pi
+
+#: Modes per chunk in the numpy reference (bounds its temporaries to a few tens of MB).
+_NUMPY_CHUNK = 1 << 16
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Energy, force and torque on part 2 at one pose.
+
+    Attributes
+    ----------
+    energy : float
+        ``E = -kappa Re f``.
+    force : (3,) float64
+        ``-dE/dt`` in part 1's frame.
+    torque : (3,) float64 or None
+        ``-dE/dtheta`` about part 2's origin, world axes; None when rotation is off.
+    microseconds : float
+        Wall time of the evaluation.
+    modes : int
+        Modes per axis used (``m' = modes^3``).
+    """
+
+    energy: float
+    force: np.ndarray
+    torque: np.ndarray | None
+    microseconds: float
+    modes: int
+
+
+def _check_descriptor(obj: Any, name: str) -> None:
+    if not hasattr(obj, "rho") or not hasattr(obj, "grid"):
+        raise TypeError(f"{name} must have .rho and .grid (a store.Descriptor)")
+
+
+def required_fft_size(shape1: tuple[int, ...], shape2: tuple[int, ...]) -> int:
+    """Smallest FFT size for which no periodic image interferes at any pose.
+
+    ``N >= n1 - 1 + 2 r2 / h + 3`` along every axis, with ``r2 / h`` the half-diagonal of
+    part 2's grid box in cells (its largest extent under any rotation) and one cell of
+    margin on each side for the overlap test.
+    """
+    half_diag = 0.5 * float(np.linalg.norm(np.asarray(shape2) - 1))
+    need = max(shape1) - 1 + 2.0 * half_diag + 3.0
+    return fast_size(int(math.ceil(need)))
+
+
+class Correlator:
+    """Energy, force and torque between a fixed and a moving descriptor.
+
+    Parameters
+    ----------
+    fixed, moving : store.Descriptor
+        Objects with ``.rho`` ((nx, ny, nz) complex64) and ``.grid`` (:class:`engine.grid.Grid`);
+        both grids must share one spacing.
+    modes : int
+        ``K``, modes kept per axis (``m' = K^3``), clipped to the FFT size.
+    rotation : bool
+        Compute the torque. When False no moment spectra are computed and
+        :meth:`evaluate` returns ``torque=None``.
+    backend : {"auto", "numpy", "numba", "opencl"}
+        Per-pose backend. ``auto`` measures numba and OpenCL (when present) and keeps the
+        faster.
+    kappa : float
+        Energy scale, ``E = -kappa Re f``.
+    oversample : float
+        Oversampling of part 2's spectrum relative to its own grid extent (>= 1); the
+        interpolation lattice is an integer multiple ``q`` of part 1's.
+    fft_size : int, optional
+        Override the padded size ``N`` (must be at least :func:`required_fft_size` to be
+        free of periodic images; smaller values are accepted for tests and experiments).
+    use_cache : bool
+        Use the on-disk spectrum cache.
+
+    Attributes
+    ----------
+    stats : dict
+        Counters of the work done: ``spectra`` (FFT spectra computed or loaded),
+        ``moment_spectra`` (moment spectra computed or loaded), ``evaluations``,
+        ``torque_sums`` (evaluations that summed the torque), ``truncations``.
+    backend_name : str
+        The per-pose backend in use and why.
+    """
+
+    def __init__(
+        self,
+        fixed: Any,
+        moving: Any,
+        *,
+        modes: int = 16,
+        rotation: bool = True,
+        backend: str = "auto",
+        kappa: float = 1.0,
+        oversample: float = 2.0,
+        fft_size: int | None = None,
+        use_cache: bool = True,
+    ) -> None:
+        _check_descriptor(fixed, "fixed")
+        _check_descriptor(moving, "moving")
+        backend = str(backend).lower()
+        if backend not in BACKEND_CHOICES:
+            raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKEND_CHOICES)}")
+        g1, g2 = fixed.grid, moving.grid
+        h = g1.spacing
+        if not math.isclose(g1.spacing, g2.spacing, rel_tol=1e-9, abs_tol=0.0):
+            raise ValueError(
+                f"the two descriptors have different grid spacings ({g1.spacing:g} and "
+                f"{g2.spacing:g}): compute them with one shared spacing "
+                "(store.descriptors_for_scene does)"
+            )
+        if not (math.isfinite(kappa) and kappa > 0):
+            raise ValueError(f"kappa must be a positive finite number, got {kappa!r}")
+        if not (math.isfinite(oversample) and oversample >= 1):
+            raise ValueError(f"oversample must be at least 1, got {oversample!r}")
+        self.kappa = float(kappa)
+        self.rotation = bool(rotation)
+        self.spacing = h
+        self.fixed_grid = g1
+        self.moving_grid = g2
+        size = int(fft_size) if fft_size is not None else required_fft_size(g1.shape, g2.shape)
+        if size < max(max(g1.shape), max(g2.shape)) or size % 2:
+            raise ValueError(f"fft_size must be even and cover both grids, got {size}")
+        self.size = size
+        self.oversample_factor = max(1, int(math.ceil(oversample * max(g2.shape) / size)))
+        self.stats: dict[str, int] = {
+            "spectra": 0,
+            "moment_spectra": 0,
+            "evaluations": 0,
+            "torque_sums": 0,
+            "truncations": 0,
+        }
+        self.spectrum_fixed: Spectrum = compute_spectrum(
+            fixed.rho, g1, size, moments=False, use_cache=use_cache
+        )
+        self.spectrum_moving: Spectrum = compute_spectrum(
+            moving.rho, g2, size * self.oversample_factor, moments=self.rotation,
+            use_cache=use_cache,
+        )
+        self.stats["spectra"] += 2
+        if self.rotation:
+            self.stats["moment_spectra"] += 3
+        self.centre_fixed = np.asarray(g1.center, dtype=np.float64)
+        self.centre_moving = np.asarray(g2.center, dtype=np.float64)
+        self.half_fixed = 0.5 * h * (np.asarray(g1.shape, dtype=np.float64) - 1)
+        self.half_moving = 0.5 * h * (np.asarray(g2.shape, dtype=np.float64) - 1)
+        self._kernels: dict[str, Any] = {}
+        self.modes = 0
+        self.set_modes(modes)
+        self.backend_name = ""
+        self._backend = "numpy"
+        self._select_backend(backend)
+
+    # ------------------------------------------------------------------ truncation
+    def set_modes(self, k: int) -> None:
+        """Keep the cube of the ``k`` lowest frequencies per axis (``m' = k^3``).
+
+        Only re-slices the precomputed spectra; nothing is transformed again.
+        """
+        k = int(k)
+        if k < 1:
+            raise ValueError(f"modes per axis must be at least 1, got {k}")
+        k = min(k, self.size)
+        if k == self.modes:
+            return
+        self.modes = k
+        self._kept = kept_indices(k, self.size)  # (K,) signed
+        wrapped = np.mod(self._kept, self.size)
+        dw = 1.0 / (self.size * self.spacing) ** 3
+        self._fixed_kept = (
+            self.spectrum_fixed.values[np.ix_(wrapped, wrapped, wrapped)] * np.float32(dw)
+        ).astype(np.complex64)  # (K, K, K): rho1c^(w) dw
+        self._table: np.ndarray | None = None  # per-pose table, built lazily per backend
+        self.stats["truncations"] += 1
+        for kernel in self._kernels.values():
+            if hasattr(kernel, "set_modes"):
+                kernel.set_modes(self)
+
+    def moving_table(self) -> tuple[np.ndarray, int]:
+        """Interleaved sub-lattice of part 2's spectra that the kept modes can reach.
+
+        Returns
+        -------
+        table : (B, B, B, C) float32
+            ``C = 8`` (rho2c^, then the three moment spectra, real and imaginary parts
+            interleaved) with rotation, ``C = 2`` without; lattice index ``u`` lies at
+            ``u + radius``.
+        radius : int
+            Offset of index 0.
+        """
+        if self._table is None:
+            q = self.oversample_factor
+            m = self.spectrum_moving.size
+            reach = q * math.sqrt(3.0) * (self.modes // 2 + 1)
+            radius = int(math.ceil(reach)) + 1
+            side = 2 * radius + 2
+            if side >= m:
+                idx = np.mod(np.arange(side) - radius, m)
+            else:
+                idx = np.mod(np.arange(-radius, -radius + side), m)
+            sel = np.ix_(idx, idx, idx)
+            parts = [self.spectrum_moving.values[sel]]
+            if self.rotation:
+                parts += [self.spectrum_moving.moments[a][sel] for a in range(3)]
+            stacked = np.stack(parts, axis=-1)  # (B, B, B, P) complex64
+            table = np.empty(stacked.shape[:3] + (2 * len(parts),), dtype=np.float32)
+            table[..., 0::2] = stacked.real
+            table[..., 1::2] = stacked.imag
+            self._table = np.ascontiguousarray(table)
+            self._table_radius = radius
+        return self._table, self._table_radius
+
+    # ------------------------------------------------------------------ geometry
+    def boxes_overlap(self, rotation: np.ndarray, translation: np.ndarray) -> bool:
+        """Whether part 2's grid box (rotated, one cell of margin) can meet part 1's."""
+        centre = rotation @ self.centre_moving + translation
+        extent = np.abs(rotation) @ self.half_moving
+        gap = np.abs(centre - self.centre_fixed) - (self.half_fixed + extent + self.spacing)
+        return bool(np.all(gap < 0))
+
+    def _shift(self, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """(3,) ``t + R c2 - c1``: the offset the separable phase factors refer to."""
+        return translation + rotation @ self.centre_moving - self.centre_fixed
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, rotation: np.ndarray, translation: np.ndarray) -> Evaluation:
+        """Energy, force and torque at one relative pose.
+
+        Parameters
+        ----------
+        rotation : (3, 3) float
+            Rotation of part 2 relative to part 1.
+        translation : (3,) float
+            Translation of part 2 relative to part 1 (part 1's frame).
+
+        Returns
+        -------
+        Evaluation
+        """
+        start = time.perf_counter()
+        rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
+        t = np.asarray(translation, dtype=np.float64).reshape(3)
+        if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(t))):
+            raise ValueError("pose contains NaN or infinite values")
+        self.stats["evaluations"] += 1
+        if not self.boxes_overlap(rot, t):
+            sums = np.zeros(7)
+        else:
+            if self.rotation:
+                self.stats["torque_sums"] += 1
+            if self._backend == "numpy":
+                sums = self._sums_numpy(rot, t)
+            else:
+                sums = self._kernels[self._backend].sums(self, rot, t)
+        energy, force, torque = self._finish(sums, rot)
+        return Evaluation(
+            energy=energy,
+            force=force,
+            torque=torque,
+            microseconds=(time.perf_counter() - start) * 1e6,
+            modes=self.modes,
+        )
+
+    def _finish(
+        self, sums: np.ndarray, rot: np.ndarray
+    ) -> tuple[float, np.ndarray, np.ndarray | None]:
+        """Energy, force and torque from the seven raw sums of a backend.
+
+        ``sums = [Re f, Im S_k (3), Im S_m (3)]`` with ``S_k = sum c G k`` and
+        ``S_m = sum Im(c m) x (R^T k)`` (both in lattice units, see :meth:`_sums_numpy`).
+        """
+        nh = self.size * self.spacing
+        energy = -self.kappa * float(sums[0])
+        force = -TWO_PI * self.kappa * np.asarray(sums[1:4], dtype=np.float64) / nh
+        if not self.rotation:
+            return energy, force, None
+        # Im sum c (V' x R^T k) with V' = m + c2 G:  S_m + c2 x (R^T Im S_k)
+        s_k = np.asarray(sums[1:4], dtype=np.float64)
+        s_m = np.asarray(sums[4:7], dtype=np.float64)
+        local = s_m + np.cross(self.centre_moving, rot.T @ s_k)
+        torque = -TWO_PI * self.kappa * (rot @ local) / nh
+        return energy, force, torque
+
+    def _sums_numpy(self, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Reference sums over the kept cube, vectorised in chunks.
+
+        Returns ``[Re f, Im S_k (3), Im S_m (3)]`` where, over kept integer ``k``
+        (``w = k / (N h)``), ``c = rho1c^(w) dw exp(2 pi i w.(t + R c2 - c1))``,
+        ``G = rho2c^(-R^T w)``, ``m = (moment spectra)(-R^T w)``:
+        ``f = sum c G``, ``S_k = sum c G k``, ``S_m = sum Im(c m) x (R^T k)``.
+        """
+        n = self.size
+        q = self.oversample_factor
+        kept = self._kept.astype(np.float64)
+        shift = self._shift(rot, t)
+        phase = [np.exp(2j * np.pi * kept * shift[a] / (n * self.spacing)) for a in range(3)]
+        coeff = (
+            self._fixed_kept.astype(np.complex128)
+            * phase[0][:, None, None]
+            * phase[1][None, :, None]
+            * phase[2][None, None, :]
+        ).ravel()
+        kx, ky, kz = np.meshgrid(kept, kept, kept, indexing="ij")
+        kvec = np.stack([kx.ravel(), ky.ravel(), kz.ravel()], axis=1)  # (m', 3)
+        spec = self.spectrum_moving
+        m_size = spec.size
+        values = spec.values.ravel()
+        moments = spec.moments.reshape(3, -1) if self.rotation else None
+        total = np.zeros(7)
+        for lo in range(0, len(kvec), _NUMPY_CHUNK):
+            kc = kvec[lo : lo + _NUMPY_CHUNK]
+            cc = coeff[lo : lo + _NUMPY_CHUNK]
+            rk = kc @ rot  # (n, 3): rows are R^T k
+            u = -q * rk  # lattice index of -R^T w on part 2's spectrum
+            base = np.floor(u)
+            frac = u - base
+            base = base.astype(np.int64)
+            g = np.zeros(len(kc), dtype=np.complex128)
+            mm = np.zeros((3, len(kc)), dtype=np.complex128) if self.rotation else None
+            for dx in (0, 1):
+                wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
+                ix = np.mod(base[:, 0] + dx, m_size)
+                for dy in (0, 1):
+                    wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
+                    iy = np.mod(base[:, 1] + dy, m_size)
+                    for dz in (0, 1):
+                        wz = frac[:, 2] if dz else 1.0 - frac[:, 2]
+                        iz = np.mod(base[:, 2] + dz, m_size)
+                        flat = (ix * m_size + iy) * m_size + iz
+                        weight = wx * wy * wz
+                        g += weight * values[flat]
+                        if mm is not None:
+                            mm += weight * moments[:, flat]
+            cg = cc * g
+            total[0] += cg.real.sum()
+            total[1:4] += cg.imag @ kc
+            if mm is not None:
+                im_cm = (cc * mm).imag.T  # (n, 3)
+                total[4:7] += np.cross(im_cm, rk).sum(axis=0)
+        return total
+
+    # ------------------------------------------------------------------ landscapes
+    def landscape(
+        self, rotation: np.ndarray, *, modes: int | None = None, forces: bool = True
+    ) -> Landscape:
+        """Energy (and force) over every lattice translation, by one inverse FFT each.
+
+        The translations are ``t = c1 - R c2 + h * j`` for ``j = -N/2 ... N/2 - 1`` per
+        axis (centred on the pose that puts the two grid centres together), which covers
+        every translation at which the grid boxes overlap; elsewhere the energy is 0.
+
+        Parameters
+        ----------
+        rotation : (3, 3) float
+            Rotation of part 2 relative to part 1.
+        modes : int, optional
+            Modes per axis (default: the current :attr:`modes`).
+        forces : bool
+            Also compute the force field (three more inverse FFTs).
+        """
+        import scipy.fft
+
+        start = time.perf_counter()
+        rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
+        n = self.size
+        h = self.spacing
+        k_modes = self.modes if modes is None else min(int(modes), n)
+        kept = kept_indices(k_modes, n)
+        wrapped = np.mod(kept, n)
+        sel = np.ix_(wrapped, wrapped, wrapped)
+        coeff = self.spectrum_fixed.values[sel].astype(np.complex64)
+        g = self._interpolate_moving(rot, kept)  # (K, K, K) complex64
+        # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N): t0 + R c2 - c1 = 0
+        spectrum = np.zeros((n, n, n), dtype=np.complex64)
+        spectrum[sel] = coeff * g * np.float32(1.0 / (n * h) ** 3)
+        scale = float(n) ** 3
+        field = scipy.fft.ifftn(spectrum, workers=2)
+        energy = np.fft.fftshift(-self.kappa * scale * field.real).astype(np.float32)
+        force = None
+        if forces:
+            force = np.empty((3, n, n, n), dtype=np.float32)
+            freq = (np.fft.fftfreq(n, 1.0 / n) / (n * h)).astype(np.float32)
+            for a in range(3):
+                shape = [1, 1, 1]
+                shape[a] = n
+                deriv = spectrum * (np.complex64(2j * np.pi) * freq.reshape(shape))
+                part = scipy.fft.ifftn(deriv, workers=2)
+                force[a] = np.fft.fftshift(self.kappa * scale * part.real)
+        t0 = self.centre_fixed - rot @ self.centre_moving
+        axes = tuple(t0[a] + h * (np.arange(n) - n // 2) for a in range(3))
+        # zero where the grid boxes cannot overlap (matches evaluate)
+        extent = np.abs(rot) @ self.half_moving
+        masks = []
+        for a in range(3):
+            centre = axes[a] + (rot @ self.centre_moving)[a]
+            gap = np.abs(centre - self.centre_fixed[a]) - (self.half_fixed[a] + extent[a] + h)
+            masks.append(gap < 0)
+        inside = masks[0][:, None, None] & masks[1][None, :, None] & masks[2][None, None, :]
+        energy[~inside] = 0.0
+        if force is not None:
+            force[:, ~inside] = 0.0
+        return Landscape(
+            energy=energy,
+            force=force,
+            translations=axes,  # type: ignore[arg-type]
+            rotation=rot,
+            modes=k_modes,
+            seconds=time.perf_counter() - start,
+        )
+
+    def _interpolate_moving(self, rot: np.ndarray, kept: np.ndarray) -> np.ndarray:
+        """(K, K, K) complex64: part 2's centred spectrum at ``-R^T w`` for the kept cube."""
+        q = self.oversample_factor
+        spec = self.spectrum_moving
+        m_size = spec.size
+        values = spec.values.ravel()
+        kf = kept.astype(np.float64)
+        out = np.empty((len(kept),) * 3, dtype=np.complex64)
+        ky, kz = np.meshgrid(kf, kf, indexing="ij")
+        for i, kx in enumerate(kf):
+            kvec = np.stack([np.full(ky.size, kx), ky.ravel(), kz.ravel()], axis=1)
+            u = -q * (kvec @ rot)
+            base = np.floor(u)
+            frac = u - base
+            base = base.astype(np.int64)
+            acc = np.zeros(len(kvec), dtype=np.complex128)
+            for dx in (0, 1):
+                wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
+                ix = np.mod(base[:, 0] + dx, m_size)
+                for dy in (0, 1):
+                    wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
+                    iy = np.mod(base[:, 1] + dy, m_size)
+                    for dz in (0, 1):
+                        wz = frac[:, 2] if dz else 1.0 - frac[:, 2]
+                        iz = np.mod(base[:, 2] + dz, m_size)
+                        acc += wx * wy * wz * values[(ix * m_size + iy) * m_size + iz]
+            out[i] = acc.reshape(ky.shape)
+        return out
+
+    # ------------------------------------------------------------------ backends
+    def _select_backend(self, backend: str) -> None:
+        if backend == "numpy":
+            self._backend = "numpy"
+            self.backend_name = "numpy (reference, asked for)"
+            return
+        if backend in ("numba", "opencl"):
+            self._kernels[backend] = _make_kernel(backend, self)
+            self._backend = backend
+            self.backend_name = f"{self._kernels[backend].describe()} (asked for)"
+            return
+        # auto: measure what is present, keep the fastest
+        timings: dict[str, float] = {}
+        notes: list[str] = []
+        for name in ("numba", "opencl"):
+            try:
+                kernel = _make_kernel(name, self)
+            except Exception as exc:  # noqa: BLE001 - a missing backend is a note, not an error
+                notes.append(f"{name} unavailable: {exc}")
+                continue
+            self._kernels[name] = kernel
+            timings[name] = _median_microseconds(self, kernel)
+        if not timings:
+            self._backend = "numpy"
+            self.backend_name = "numpy (auto: no compiled backend; " + "; ".join(notes) + ")"
+            return
+        best = min(timings, key=timings.get)  # type: ignore[arg-type]
+        self._backend = best
+        measured = ", ".join(f"{k} {v:.0f} us" for k, v in sorted(timings.items()))
+        extra = ("; " + "; ".join(notes)) if notes else ""
+        self.backend_name = (
+            f"{self._kernels[best].describe()} (auto: fastest median at K={self.modes}: "
+            f"{measured}{extra})"
+        )
+
+    @property
+    def backend(self) -> str:
+        """Short name of the per-pose backend in use."""
+        return self._backend
+
+    def use_backend(self, name: str) -> None:
+        """Switch the per-pose backend (building it if needed)."""
+        if name not in PER_POSE_BACKENDS:
+            raise ValueError(f"unknown backend {name!r}; valid: {', '.join(PER_POSE_BACKENDS)}")
+        if name != "numpy" and name not in self._kernels:
+            self._kernels[name] = _make_kernel(name, self)
+        self._backend = name
+
+
+def _make_kernel(name: str, correlator: Correlator) -> Any:
+    if name == "numba":
+        return NumbaKernel(correlator)
+    from engine.correlation_cl import OpenCLKernel
+
+    return OpenCLKernel(correlator)
+
+
+def _median_microseconds(correlator: Correlator, kernel: Any, calls: int = 30) -> float:
+    """Median wall time of ``kernel.sums`` at a few generic poses (after one warm-up)."""
+    rng = np.random.default_rng(0)
+    from engine.pose import rotation_matrix
+
+    rot = rotation_matrix(rng.normal(size=3))
+    t = correlator.centre_fixed - rot @ correlator.centre_moving
+    kernel.sums(correlator, rot, t)
+    times = []
+    for _ in range(calls):
+        rot = rotation_matrix(rng.normal(size=3))
+        t = correlator.centre_fixed - rot @ correlator.centre_moving + rng.normal(size=3)
+        start = time.perf_counter()
+        kernel.sums(correlator, rot, t)
+        times.append(time.perf_counter() - start)
+    return float(np.median(times) * 1e6)

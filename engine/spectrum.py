@@ -1,0 +1,191 @@
+"""Spectra of descriptors: zero-padded FFTs of (nx, ny, nz) complex64 fields, centred.
+
+A spectrum here is the continuous Fourier transform ``rho^(w) = integral rho(p)
+exp(-2 pi i w.p) dV`` of a sampled field, evaluated on the frequency lattice
+``w = k / (M h)`` (``k`` integer, FFT order, ``M`` the padded size, ``h`` the grid
+spacing), *relative to the grid centre* ``c``::
+
+    values[k] = h^3 * sum_n rho[n] exp(-2 pi i w.(x_n - c))      (x_n = origin + h n)
+
+so that ``rho^(w) = exp(-2 pi i w.c) * values[k]``. Centring keeps the phase of the
+spectrum slowly varying, which is what makes interpolating it at rotated frequencies
+accurate. For the moving part the three moment spectra ``(q - c) rho(q)`` are computed as
+well (torque); ``q rho(q)`` about the part's origin is ``moments + c * values``.
+
+Spectra are cached on disk through :mod:`engine.cache`, keyed by the field's bytes, the
+grid, the padded size and whether moments were asked for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+from engine import cache
+from engine.grid import Grid
+
+#: Bumped whenever the stored layout or the definition of a spectrum changes.
+SPECTRUM_VERSION = 1
+
+#: Workers scipy.fft may use (the target machine has two cores).
+FFT_WORKERS = 2
+
+
+def fast_size(target: int) -> int:
+    """Smallest even integer ``>= target`` whose prime factors are all 2, 3, 5 or 7.
+
+    Even sizes keep the Nyquist frequency on the lattice, so the band is symmetric
+    around zero except for that one plane.
+    """
+    n = max(2, int(target))
+    while True:
+        if n % 2 == 0:
+            m = n
+            for p in (2, 3, 5, 7):
+                while m % p == 0:
+                    m //= p
+            if m == 1:
+                return n
+        n += 1
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Centred spectrum of a descriptor on an ``(M, M, M)`` frequency lattice.
+
+    Attributes
+    ----------
+    values : (M, M, M) complex64
+        ``h^3 sum rho[n] exp(-2 pi i w.(x_n - c))`` at ``w = k / (M h)``, FFT order.
+    moments : (3, M, M, M) complex64 or None
+        The same transform of ``(q - c) * rho(q)``, one per axis; None when not asked for.
+    centre : (3,) float64
+        The grid centre ``c`` the phases refer to (part frame).
+    spacing : float
+        Grid spacing ``h``.
+    size : int
+        Padded FFT size ``M`` (frequency step ``1 / (M h)``).
+    from_cache : bool
+        Whether the arrays were read from the on-disk cache.
+    """
+
+    values: np.ndarray
+    moments: np.ndarray | None
+    centre: np.ndarray
+    spacing: float
+    size: int
+    from_cache: bool = False
+
+    @property
+    def frequency_step(self) -> float:
+        """Distance ``1 / (M h)`` between neighbouring lattice frequencies."""
+        return 1.0 / (self.size * self.spacing)
+
+
+def _centred_ramp(n: int, size: int) -> np.ndarray:
+    """(size,) complex128 ``exp(2 pi i k (n - 1) / (2 size))`` for signed FFT-order ``k``."""
+    k = np.fft.fftfreq(size, 1.0 / size)  # signed integers, FFT order
+    return np.exp(2j * np.pi * k * (n - 1) / (2.0 * size))
+
+
+def _padded_fft(field: np.ndarray, size: int, ramps: list[np.ndarray], scale: float) -> np.ndarray:
+    """FFT of ``field`` zero-padded to ``size^3``, times the centring ramps and ``scale``."""
+    padded = np.zeros((size, size, size), dtype=np.complex64)
+    nx, ny, nz = field.shape
+    padded[:nx, :ny, :nz] = field
+    out = scipy.fft.fftn(padded, workers=FFT_WORKERS, overwrite_x=True)
+    out *= ramps[0].astype(np.complex64)[:, None, None] * np.complex64(scale)
+    out *= ramps[1].astype(np.complex64)[None, :, None]
+    out *= ramps[2].astype(np.complex64)[None, None, :]
+    return out
+
+
+def compute_spectrum(
+    rho: np.ndarray,
+    grid: Grid,
+    size: int,
+    *,
+    moments: bool = False,
+    use_cache: bool = True,
+) -> Spectrum:
+    """Centred, zero-padded spectrum of one descriptor field (cached).
+
+    Parameters
+    ----------
+    rho : (nx, ny, nz) complex64
+        Descriptor samples on ``grid``.
+    grid : Grid
+        Where the samples lie (part frame).
+    size : int
+        Padded FFT size ``M`` along every axis, at least ``max(grid.shape)``.
+    moments : bool
+        Also compute the three moment spectra of ``(q - c) rho(q)`` (for the torque).
+    use_cache : bool
+        Read and write the on-disk cache.
+
+    Returns
+    -------
+    Spectrum
+    """
+    rho = np.asarray(rho)
+    if rho.ndim != 3 or tuple(rho.shape) != tuple(grid.shape):
+        raise ValueError(
+            f"descriptor shape {rho.shape} does not match its grid shape {grid.shape}"
+        )
+    if size < max(grid.shape):
+        raise ValueError(f"FFT size {size} is smaller than the grid {grid.shape}")
+    if not np.all(np.isfinite(rho)):
+        raise ValueError("descriptor contains NaN or infinite values: recompute the descriptor")
+    rho = rho.astype(np.complex64, copy=False)
+    h = grid.spacing
+
+    def compute() -> dict[str, np.ndarray]:
+        ramps = [_centred_ramp(n, size) for n in grid.shape]
+        arrays = {"values": _padded_fft(rho, size, ramps, h**3)}
+        if moments:
+            out = np.empty((3, size, size, size), dtype=np.complex64)
+            for axis, n in enumerate(grid.shape):
+                offset = h * (np.arange(n) - 0.5 * (n - 1))  # q - c along this axis
+                shape = [1, 1, 1]
+                shape[axis] = n
+                weighted = rho * offset.reshape(shape).astype(np.float32)
+                out[axis] = _padded_fft(weighted, size, ramps, h**3)
+            arrays["moments"] = out
+        return arrays
+
+    key = {
+        "version": SPECTRUM_VERSION,
+        "rho": rho,
+        "origin": list(grid.origin),
+        "spacing": grid.spacing,
+        "shape": list(grid.shape),
+        "size": int(size),
+        "moments": bool(moments),
+    }
+    arrays, hit = cache.load_or_compute("spectrum", key, compute, use_cache=use_cache)
+    return Spectrum(
+        values=arrays["values"],
+        moments=arrays.get("moments"),
+        centre=np.asarray(grid.center, dtype=np.float64),
+        spacing=h,
+        size=int(size),
+        from_cache=hit,
+    )
+
+
+def kept_indices(modes: int, size: int) -> np.ndarray:
+    """Signed frequency indices kept along one axis for ``modes`` per axis.
+
+    The ``modes`` lowest: ``-(modes // 2) ... modes - modes // 2 - 1`` (the full band
+    ``-size/2 ... size/2 - 1`` when ``modes == size``).
+
+    Returns
+    -------
+    (modes,) int64
+    """
+    if not 1 <= modes <= size:
+        raise ValueError(f"modes per axis must be between 1 and the FFT size {size}, got {modes}")
+    lo = -(modes // 2)
+    return np.arange(lo, lo + modes, dtype=np.int64)
