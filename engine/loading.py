@@ -1,0 +1,690 @@
+"""Loading parts: STEP files and triangle meshes to checked, closed, outward-oriented meshes.
+
+A part is a triangle mesh in its own frame and its file's own unit: ``vertices (n, 3)
+float64`` and ``faces (m, 3) int64``, with faces wound counter-clockwise seen from outside
+(outward normals, positive volume).
+
+- STEP (``.step``, ``.stp``) goes through cascadio (OpenCASCADE), which tessellates the
+  solids into GLB. GLB is in metres, stores float32 and splits vertices per B-rep face, so the
+  loader converts back to the unit written in the STEP header (``SI_UNIT`` /
+  ``CONVERSION_BASED_UNIT``; mm in practice) and welds coincident vertices, which closes the
+  mesh. Each solid (each product of the file) becomes one :class:`Part`, named after its
+  product. The tessellation tolerance is the largest distance between the mesh and the true
+  surface, in the file's unit; by default 1/1000 of the file's bounding-box diagonal.
+- STL, OBJ, PLY and OFF go through trimesh; their coordinates are taken as stored (these
+  formats carry no unit), and the part's ``unit`` is ``"unspecified"``.
+
+Every mesh then passes :func:`check_mesh`: empty meshes, non-finite coordinates and bad
+indices are errors (:class:`PartError`, a ``ValueError``, with the file, the problem and the
+fix); degenerate and duplicate triangles are dropped, inconsistent winding and inverted
+normals are repaired, and holes are reported; each repair adds a line to ``Part.warnings``.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from engine.errors import InputError
+
+#: File suffixes the loader reads, and what reads them.
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off")
+STEP_SUFFIXES = (".step", ".stp")
+SUFFIXES = STEP_SUFFIXES + MESH_SUFFIXES
+
+#: Default tessellation tolerance, relative to the bounding-box diagonal of the STEP file.
+DEFAULT_RELATIVE_TOLERANCE = 1e-3
+#: Largest angle (radians) between neighbouring facets' normals on a curved face.
+DEFAULT_ANGULAR_TOLERANCE = 0.35
+#: Vertices closer than this times max(diagonal, largest |coordinate|) are welded. GLB and
+#: STL store float32 (about 6e-8 relative), so copies of one vertex differ by a few of those.
+WELD_RELATIVE = 1e-6
+
+#: STEP length units: SI prefix (or conversion-based name) -> (short name, metres per unit).
+_SI_PREFIXES = {
+    "$": ("m", 1.0),
+    ".KILO.": ("km", 1e3),
+    ".CENTI.": ("cm", 1e-2),
+    ".MILLI.": ("mm", 1e-3),
+    ".MICRO.": ("um", 1e-6),
+    ".NANO.": ("nm", 1e-9),
+    ".DECI.": ("dm", 1e-1),
+}
+_CONVERSION_UNITS = {
+    "INCH": ("in", 0.0254),
+    "FOOT": ("ft", 0.3048),
+    "MILLIMETRE": ("mm", 1e-3),
+    "METRE": ("m", 1.0),
+}
+
+#: Product names OpenCASCADE writes when the model had none; replaced by the file's stem.
+_ANONYMOUS = re.compile(r"^(Open CASCADE STEP translator.*|SOLID|Solid\d*|COMPOUND|Body\d*|)$")
+
+
+class PartError(InputError):
+    """A part file that cannot be used: the message names the file, the problem and the fix."""
+
+
+@dataclass(frozen=True, eq=False)
+class Part:
+    """A checked triangle mesh in the part's own frame and its file's unit.
+
+    Attributes
+    ----------
+    name : str
+        The solid's name in a STEP file, else the file's stem.
+    vertices : (n, 3) float64
+        Vertex positions (read-only array).
+    faces : (m, 3) int64
+        Triangles as vertex indices, counter-clockwise seen from outside (read-only array).
+    source : str or None
+        The file it came from (None for meshes built in code).
+    unit : str
+        Length unit of the coordinates: ``"mm"``, ``"m"``, ``"in"``, ... or
+        ``"unspecified"`` for mesh formats, which carry none.
+    warnings : tuple of str
+        Repairs made and problems found that did not stop loading.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    source: str | None = None
+    unit: str = "unspecified"
+    warnings: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        v = np.ascontiguousarray(self.vertices, dtype=np.float64)
+        f = np.ascontiguousarray(self.faces, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ValueError(f"vertices must have shape (n, 3), got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise ValueError(f"faces must have shape (m, 3), got {f.shape}")
+        v.setflags(write=False)
+        f.setflags(write=False)
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "faces", f)
+        object.__setattr__(self, "warnings", tuple(self.warnings))
+
+    @property
+    def triangles(self) -> int:
+        """Number of triangles."""
+        return int(self.faces.shape[0])
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) float64: lower and upper corner of the axis-aligned bounding box."""
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    @property
+    def extent(self) -> np.ndarray:
+        """(3,) float64: size of the bounding box along x, y, z."""
+        b = self.bounds
+        return b[1] - b[0]
+
+    @property
+    def diagonal(self) -> float:
+        """Length of the bounding box's diagonal."""
+        return float(np.linalg.norm(self.extent))
+
+    @property
+    def volume(self) -> float:
+        """Enclosed volume (divergence theorem; exact for a closed mesh)."""
+        return _signed_volume(self.vertices, self.faces)
+
+    @property
+    def area(self) -> float:
+        """Surface area."""
+        return float(_areas(self.vertices, self.faces).sum())
+
+
+# --------------------------------------------------------------------------- public API
+def load_parts(path: str | os.PathLike, *, tolerance: float | None = None) -> list[Part]:
+    """Load every solid of a STEP file, or the mesh of a mesh file, as checked parts.
+
+    Parameters
+    ----------
+    path : path-like
+        A ``.step``/``.stp``, ``.stl``, ``.obj``, ``.ply`` or ``.off`` file.
+    tolerance : float, optional
+        STEP only: tessellation tolerance (largest distance between mesh and surface) in the
+        file's unit. Default: 1/1000 of the file's bounding-box diagonal. Ignored for meshes.
+
+    Returns
+    -------
+    list of Part
+        One per solid of a STEP file (in file order, unique names), one for a mesh file.
+
+    Raises
+    ------
+    PartError
+        The file is missing, unreadable, of an unknown type, empty or unusable.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in SUFFIXES:
+        raise PartError(
+            f"{p}: unknown part file type {p.suffix or '(none)'!r}; "
+            f"use one of {', '.join(SUFFIXES)}"
+        )
+    if not p.is_file():
+        raise PartError(f"{p}: no such file; check the path (relative paths in a scene file "
+                        "are relative to the scene file)")
+    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
+        raise PartError(f"tessellation tolerance must be a positive number, got {tolerance!r}")
+    if suffix in STEP_SUFFIXES:
+        return _load_step(p, tolerance)
+    return [_load_mesh(p)]
+
+
+def load_part(
+    path: str | os.PathLike, *, tolerance: float | None = None, body: str | None = None
+) -> Part:
+    """Load one part: the only solid of the file, or the solid named ``body``.
+
+    Raises
+    ------
+    PartError
+        As :func:`load_parts`, or the file holds several solids and ``body`` is not given or
+        names none of them (the message lists the names).
+    """
+    parts = load_parts(path, tolerance=tolerance)
+    names = [p.name for p in parts]
+    if body is not None:
+        for part in parts:
+            if part.name == body:
+                return part
+        raise PartError(f"{path}: no body named {body!r}; the file holds {_names(names)}")
+    if len(parts) != 1:
+        raise PartError(
+            f"{path}: the file holds {len(parts)} bodies ({_names(names)}); "
+            "choose one by name (--body NAME, or `body = \"NAME\"` in the scene's [[part]])"
+        )
+    return parts[0]
+
+
+def part_from_mesh(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    name: str = "mesh",
+    source: str | None = None,
+    unit: str = "unspecified",
+) -> Part:
+    """A checked :class:`Part` from arrays (``check_mesh`` applied, warnings kept)."""
+    v, f, warnings = check_mesh(vertices, faces, source=source or name)
+    return Part(name=name, vertices=v, faces=f, source=source, unit=unit, warnings=warnings)
+
+
+def check_mesh(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    source: str,
+    weld_tolerance: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Check and repair a triangle mesh; raise for what cannot be repaired.
+
+    Steps: reject empty meshes, non-finite coordinates and out-of-range indices; weld
+    vertices closer than ``weld_tolerance``; drop degenerate (zero-area or repeated-vertex)
+    and duplicate triangles; make the winding consistent across shared edges; flip all
+    faces when the enclosed volume is negative (normals pointing in); report boundary and
+    non-manifold edges (winding-number membership still works on slightly open meshes).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (m, 3) int
+    source : str
+        The file (or name) that messages refer to.
+    weld_tolerance : float, optional
+        Default ``1e-6 * max(diagonal, largest |coordinate|)``.
+
+    Returns
+    -------
+    vertices : (n', 3) float64
+        Welded, only the vertices the faces use.
+    faces : (m', 3) int64
+        Outward-oriented triangles.
+    warnings : tuple of str
+        One line per repair or problem found, naming ``source``.
+
+    Raises
+    ------
+    PartError
+        Empty mesh, non-finite coordinates, bad indices, or nothing left after repair.
+    """
+    warnings: list[str] = []
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+    except (TypeError, ValueError) as exc:
+        raise PartError(f"{source}: vertices and faces are not numeric arrays ({exc})") from exc
+    if v.size == 0 or f.size == 0:
+        raise PartError(
+            f"{source}: the mesh is empty (no triangles); export the part as a closed "
+            "surface mesh or a STEP solid"
+        )
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise PartError(f"{source}: vertices must be (n, 3), got shape {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise PartError(
+            f"{source}: faces must be triangles, (m, 3), got shape {f.shape}; triangulate "
+            "the mesh before export"
+        )
+    if not np.issubdtype(f.dtype, np.integer):
+        if not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
+            raise PartError(f"{source}: face indices are not integers")
+    f = f.astype(np.int64)
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise PartError(
+            f"{source}: {int(bad.sum())} of {len(v)} vertices have non-finite coordinates "
+            "(NaN or infinity); repair or re-export the mesh"
+        )
+    if f.min() < 0 or f.max() >= len(v):
+        raise PartError(
+            f"{source}: face indices outside 0..{len(v) - 1} (found {int(f.min())}.."
+            f"{int(f.max())}); the file is damaged, re-export it"
+        )
+
+    # weld
+    lower, upper = v[f.ravel()].min(axis=0), v[f.ravel()].max(axis=0)
+    diagonal = float(np.linalg.norm(upper - lower))
+    scale = max(diagonal, float(np.abs(v).max()))
+    tol = WELD_RELATIVE * scale if weld_tolerance is None else float(weld_tolerance)
+    if tol > 0 and len(v) > 1:
+        v, f = _weld(v, f, tol)
+
+    # degenerate and duplicate triangles
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    areas = _areas(v, f)
+    flat = areas <= (1e-10 * max(diagonal, 1e-300)) ** 2
+    degenerate = repeated | flat
+    if degenerate.any():
+        warnings.append(
+            f"{source}: dropped {int(degenerate.sum())} degenerate triangles (zero area or a "
+            "repeated vertex); harmless, but a finer or cleaner export avoids them"
+        )
+        f = f[~degenerate]
+    if len(f):
+        _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+        if len(first) < len(f):
+            warnings.append(
+                f"{source}: dropped {len(f) - len(first)} duplicate triangles; check the "
+                "export for doubled faces"
+            )
+            f = f[np.sort(first)]
+    if len(f) == 0:
+        raise PartError(
+            f"{source}: no usable triangles (all were degenerate); the mesh has no area, "
+            "re-export the part as a solid"
+        )
+
+    # drop unused vertices, renumber
+    used, inverse = np.unique(f.ravel(), return_inverse=True)
+    v = v[used]
+    f = inverse.reshape(-1, 3).astype(np.int64)
+
+    # consistent winding, then outward orientation
+    f, flipped = _orient_consistently(f)
+    if flipped:
+        warnings.append(
+            f"{source}: {flipped} of {len(f)} triangles were wound against their neighbours "
+            "(inconsistent normals) and were flipped; check the exporter's normals"
+        )
+    boundary, nonmanifold = _edge_defects(f)
+    volume = _signed_volume(v, f, about=v.mean(axis=0))
+    if volume < 0:
+        f = f[:, ::-1].copy()
+        warnings.append(
+            f"{source}: the normals pointed inwards (negative volume); all triangles were "
+            "flipped to face outwards"
+        )
+    if boundary or nonmanifold:
+        what = []
+        if boundary:
+            what.append(f"{boundary} boundary edges (holes)")
+        if nonmanifold:
+            what.append(f"{nonmanifold} edges shared by more than two triangles")
+        warnings.append(
+            f"{source}: the mesh is not watertight: {' and '.join(what)}; membership by "
+            "winding number still works for small holes, but close the mesh (or export a "
+            "STEP solid) for reliable results"
+        )
+    return np.ascontiguousarray(v), np.ascontiguousarray(f), tuple(warnings)
+
+
+# --------------------------------------------------------------------------- STEP
+def step_unit(text: str) -> tuple[str, float] | None:
+    """Length unit of a STEP file's text: (short name, metres per unit), or None if absent.
+
+    Reads the ``LENGTH_UNIT`` entity: ``SI_UNIT(.MILLI.,.METRE.)`` or a
+    ``CONVERSION_BASED_UNIT('INCH', ...)``.
+    """
+    for entity in re.finditer(r"\(\s*LENGTH_UNIT\s*\(\s*\)(.*?)\)\s*;", text, re.S | re.I):
+        body = entity.group(0)
+        m = re.search(r"SI_UNIT\s*\(\s*(\$|\.\w+\.)\s*,\s*\.METRE\.\s*\)", body, re.I)
+        if m and m.group(1).upper() in _SI_PREFIXES:
+            return _SI_PREFIXES[m.group(1).upper()]
+        m = re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'([^']*)'", body, re.I)
+        if m and m.group(1).upper() in _CONVERSION_UNITS:
+            return _CONVERSION_UNITS[m.group(1).upper()]
+    m = re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'(INCH|FOOT)'", text, re.I)
+    if m:
+        return _CONVERSION_UNITS[m.group(1).upper()]
+    m = re.search(r"LENGTH_UNIT\s*\(\s*\)[^;]*?SI_UNIT\s*\(\s*(\$|\.\w+\.)\s*,\s*\.METRE\.",
+                  text, re.I | re.S)
+    if m and m.group(1).upper() in _SI_PREFIXES:
+        return _SI_PREFIXES[m.group(1).upper()]
+    return None
+
+
+def _load_step(path: Path, tolerance: float | None) -> list[Part]:
+    try:
+        import cascadio
+        import trimesh
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise PartError(
+            f"{path}: reading STEP needs the cascadio and trimesh packages "
+            "(`pip install cascadio trimesh`)"
+        ) from exc
+    data = path.read_bytes()
+    head = data[:4096].lstrip()
+    if not head.startswith(b"ISO-10303-21"):
+        raise PartError(
+            f"{path}: not a STEP file (it does not start with ISO-10303-21); check the file, "
+            "or give it the suffix of its real format"
+        )
+    text = data.decode("latin-1")
+    warnings: list[str] = []
+    unit = step_unit(text)
+    if unit is None:
+        unit = ("mm", 1e-3)
+        warnings.append(f"{path}: no length unit in the STEP header; assumed millimetres")
+    unit_name, metres = unit
+    # OpenCASCADE tessellates in its session unit, millimetres, whatever the file's unit
+    mm_per_unit = metres * 1e3
+
+    def tessellate(tol_mm: float, angular: float) -> trimesh.Scene:
+        with _native_output() as captured:
+            glb = cascadio.load(
+                data, file_type="step", tol_linear=tol_mm, tol_angular=angular,
+                merge_primitives=True, use_parallel=False,
+            )
+        if not glb:
+            detail = _occt_error(captured[0] if captured else "")
+            raise PartError(
+                f"{path}: OpenCASCADE could not read this STEP file{detail}; the file is "
+                "damaged or not a STEP AP203/AP214/AP242 model: re-export it from the CAD "
+                "program"
+            )
+        try:
+            scene = trimesh.load(io.BytesIO(glb), file_type="glb", process=False)
+        except Exception as exc:  # noqa: BLE001 - any parser failure is a bad file here
+            raise PartError(f"{path}: the STEP file's tessellation is unreadable ({exc})") from exc
+        return scene
+
+    if tolerance is None:
+        coarse = tessellate(1e30, 1.0)
+        box = _scene_bounds(coarse)
+        if box is None:
+            raise PartError(_no_solid_message(path))
+        diagonal_mm = float(np.linalg.norm(box[1] - box[0])) * 1e3
+        tol_mm = max(DEFAULT_RELATIVE_TOLERANCE * diagonal_mm, 1e-9)
+    else:
+        tol_mm = float(tolerance) * mm_per_unit
+    scene = tessellate(tol_mm, DEFAULT_ANGULAR_TOLERANCE)
+
+    parts: list[Part] = []
+    seen: dict[str, int] = {}
+    nodes = list(scene.graph.nodes_geometry) if hasattr(scene, "graph") else []
+    if not nodes and hasattr(scene, "vertices"):
+        items = [(path.stem, np.eye(4), scene)]
+    else:
+        items = []
+        for node in nodes:
+            transform, geometry_name = scene.graph[node]
+            items.append((geometry_name, transform, scene.geometry[geometry_name]))
+    items = [it for it in items if hasattr(it[2], "faces") and len(it[2].faces)]
+    # file order: GLB scene graphs are unordered, the STEP's PRODUCT entities are not
+    products = [m.group(1) for m in re.finditer(r"PRODUCT\s*\(\s*'([^']*)'", text)]
+    items.sort(key=lambda it: products.index(it[0]) if it[0] in products else len(products))
+    if not items:
+        raise PartError(_no_solid_message(path))
+    for index, (raw_name, transform, mesh) in enumerate(items):
+        name = _clean_name(str(raw_name), path.stem, index, len(items))
+        if name in seen:
+            seen[name] += 1
+            name = f"{name}_{seen[name]}"
+        else:
+            seen[name] = 1
+        v = np.asarray(mesh.vertices, dtype=np.float64)
+        v = v @ np.asarray(transform)[:3, :3].T + np.asarray(transform)[:3, 3]
+        v = v / metres  # GLB metres -> the file's unit
+        source = f"{path} (body {name!r})" if len(items) > 1 else str(path)
+        v, f, w = check_mesh(v, np.asarray(mesh.faces), source=source)
+        parts.append(
+            Part(name=name, vertices=v, faces=f, source=str(path), unit=unit_name,
+                 warnings=tuple(warnings) + w)
+        )
+    return parts
+
+
+def _no_solid_message(path: Path) -> str:
+    return (
+        f"{path}: the STEP file holds no solid or surface to tessellate; export the part as "
+        "a solid body"
+    )
+
+
+def _scene_bounds(scene) -> np.ndarray | None:
+    try:
+        b = scene.bounds
+    except Exception:  # noqa: BLE001
+        return None
+    if b is None or not np.all(np.isfinite(b)):
+        return None
+    return np.asarray(b, dtype=np.float64)
+
+
+def _clean_name(raw: str, stem: str, index: int, count: int) -> str:
+    name = raw.strip()
+    if _ANONYMOUS.match(name):
+        return stem if count == 1 else f"{stem}_{index + 1}"
+    return name
+
+
+def _occt_error(text: str) -> str:
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip(" *") for ln in text.splitlines()]
+    lines = [ln.strip() for ln in lines if "ERR" in ln or "rror" in ln]
+    return f" ({lines[0]})" if lines else ""
+
+
+@contextmanager
+def _native_output() -> Iterator[list[str]]:
+    """Capture what native code writes to file descriptors 1 and 2 (OpenCASCADE's messages).
+
+    OpenCASCADE prints parser messages straight to the process's stdout, which would corrupt
+    a ``--json`` result; they are kept here and quoted in the error message instead.
+    """
+    captured: list[str] = []
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = (os.dup(1), os.dup(2))
+    except (OSError, ValueError, AttributeError):
+        yield captured
+        return
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            yield captured
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            tmp.seek(0)
+            captured.append(tmp.read(65536).decode("utf-8", errors="replace"))
+
+
+# --------------------------------------------------------------------------- meshes
+def _load_mesh(path: Path) -> Part:
+    import trimesh
+
+    if path.stat().st_size == 0:
+        raise PartError(f"{path}: the file is empty; export the part again")
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types for bad files
+        raise PartError(
+            f"{path}: cannot read this {path.suffix} file ({type(exc).__name__}: {exc}); "
+            "check that it is a valid mesh, or re-export it"
+        ) from exc
+    if hasattr(loaded, "geometry"):  # a Scene: several objects in one file
+        meshes = []
+        for node in loaded.graph.nodes_geometry:
+            transform, name = loaded.graph[node]
+            g = loaded.geometry[name]
+            if hasattr(g, "faces") and len(g.faces):
+                v = np.asarray(g.vertices, dtype=np.float64)
+                t = np.asarray(transform)
+                meshes.append((v @ t[:3, :3].T + t[:3, 3], np.asarray(g.faces)))
+        if not meshes:
+            vertices, faces = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+        else:
+            offsets = np.cumsum([0] + [len(m[0]) for m in meshes[:-1]])
+            vertices = np.concatenate([m[0] for m in meshes])
+            faces = np.concatenate([m[1] + o for m, o in zip(meshes, offsets)])
+    elif hasattr(loaded, "faces"):
+        vertices, faces = np.asarray(loaded.vertices), np.asarray(loaded.faces)
+    else:
+        raise PartError(
+            f"{path}: the file holds no triangles (a point cloud or curves?); export a "
+            "surface mesh"
+        )
+    v, f, warnings = check_mesh(vertices, faces, source=str(path))
+    return Part(name=path.stem, vertices=v, faces=f, source=str(path), unit="unspecified",
+                warnings=warnings)
+
+
+# --------------------------------------------------------------------------- mesh algorithms
+def _areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(m,) float64 triangle areas."""
+    if len(f) == 0:
+        return np.zeros(0)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def _signed_volume(v: np.ndarray, f: np.ndarray, about: np.ndarray | None = None) -> float:
+    """Signed enclosed volume; ``about`` (a point) only matters for open meshes."""
+    if len(f) == 0:
+        return 0.0
+    o = np.zeros(3) if about is None else np.asarray(about, dtype=np.float64)
+    a, b, c = v[f[:, 0]] - o, v[f[:, 1]] - o, v[f[:, 2]] - o
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def _weld(v: np.ndarray, f: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices closer than ``tol`` (connected clusters), keep the first of each."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(v).query_pairs(tol, output_type="ndarray")
+    if len(pairs) == 0:
+        return v, f
+    n = len(v)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    # representative: lowest original index in each cluster, in original order
+    order = np.argsort(labels, kind="stable")
+    first = np.ones(n, dtype=bool)
+    first[1:] = labels[order][1:] != labels[order][:-1]
+    reps = order[first]  # (clusters,) lowest index of each label, sorted by label
+    rep_order = np.argsort(reps)
+    new_index_of_label = np.empty(len(reps), dtype=np.int64)
+    new_index_of_label[rep_order] = np.arange(len(reps))
+    label_ids = labels[reps]
+    remap_label = np.empty(labels.max() + 1, dtype=np.int64)
+    remap_label[label_ids] = new_index_of_label
+    return v[np.sort(reps)], remap_label[labels][f]
+
+
+def _directed_edges(f: np.ndarray) -> np.ndarray:
+    """(3m, 2) directed edges, row 3*i + k belongs to face i."""
+    return np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
+
+
+def _edge_defects(f: np.ndarray) -> tuple[int, int]:
+    """(boundary edges, non-manifold edges) of a triangle mesh."""
+    e = np.sort(_directed_edges(f), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return int((counts == 1).sum()), int((counts > 2).sum())
+
+
+def _orient_consistently(f: np.ndarray) -> tuple[np.ndarray, int]:
+    """Flip faces so that every manifold edge is traversed in opposite directions.
+
+    Breadth-first over the face adjacency of manifold edges; each connected component keeps
+    the orientation of its majority. Returns the faces and how many were flipped.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    m = len(f)
+    directed = _directed_edges(f)
+    undirected = np.sort(directed, axis=1)
+    _, edge_id, counts = np.unique(undirected, axis=0, return_inverse=True, return_counts=True)
+    edge_id = edge_id.ravel()
+    manifold = counts[edge_id] == 2
+    rows = np.nonzero(manifold)[0]
+    order = np.argsort(edge_id[rows], kind="stable")
+    rows = rows[order]
+    a, b = rows[0::2], rows[1::2]  # the two half-edges of each manifold edge
+    if len(a) == 0:
+        return f, 0
+    # same direction along a shared edge = the two faces disagree
+    disagree = directed[a, 0] == directed[b, 0]
+    if not disagree.any():
+        return f, 0
+    fa, fb = a // 3, b // 3
+    parity = coo_matrix(
+        (np.concatenate([disagree, disagree]).astype(np.int8) + 1,
+         (np.concatenate([fa, fb]), np.concatenate([fb, fa]))),
+        shape=(m, m),
+    ).tocsr()
+    parity.sum_duplicates()
+    _, labels = connected_components(parity, directed=False)
+    _, starts, sizes = np.unique(labels, return_index=True, return_counts=True)
+    flip = np.zeros(m, dtype=bool)
+    for start in starts[sizes > 1]:
+        nodes, pred = breadth_first_order(parity, start, directed=False)
+        child, parent = nodes[1:], pred[nodes[1:]]
+        odd = np.asarray(parity[child, parent]).ravel() == 2  # (k,) bool
+        # parents come before their children in breadth-first order
+        for node, p, o in zip(child.tolist(), parent.tolist(), odd.tolist()):
+            flip[node] = flip[p] ^ o
+        if flip[nodes].sum() * 2 > len(nodes):
+            flip[nodes] = ~flip[nodes]
+    count = int(flip.sum())
+    if count:
+        f = f.copy()
+        f[flip] = f[flip][:, ::-1]
+    return f, count
+
+
+def _names(names: list[str]) -> str:
+    return ", ".join(repr(n) for n in names)
