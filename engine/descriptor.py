@@ -1,0 +1,830 @@
+"""Skeletal density descriptor of a closed triangle mesh, sampled on a regular grid.
+
+Works on a mesh given as ``vertices (n, 3) float64`` and ``faces (m, 3) int64`` (outward
+oriented) and a :class:`engine.grid.Grid`. For a query point ``p`` (../shared/DESIGN.md
+section 1)::
+
+    rho(p) = c(p) * sum over the boundary of  zeta^-2 * g_sigma(eta/|xi| - 1) * dA_perp
+
+with ``xi`` the exact signed closest-point distance (+ outside), ``eta = |q - p|``,
+``zeta = xi + i eta``, ``dA_perp = n.(q - p)/eta dA``, ``g_sigma`` the normal density and
+``c = +lambda_in`` inside, ``-lambda_out`` outside. Membership is the winding number
+thresholded at 0.5.
+
+How it is computed
+------------------
+All geometry is moved to *local units*: coordinates relative to the grid centre divided by
+the spacing ``h``. ``rho`` and the winding number are scale-free, so nothing else changes,
+and float32 is then accurate for parts at 1e4 mm or 1e-3 mm alike.
+
+Quadrature. The surface integral is a sum over pieces of triangles, each evaluated with
+the one-point centroid rule (area vector at the centroid). A piece of radius ``r`` (about
+its centroid) at centroid distance ``d`` is split into four (edge midpoints) while::
+
+    r > THETA * max(d, EPS_FLOOR)   or   r > THETA * sigma * |xi|
+
+the first keeps the solid angle of every piece small, the second resolves the Gaussian,
+which varies over a piece through ``eta/|xi|``. The refinement is per query point, so
+only pieces close to ``p`` are split: the cost grows like ``log(size / |xi|)``. Pieces
+whose closest possible point is farther than ``(1 + GAUSS_CUTOFF * sigma) |xi|`` are
+skipped: there ``g < exp(-GAUSS_CUTOFF^2/2) g(0) = 1.5e-8 g(0)``.
+
+Acceleration (``method="tree"``). A bounding-volume hierarchy over the triangles
+(:mod:`engine.bvh`) serves three traversals per point: the exact nearest distance (box
+pruning), the winding number (Barnes-Hut: a cluster with radius below
+``THETA_WINDING`` times its distance counts as a dipole, near triangles get their exact
+Van Oosterom-Strackee solid angle) and the ``rho`` sum, where a whole cluster is skipped
+beyond the Gaussian cut-off, lumped into one centroid term (summed area vector at the
+area-weighted centroid) when it passes the same two size tests as a piece, with
+``THETA_NODE`` in place of ``THETA``, and otherwise opened; its triangles then get the
+adaptive quadrature above. ``method="brute"`` runs the same quadrature on every triangle
+with no clusters, the reference the tree is tested against.
+
+Regularisation. Let ``eps = EPS_FLOOR * h`` (1e-3 of a grid cell). A query point closer
+than ``eps`` to the boundary (on it, or within a hair) is moved along the unit normal of
+its nearest triangle to distance ``eps`` on its own side (the side the winding number
+gives), and ``|xi|`` is floored at ``eps``. So ``zeta`` never vanishes, the refinement
+stops at pieces of size ``THETA * eps``, and the value on a face is the one-sided limit
+the smooth formula has there. Pieces are capped at ``MAX_LEVEL`` subdivisions, which the
+floor never reaches for triangles smaller than ``2^MAX_LEVEL * THETA * eps`` (1e8 cells).
+Degenerate triangles have a zero area vector and contribute nothing; they never become the
+"nearest triangle" used for the normal push because their normal is undefined (then the
+point is not moved and only the floor applies).
+
+Numbers used by both implementations (numba here, OpenCL in
+:mod:`engine.descriptor_cl`) are module constants below, so they agree to float32
+precision.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+
+from engine.bvh import TriangleTree, build_tree, pack_triangles
+from engine.errors import Cancelled, InputError, ResourceError
+from engine.grid import Grid
+
+#: Floor on |xi| and the normal push distance, in grid cells.
+EPS_FLOOR = 1e-3
+#: Largest piece radius / distance (and / sigma |xi|) before a piece is split.
+THETA = 0.25
+#: Largest cluster radius / distance (and / sigma |xi|) for a lumped cluster.
+THETA_NODE = 0.25
+#: Barnes-Hut opening ratio for the winding number.
+THETA_WINDING = 0.5
+#: Pieces and clusters beyond (1 + GAUSS_CUTOFF * sigma) |xi| are skipped.
+GAUSS_CUTOFF = 6.0
+#: Deepest subdivision of one triangle.
+MAX_LEVEL = 40
+#: Explicit stack sizes (pieces: 3 per level + 1; nodes: tree depth + 1).
+PIECE_STACK = 128
+NODE_STACK = 64
+
+METHODS = ("tree", "brute")
+#: Points evaluated between progress reports / cancel checks.
+CHUNK_POINTS = 32768
+
+
+@dataclass(frozen=True)
+class DescriptorParams:
+    """Parameters of the skeletal density.
+
+    Attributes
+    ----------
+    sigma : float
+        Width of the Gaussian on ``eta/|xi| - 1`` (dimensionless).
+    penalty : float
+        ``P = lambda_in / lambda_out``.
+    lambda_out : float
+        Weight outside the part (``c = -lambda_out`` there).
+    """
+
+    sigma: float = 0.5
+    penalty: float = 3.0
+    lambda_out: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("sigma", "penalty", "lambda_out"):
+            value = getattr(self, name)
+            try:
+                ok = math.isfinite(float(value)) and float(value) > 0
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise InputError(
+                    f"descriptor parameter {name} must be a positive finite number, got {value!r}"
+                )
+            object.__setattr__(self, name, float(value))
+
+    @property
+    def lambda_in(self) -> float:
+        """Weight inside the part: ``penalty * lambda_out``."""
+        return self.penalty * self.lambda_out
+
+
+# --------------------------------------------------------------------------------------
+# Geometry kernels (numba, float64). The OpenCL source mirrors these line by line.
+
+
+@numba.njit(cache=True, inline="always")
+def _seg_dist2(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
+    ux = bx - ax
+    uy = by - ay
+    uz = bz - az
+    wx = px - ax
+    wy = py - ay
+    wz = pz - az
+    uu = ux * ux + uy * uy + uz * uz
+    t = 0.0
+    if uu > 0.0:
+        t = (wx * ux + wy * uy + wz * uz) / uu
+        t = min(max(t, 0.0), 1.0)
+    dx = wx - t * ux
+    dy = wy - t * uy
+    dz = wz - t * uz
+    return dx * dx + dy * dy + dz * dz
+
+
+@numba.njit(cache=True)
+def _tri_dist2(px, py, pz, tri, k):  # pragma: no cover - compiled
+    """Squared distance from p to triangle k (Ericson's closest point, degenerate-safe)."""
+    ax = tri[k, 0]
+    ay = tri[k, 1]
+    az = tri[k, 2]
+    abx = tri[k, 3]
+    aby = tri[k, 4]
+    abz = tri[k, 5]
+    acx = tri[k, 6]
+    acy = tri[k, 7]
+    acz = tri[k, 8]
+    nx = tri[k, 9]
+    ny = tri[k, 10]
+    nz = tri[k, 11]
+    ab2 = abx * abx + aby * aby + abz * abz
+    ac2 = acx * acx + acy * acy + acz * acz
+    n2 = nx * nx + ny * ny + nz * nz
+    if 4.0 * n2 <= 1e-12 * ab2 * ac2:
+        d = _seg_dist2(px, py, pz, ax, ay, az, ax + abx, ay + aby, az + abz)
+        d = min(d, _seg_dist2(px, py, pz, ax, ay, az, ax + acx, ay + acy, az + acz))
+        d = min(
+            d,
+            _seg_dist2(px, py, pz, ax + abx, ay + aby, az + abz, ax + acx, ay + acy, az + acz),
+        )
+        return d
+    apx = px - ax
+    apy = py - ay
+    apz = pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    qx = ax
+    qy = ay
+    qz = az
+    if d1 <= 0.0 and d2 <= 0.0:
+        pass
+    else:
+        bpx = apx - abx
+        bpy = apy - aby
+        bpz = apz - abz
+        d3 = abx * bpx + aby * bpy + abz * bpz
+        d4 = acx * bpx + acy * bpy + acz * bpz
+        cpx = apx - acx
+        cpy = apy - acy
+        cpz = apz - acz
+        d5 = abx * cpx + aby * cpy + abz * cpz
+        d6 = acx * cpx + acy * cpy + acz * cpz
+        vc = d1 * d4 - d3 * d2
+        vb = d5 * d2 - d1 * d6
+        va = d3 * d6 - d5 * d4
+        if d3 >= 0.0 and d4 <= d3:
+            qx = ax + abx
+            qy = ay + aby
+            qz = az + abz
+        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+            v = d1 / (d1 - d3)
+            qx = ax + v * abx
+            qy = ay + v * aby
+            qz = az + v * abz
+        elif d6 >= 0.0 and d5 <= d6:
+            qx = ax + acx
+            qy = ay + acy
+            qz = az + acz
+        elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+            w = d2 / (d2 - d6)
+            qx = ax + w * acx
+            qy = ay + w * acy
+            qz = az + w * acz
+        elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+            w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+            qx = ax + abx + w * (acx - abx)
+            qy = ay + aby + w * (acy - aby)
+            qz = az + abz + w * (acz - abz)
+        else:
+            denom = 1.0 / (va + vb + vc)
+            v = vb * denom
+            w = vc * denom
+            qx = ax + v * abx + w * acx
+            qy = ay + v * aby + w * acy
+            qz = az + v * abz + w * acz
+    dx = px - qx
+    dy = py - qy
+    dz = pz - qz
+    return dx * dx + dy * dy + dz * dz
+
+
+@numba.njit(cache=True)
+def _tri_solid_angle(px, py, pz, tri, k):  # pragma: no cover - compiled
+    """Signed solid angle of triangle k seen from p (Van Oosterom and Strackee)."""
+    ax = tri[k, 0] - px
+    ay = tri[k, 1] - py
+    az = tri[k, 2] - pz
+    bx = ax + tri[k, 3]
+    by = ay + tri[k, 4]
+    bz = az + tri[k, 5]
+    cx = ax + tri[k, 6]
+    cy = ay + tri[k, 7]
+    cz = az + tri[k, 8]
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    den = (
+        la * lb * lc
+        + (ax * bx + ay * by + az * bz) * lc
+        + (ax * cx + ay * cy + az * cz) * lb
+        + (bx * cx + by * cy + bz * cz) * la
+    )
+    return 2.0 * math.atan2(num, den)
+
+
+@numba.njit(cache=True)
+def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover - compiled
+    """(squared distance, triangle index) of the nearest triangle."""
+    best = np.inf
+    best_k = -1
+    if not use_tree:
+        for k in range(tri.shape[0]):
+            d = _tri_dist2(px, py, pz, tri, k)
+            if d < best:
+                best = d
+                best_k = k
+        return best, best_k
+    sp = 0
+    stack[sp] = 0
+    sp += 1
+    while sp > 0:
+        sp -= 1
+        nd = stack[sp]
+        # Squared distance from p to the node's box.
+        bd = 0.0
+        for d in range(3):
+            v = (px, py, pz)[d]
+            lo = node[nd, d]
+            hi = node[nd, 3 + d]
+            if v < lo:
+                bd += (lo - v) ** 2
+            elif v > hi:
+                bd += (v - hi) ** 2
+        if bd >= best:
+            continue
+        left = nidx[nd, 0]
+        if left < 0:
+            for k in range(nidx[nd, 2], nidx[nd, 2] + nidx[nd, 3]):
+                d2 = _tri_dist2(px, py, pz, tri, k)
+                if d2 < best:
+                    best = d2
+                    best_k = k
+        else:
+            right = nidx[nd, 1]
+            # Visit the child whose centre is nearer first (push it last).
+            dl = (
+                (node[left, 6] - px) ** 2 + (node[left, 7] - py) ** 2 + (node[left, 8] - pz) ** 2
+            )
+            dr = (
+                (node[right, 6] - px) ** 2
+                + (node[right, 7] - py) ** 2
+                + (node[right, 8] - pz) ** 2
+            )
+            if dl < dr:
+                stack[sp] = right
+                stack[sp + 1] = left
+            else:
+                stack[sp] = left
+                stack[sp + 1] = right
+            sp += 2
+    return best, best_k
+
+
+@numba.njit(cache=True)
+def _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, stack):  # pragma: no cover
+    """Winding number of the surface about p."""
+    total = 0.0
+    if not use_tree:
+        for k in range(tri.shape[0]):
+            total += _tri_solid_angle(px, py, pz, tri, k)
+        return total / (4.0 * math.pi)
+    sp = 0
+    stack[sp] = 0
+    sp += 1
+    while sp > 0:
+        sp -= 1
+        nd = stack[sp]
+        dx = node[nd, 6] - px
+        dy = node[nd, 7] - py
+        dz = node[nd, 8] - pz
+        dc = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if node[nd, 12] < theta_w * dc:
+            total += (node[nd, 9] * dx + node[nd, 10] * dy + node[nd, 11] * dz) / (dc * dc * dc)
+        elif nidx[nd, 0] < 0:
+            for k in range(nidx[nd, 2], nidx[nd, 2] + nidx[nd, 3]):
+                total += _tri_solid_angle(px, py, pz, tri, k)
+        else:
+            stack[sp] = nidx[nd, 0]
+            stack[sp + 1] = nidx[nd, 1]
+            sp += 2
+    return total / (4.0 * math.pi)
+
+
+@numba.njit(cache=True, inline="always")
+def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2):  # pragma: no cover
+    """(re, im) of zeta^-2 g dA_perp for area vector N at c; g without its constant."""
+    dx = cx - px
+    dy = cy - py
+    dz = cz - pz
+    eta2 = dx * dx + dy * dy + dz * dz
+    if eta2 <= 0.0:
+        return 0.0, 0.0
+    eta = math.sqrt(eta2)
+    x = eta * inv_axi - 1.0
+    f = math.exp(-x * x * inv2s2) * (nx * dx + ny * dy + nz * dz) / eta
+    den = xi * xi + eta2
+    f = f / (den * den)
+    return f * (xi * xi - eta2), f * (-2.0 * xi * eta)
+
+
+@numba.njit(cache=True)
+def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, eps, stack):
+    """(re, im) of one triangle's contribution with per-point adaptive subdivision.
+
+    Pieces are kept as (u, v, s): corner at barycentric (u, v), edge vectors s*e1 and
+    s*e2 (s < 0 for the inverted middle child).
+    """  # pragma: no cover - compiled
+    ax = tri[k, 0]
+    ay = tri[k, 1]
+    az = tri[k, 2]
+    e1x = tri[k, 3]
+    e1y = tri[k, 4]
+    e1z = tri[k, 5]
+    e2x = tri[k, 6]
+    e2y = tri[k, 7]
+    e2z = tri[k, 8]
+    nx = tri[k, 9]
+    ny = tri[k, 10]
+    nz = tri[k, 11]
+    r0 = tri[k, 12]
+    if nx == 0.0 and ny == 0.0 and nz == 0.0:
+        return 0.0, 0.0
+    re = 0.0
+    im = 0.0
+    min_s = 2.0 ** (-MAX_LEVEL)
+    sp = 0
+    stack[0, 0] = 0.0
+    stack[0, 1] = 0.0
+    stack[0, 2] = 1.0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        u = stack[sp, 0]
+        v = stack[sp, 1]
+        s = stack[sp, 2]
+        a = abs(s)
+        cu = u + s / 3.0
+        cv = v + s / 3.0
+        cx = ax + cu * e1x + cv * e2x
+        cy = ay + cu * e1y + cv * e2y
+        cz = az + cu * e1z + cv * e2z
+        r = r0 * a
+        dx = cx - px
+        dy = cy - py
+        dz = cz - pz
+        dc = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dc - r > cut:
+            continue
+        if (r > theta * max(dc, eps) or r > gauss_size) and a > min_s and sp + 4 <= PIECE_STACK:
+            h = 0.5 * s
+            stack[sp, 0] = u
+            stack[sp, 1] = v
+            stack[sp, 2] = h
+            stack[sp + 1, 0] = u + h
+            stack[sp + 1, 1] = v
+            stack[sp + 1, 2] = h
+            stack[sp + 2, 0] = u
+            stack[sp + 2, 1] = v + h
+            stack[sp + 2, 2] = h
+            stack[sp + 3, 0] = u + h
+            stack[sp + 3, 1] = v + h
+            stack[sp + 3, 2] = -h
+            sp += 4
+            continue
+        a2 = a * a
+        tr, ti = _term(px, py, pz, cx, cy, cz, nx * a2, ny * a2, nz * a2, xi, inv_axi, inv2s2)
+        re += tr
+        im += ti
+    return re, im
+
+
+@numba.njit(cache=True)
+def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node, eps, cut_k,
+             nstack, pstack):  # fmt: skip
+    """(re, im) of the boundary sum (without c(p) and the Gaussian's constant)."""  # pragma: no cover
+    axi = abs(xi)
+    inv_axi = 1.0 / axi
+    inv2s2 = 1.0 / (2.0 * sigma * sigma)
+    cut = (1.0 + cut_k * sigma) * axi
+    gauss_piece = theta * sigma * axi
+    gauss_node = theta_node * sigma * axi
+    re = 0.0
+    im = 0.0
+    if not use_tree:
+        for k in range(tri.shape[0]):
+            tr, ti = _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_piece,
+                              eps, pstack)  # fmt: skip
+            re += tr
+            im += ti
+        return re, im
+    sp = 0
+    nstack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        nd = nstack[sp]
+        cx = node[nd, 6]
+        cy = node[nd, 7]
+        cz = node[nd, 8]
+        r = node[nd, 12]
+        dx = cx - px
+        dy = cy - py
+        dz = cz - pz
+        dc = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dc - r > cut:
+            continue
+        if not (r > theta_node * max(dc, eps) or r > gauss_node):
+            tr, ti = _term(px, py, pz, cx, cy, cz, node[nd, 9], node[nd, 10], node[nd, 11], xi,
+                           inv_axi, inv2s2)  # fmt: skip
+            re += tr
+            im += ti
+        elif nidx[nd, 0] < 0:
+            for k in range(nidx[nd, 2], nidx[nd, 2] + nidx[nd, 3]):
+                tr, ti = _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta,
+                                  gauss_piece, eps, pstack)  # fmt: skip
+                re += tr
+                im += ti
+        else:
+            nstack[sp] = nidx[nd, 0]
+            nstack[sp + 1] = nidx[nd, 1]
+            sp += 2
+    return re, im
+
+
+@numba.njit(cache=True, parallel=True)
+def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, theta,
+              theta_node, theta_w, eps, cut_k, out):  # fmt: skip
+    """Fill out (n, 4) float64 with (Re rho, Im rho, xi, winding) per point.
+
+    mode 0: winding only; 1: winding and signed distance; 2: everything.
+    """  # pragma: no cover - compiled
+    n = points.shape[0]
+    norm = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
+    for i in numba.prange(n):
+        nstack = np.empty(NODE_STACK, dtype=np.int64)
+        pstack = np.empty((PIECE_STACK, 3))
+        px = points[i, 0]
+        py = points[i, 1]
+        pz = points[i, 2]
+        w = _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, nstack)
+        out[i, 3] = w
+        out[i, 0] = 0.0
+        out[i, 1] = 0.0
+        out[i, 2] = 0.0
+        if mode == 0:
+            continue
+        inside = w > 0.5
+        d2, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, nstack)
+        dist = math.sqrt(d2)
+        out[i, 2] = -dist if inside else dist
+        if mode == 1:
+            continue
+        sgn = -1.0 if inside else 1.0
+        if dist < eps and kn >= 0:
+            nx = tri[kn, 9]
+            ny = tri[kn, 10]
+            nz = tri[kn, 11]
+            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if nn > 0.0:
+                # Closest point q, then p' = q + sgn * eps * n_hat (q = p - offset along n
+                # is not known here; the push along n from p keeps p's tangential position).
+                off = ((px - tri[kn, 0]) * nx + (py - tri[kn, 1]) * ny + (pz - tri[kn, 2]) * nz)
+                off = off / nn
+                step = sgn * eps - off
+                px = px + step * nx / nn
+                py = py + step * ny / nn
+                pz = pz + step * nz / nn
+        xi = sgn * max(dist, eps)
+        re, im = _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node,
+                          eps, cut_k, nstack, pstack)  # fmt: skip
+        c = lam_in if inside else -lam_out
+        out[i, 0] = c * norm * re
+        out[i, 1] = c * norm * im
+
+
+# --------------------------------------------------------------------------------------
+# Public interface
+
+
+def _triangles(vertices: Any, faces: Any) -> np.ndarray:
+    """Check a mesh and return its triangles, (m, 3, 3) float64."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InputError(f"vertices must have shape (n, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise InputError(f"faces must have shape (m, 3), got {f.shape}")
+    if f.shape[0] == 0 or v.shape[0] == 0:
+        raise InputError("the mesh is empty (no triangles): load a closed surface mesh")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise InputError(f"faces must be integer vertex indices, got {f.dtype}")
+    if f.min() < 0 or f.max() >= v.shape[0]:
+        raise InputError(
+            f"faces index vertices 0..{v.shape[0] - 1} but hold {int(f.min())}..{int(f.max())}"
+        )
+    used = v[np.unique(f)]
+    if not np.all(np.isfinite(used)):
+        bad = int(np.count_nonzero(~np.all(np.isfinite(used), axis=1)))
+        raise InputError(
+            f"{bad} mesh vertices have non-finite (NaN or inf) coordinates: repair the mesh"
+        )
+    return v[f]
+
+
+def _check_memory(n_points: int, what: str) -> None:
+    need = n_points * (8 + 4 * 8 + 3 * 8)  # result, per-point work array, points
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return
+    if need > 0.5 * total:
+        raise ResourceError(
+            f"{what} needs about {need / 2**30:.1f} GiB but this machine has "
+            f"{total / 2**30:.1f} GiB: use a coarser grid (smaller --grid or larger --spacing)"
+        )
+
+
+def _resolve_backend(backend: Any):
+    from engine.backend import Backend, get_backend
+
+    if backend is None:
+        return get_backend()
+    if isinstance(backend, Backend):
+        return backend
+    if isinstance(backend, str):
+        return get_backend(backend)
+    raise ValueError(f"backend must be None, a Backend or one of 'numpy', 'opencl'; got {backend!r}")
+
+
+@dataclass(frozen=True)
+class _Local:
+    """Triangles in local units and what maps points there."""
+
+    centre: np.ndarray  # (3,)
+    scale: float  # local = (x - centre) / scale
+    tree: TriangleTree | None
+    tri: np.ndarray  # (m, 16) packed, tree order if tree
+
+
+def _localise(triangles: np.ndarray, centre: np.ndarray, scale: float, use_tree: bool) -> _Local:
+    local = (triangles - centre) / scale
+    if use_tree:
+        tree = build_tree(local)
+        return _Local(centre, scale, tree, tree.tri)
+    return _Local(centre, scale, None, pack_triangles(local))
+
+
+def _run(
+    local: _Local,
+    points_local: np.ndarray,
+    mode: int,
+    params: DescriptorParams,
+    backend,
+    *,
+    progress: Callable[[float], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> np.ndarray:
+    """Evaluate points (n, 3) in local units; returns (n, 4) float64 (re, im, xi, w)."""
+    n = points_local.shape[0]
+    out = np.empty((n, 4))
+    use_tree = local.tree is not None
+    if backend.name == "opencl":
+        from engine.descriptor_cl import OpenCLDescriptor
+
+        runner = OpenCLDescriptor.for_backend(backend)
+        evaluate = runner.prepare(local.tri, local.tree, params)
+
+        def chunk(lo: int, hi: int) -> None:
+            out[lo:hi] = evaluate(points_local[lo:hi], mode)
+    else:
+        if use_tree:
+            node, nidx = local.tree.node, local.tree.node_index
+        else:
+            node, nidx = np.zeros((1, 16)), np.full((1, 4), -1, dtype=np.int32)
+
+        def chunk(lo: int, hi: int) -> None:
+            _evaluate(
+                np.ascontiguousarray(points_local[lo:hi]), local.tri, node, nidx, use_tree,
+                mode, params.sigma, params.lambda_in, params.lambda_out, THETA, THETA_NODE,
+                THETA_WINDING, EPS_FLOOR, GAUSS_CUTOFF, out[lo:hi],
+            )  # fmt: skip
+
+    step = CHUNK_POINTS
+    for lo in range(0, n, step):
+        if cancel is not None and cancel():
+            raise Cancelled("descriptor computation cancelled")
+        hi = min(n, lo + step)
+        chunk(lo, hi)
+        if progress is not None:
+            progress(hi / n)
+    return out
+
+
+def _method(method: str) -> bool:
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    return method == "tree"
+
+
+def compute_descriptor(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    grid: Grid,
+    params: DescriptorParams = DescriptorParams(),  # noqa: B008 - frozen, so shared safely
+    *,
+    backend: Any = None,
+    method: str = "tree",
+    progress: Callable[[float], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> np.ndarray:
+    """Skeletal density of a closed mesh on a grid.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+        Vertex coordinates in the part's frame.
+    faces : (m, 3) int64
+        Triangles, counter-clockwise seen from outside.
+    grid : Grid
+        Where to sample.
+    params : DescriptorParams
+        sigma, penalty and lambda_out.
+    backend : None, Backend or {"numpy", "opencl"}
+        Compute backend; None picks :func:`engine.backend.get_backend`.
+    method : {"tree", "brute"}
+        Accelerated hierarchy or every triangle (the reference).
+    progress : callable(float), optional
+        Called with the fraction done after each chunk of points.
+    cancel : callable() -> bool, optional
+        Polled between chunks; True raises :class:`engine.errors.Cancelled`.
+
+    Returns
+    -------
+    rho : (nx, ny, nz) complex64
+        The descriptor. Points within ``1e-3 * grid.spacing`` of the boundary are evaluated
+        at that distance on their own side (see the module docstring, "Regularisation").
+
+    Raises
+    ------
+    InputError
+        Empty mesh, bad shapes or non-finite vertices.
+    ResourceError
+        The grid does not fit in memory.
+    Cancelled
+        ``cancel()`` returned True.
+    """
+    use_tree = _method(method)
+    triangles = _triangles(vertices, faces)
+    _check_memory(grid.size, f"a {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} grid")
+    be = _resolve_backend(backend)
+    centre = grid.center
+    local = _localise(triangles, centre, grid.spacing, use_tree)
+    points = ((grid.points().reshape(-1, 3) - centre) / grid.spacing).astype(np.float64)
+    out = _run(local, points, 2, params, be, progress=progress, cancel=cancel)
+    rho = (out[:, 0] + 1j * out[:, 1]).astype(np.complex64)
+    return rho.reshape(grid.shape)
+
+
+def _local_points(triangles: np.ndarray, points: Any) -> tuple[np.ndarray, np.ndarray, float]:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"points must have shape (n, 3), got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise InputError("query points must be finite")
+    lo = triangles.reshape(-1, 3).min(axis=0)
+    hi = triangles.reshape(-1, 3).max(axis=0)
+    centre = 0.5 * (lo + hi)
+    scale = float(np.max(hi - lo))
+    if not scale > 0:
+        scale = 1.0
+    return p, centre, scale
+
+
+def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
+                   backend: Any = None) -> np.ndarray:  # fmt: skip
+    """Generalised winding number of the mesh about each point.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    points : (k, 3) float64
+    backend : None, Backend or {"numpy", "opencl"}
+
+    Returns
+    -------
+    (k,) float64
+        1 inside, 0 outside (about 0.5 on the surface); threshold at 0.5 for membership.
+        Uses the tree (Barnes-Hut with exact near triangles).
+    """
+    triangles = _triangles(vertices, faces)
+    p, centre, scale = _local_points(triangles, points)
+    if p.shape[0] == 0:
+        return np.zeros(0)
+    local = _localise(triangles, centre, scale, True)
+    out = _run(local, (p - centre) / scale, 0, DescriptorParams(), _resolve_backend(backend))
+    return out[:, 3].copy()
+
+
+def signed_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
+                    backend: Any = None) -> np.ndarray:  # fmt: skip
+    """Exact signed distance to the triangles, + outside, - inside (winding number > 0.5).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    points : (k, 3) float64
+    backend : None, Backend or {"numpy", "opencl"}
+
+    Returns
+    -------
+    (k,) float64
+    """
+    triangles = _triangles(vertices, faces)
+    p, centre, scale = _local_points(triangles, points)
+    if p.shape[0] == 0:
+        return np.zeros(0)
+    local = _localise(triangles, centre, scale, True)
+    out = _run(local, (p - centre) / scale, 1, DescriptorParams(), _resolve_backend(backend))
+    return out[:, 2] * scale
+
+
+def descriptor_at_points(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    points: np.ndarray,
+    params: DescriptorParams = DescriptorParams(),  # noqa: B008
+    *,
+    spacing: float,
+    backend: Any = None,
+    method: str = "tree",
+) -> np.ndarray:
+    """Skeletal density at arbitrary points, as :func:`compute_descriptor` computes it.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    points : (k, 3) float64
+    params : DescriptorParams
+    spacing : float
+        The grid spacing ``h`` the regularisation refers to (floor ``1e-3 h``).
+    backend : None, Backend or {"numpy", "opencl"}
+    method : {"tree", "brute"}
+
+    Returns
+    -------
+    (k,) complex128
+    """
+    use_tree = _method(method)
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise InputError(f"spacing must be a positive finite number, got {spacing!r}")
+    triangles = _triangles(vertices, faces)
+    p, centre, _ = _local_points(triangles, points)
+    if p.shape[0] == 0:
+        return np.zeros(0, dtype=np.complex128)
+    local = _localise(triangles, centre, spacing, use_tree)
+    out = _run(local, (p - centre) / spacing, 2, params, _resolve_backend(backend))
+    return out[:, 0] + 1j * out[:, 1]
