@@ -1,0 +1,140 @@
+"""Virtual coupling: following the proxy, stability at default gains, haptic clamp,
+scale invariance of the defaults, and switched-off work not being done."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from sim_fakes import well
+
+from engine.coupling import (
+    CorrelatorField,
+    HapticLimits,
+    LandscapeField,
+    NullField,
+    Simulation,
+    clamp_norm,
+    coupling_wrench,
+    field_for_effects,
+    CouplingGains,
+)
+from engine.dynamics import RigidBody
+from engine.pose import rotation_matrix
+from engine.simconfig import Effects, SimConfig, resolve_physics
+
+
+def box_mesh(size=(1.0, 1.0, 2.0)):
+    import trimesh
+
+    m = trimesh.creation.box(extents=size)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def make_sim(scale=1.0, field=None, effects=None, limits=None, **cfg):
+    v, f = box_mesh()
+    v = v * scale
+    config = SimConfig(effects=effects or Effects(), **cfg)
+    phys = resolve_physics(config, v, f)
+    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    return Simulation(body, phys, config.effects, field or NullField(), np.zeros(6),
+                      limits=limits)
+
+
+def test_wrench_signs():
+    gains = CouplingGains(10.0, 0.0, 2.0, 0.0)
+    f, t = coupling_wrench(gains, np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3),
+                           np.array([0.0, 0.0, 1.0]), rotation_matrix([0, 0, 0.1]))
+    np.testing.assert_allclose(f, [0, 0, 10.0])
+    np.testing.assert_allclose(t, [0, 0, 0.2], atol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1000.0])
+def test_follows_proxy_stably_at_default_gains(scale):
+    sim = make_sim(scale)
+    target = np.array([0.3, -0.2, 0.5, 0.2, -0.1, 0.3]) * np.array([scale] * 3 + [1] * 3)
+    sim.set_proxy(target)
+    peak = 0.0
+    for _ in range(2000):
+        sim.step()
+        peak = max(peak, float(np.linalg.norm(sim.state.velocity)))
+    pose = sim.part_pose()
+    np.testing.assert_allclose(pose[:3], target[:3], atol=1e-4 * scale)
+    np.testing.assert_allclose(pose[3:], target[3:], atol=1e-4)
+    assert np.isfinite(peak)
+
+
+def test_same_pair_in_m_and_mm_moves_alike():
+    runs = []
+    for scale in (1.0, 1000.0):
+        sim = make_sim(scale, field=CorrelatorField(well(size=scale, stiffness=1.0), 1.0))
+        # kappa default scales as k / L: take it from physics
+        sim.field.kappa = sim.physics.kappa
+        # scaled fake: energy ~ a L^2 with force ~ a L, so rescale its stiffness by L
+        sim.field.correlator.a[:] = 1.0 * scale
+        sim.set_proxy(np.array([0.2 * scale, 0.1 * scale, 0.0, 0.0, 0.0, 0.1]))
+        traj = []
+        for _ in range(500):
+            sim.step()
+            p = sim.part_pose()
+            traj.append(np.concatenate([p[:3] / scale, p[3:]]))
+        runs.append(np.array(traj))
+    np.testing.assert_allclose(runs[0], runs[1], atol=1e-9)
+
+
+def test_haptic_force_is_reaction_clamped():
+    sim = make_sim(limits=HapticLimits(force_scale=2.0, max_force=0.5))
+    sim.set_proxy(np.array([1.0, 0, 0, 0, 0, 0]))
+    sim.step()
+    fc = sim.coupling_force
+    assert fc[0] > 0.5  # the coupling pulls the part towards the proxy, unclamped
+    np.testing.assert_allclose(np.linalg.norm(sim.haptic_force), 0.5)
+    assert sim.haptic_force[0] < 0  # the hand is pulled back towards the part
+    np.testing.assert_allclose(clamp_norm(np.array([3.0, 4.0, 0]), 10.0), [3, 4, 0])
+
+
+def test_rotation_locked_builds_no_torque_and_uses_landscape():
+    made = []
+
+    def factory(rotation):
+        c = well(rotation=rotation)
+        made.append(c)
+        return c
+
+    fld = field_for_effects(Effects(axes=("x", "y", "z")), factory, kappa=1.0,
+                            locked_rotation=np.eye(3))
+    assert isinstance(fld, LandscapeField)
+    sim = make_sim(field=fld, effects=Effects(axes=("x", "y", "z")))
+    sim.set_proxy(np.array([0.1, 0, 0, 0, 0, 0.3]))
+    sim.run(100)
+    c = made[0]
+    assert c.rotation is False  # correlator built without torque spectra
+    assert c.evaluations == 0 and c.torque_sums == 0  # no modal sum at all
+    assert c.landscapes == 1 and c.lookups == 100  # one landscape, looked up per step
+    np.testing.assert_allclose(sim.part_pose()[3:], 0.0)  # rotation stayed locked
+
+
+def test_translation_plus_rotation_sums_torque():
+    made = []
+    fld = field_for_effects(Effects(), lambda r: made.append(well(rotation=r)) or made[-1],
+                            kappa=1.0, locked_rotation=np.eye(3))
+    assert isinstance(fld, CorrelatorField)
+    sim = make_sim(field=fld)
+    sim.run(10)
+    assert made[0].rotation is True and made[0].torque_sums == 10
+
+
+def test_guidance_off_builds_nothing():
+    calls = []
+    fld = field_for_effects(Effects(guidance="none"), lambda r: calls.append(r), kappa=1.0,
+                            locked_rotation=np.eye(3))
+    assert isinstance(fld, NullField) and calls == []
+
+
+def test_gravity_sags_by_g_over_omega_squared():
+    g = (0.0, 0.0, -9810.0)
+    sim = make_sim(effects=Effects(gravity=g))
+    sim.run(3000)
+    omega = 2 * math.pi * 10.0
+    np.testing.assert_allclose(sim.part_pose()[2], -9810.0 / omega**2, rtol=1e-3)
