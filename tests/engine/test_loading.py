@@ -1,0 +1,298 @@
+"""Part loading: STEP units and welding, multi-body names, mesh checks and their messages."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine.errors import InputError
+from engine.loading import (
+    PartError,
+    _edge_defects,
+    check_mesh,
+    load_part,
+    load_parts,
+    part_from_mesh,
+    step_unit,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+ASSETS = ROOT / "assets"
+DATA = ROOT / "tests" / "data"
+STEP_FILES = sorted(ASSETS.glob("*/*.step"))
+
+
+def box_mesh(size=2.0):
+    """Closed, outward-wound cube centred at the origin: (8, 3) vertices, (12, 3) faces."""
+    h = size / 2
+    v = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)], dtype=float)
+    # index = 4*ix + 2*iy + iz
+    f = np.array([
+        [0, 1, 3], [0, 3, 2],  # x = -h
+        [4, 6, 7], [4, 7, 5],  # x = +h
+        [0, 4, 5], [0, 5, 1],  # y = -h
+        [2, 3, 7], [2, 7, 6],  # y = +h
+        [0, 2, 6], [0, 6, 4],  # z = -h
+        [1, 5, 7], [1, 7, 3],  # z = +h
+    ])
+    return v, f
+
+
+def test_box_fixture_is_outward():
+    v, f = box_mesh()
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    normals = np.cross(b - a, c - a)
+    centres = (a + b + c) / 3
+    assert np.all(np.einsum("ij,ij->i", normals, centres) > 0)
+
+
+# --------------------------------------------------------------------------- example STEP parts
+def test_example_parts_exist():
+    assert len(STEP_FILES) == 8, STEP_FILES
+
+
+@pytest.mark.parametrize("path", STEP_FILES, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_example_step_loads_closed_in_mm(path):
+    part = load_part(path)
+    assert part.unit == "mm"
+    assert part.name == path.stem
+    assert part.vertices.dtype == np.float64 and part.faces.dtype == np.int64
+    assert _edge_defects(part.faces) == (0, 0), "not watertight after welding"
+    assert not any("watertight" in w or "flipped" in w for w in part.warnings), part.warnings
+    assert part.volume > 0
+    assert 10 <= part.extent.max() <= 70  # tens of millimetres, not metres
+    assert part.triangles < 8000
+
+
+@pytest.mark.parametrize(
+    "path, volume, lower, upper",
+    [
+        # 40 x 30 x 15 block minus a 30 x 2 x 10 slot
+        ("bracket_slot/block.step", 40 * 30 * 15 - 30 * 2 * 10, (-20, -15, -15), (20, 15, 0)),
+        # 40 x 40 x 16 block minus a 30 long trapezoid (10 + 16) / 2 * 8
+        ("dovetail/block.step", 40 * 40 * 16 - 13 * 8 * 30, (-20, -20, -16), (20, 20, 0)),
+        ("dovetail/slide.step", 13 * 8 * 30 + 20 * 30 * 5, (-10, -30, -8), (10, 0, 5)),
+    ],
+)
+def test_planar_parts_have_exact_volume_and_bounds(path, volume, lower, upper):
+    part = load_part(ASSETS / path)
+    assert part.volume == pytest.approx(volume, rel=1e-6)
+    np.testing.assert_allclose(part.bounds, [lower, upper], atol=1e-4)
+
+
+def test_tolerance_controls_tessellation():
+    # cylinder radius 5, length 30, top edge rounded with radius 1
+    exact = math.pi * 25 * 30 - 2 * math.pi * (5 - 1 + 4 / (3 * math.pi)) * (1 - math.pi / 4)
+    coarse = load_part(ASSETS / "peg_in_hole/peg.step", tolerance=0.2)
+    fine = load_part(ASSETS / "peg_in_hole/peg.step", tolerance=0.005)
+    assert fine.triangles > 2 * coarse.triangles
+    assert abs(fine.volume - exact) < abs(coarse.volume - exact)
+    assert fine.volume == pytest.approx(exact, rel=2e-3)
+    for part in (coarse, fine):
+        assert _edge_defects(part.faces) == (0, 0)
+
+
+def test_step_in_metres_keeps_its_unit(tmp_path):
+    text = (ASSETS / "dovetail/slide.step").read_text()
+    assert "SI_UNIT(.MILLI.,.METRE.)" in text
+    metres = tmp_path / "slide_m.step"
+    metres.write_text(text.replace("SI_UNIT(.MILLI.,.METRE.)", "SI_UNIT($,.METRE.)"))
+    part = load_part(metres)
+    assert part.unit == "m"
+    np.testing.assert_allclose(part.bounds, [(-10, -30, -8), (10, 0, 5)], atol=1e-4)
+    assert _edge_defects(part.faces) == (0, 0)
+
+
+def test_step_unit_parser():
+    assert step_unit("#1 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );") == (
+        "mm", 1e-3)
+    assert step_unit("#1=(LENGTH_UNIT()NAMED_UNIT(*)SI_UNIT($,.METRE.));") == ("m", 1.0)
+    inch = ("#5 = ( CONVERSION_BASED_UNIT('INCH',#6) LENGTH_UNIT() NAMED_UNIT(#7) );")
+    assert step_unit(inch) == ("in", 0.0254)
+    assert step_unit("nothing here") is None
+
+
+def test_multibody_step_gives_named_parts():
+    parts = load_parts(DATA / "two_bodies.step")
+    assert [p.name for p in parts] == ["block", "peg"]
+    block, peg = parts
+    # the peg is seated in the block's hole: its bottom at z = -15
+    np.testing.assert_allclose(peg.bounds[:, 2], [-15, 15], atol=1e-4)
+    np.testing.assert_allclose(block.bounds, [(-20, -20, -20), (20, 20, 0)], atol=1e-4)
+    for part in parts:
+        assert _edge_defects(part.faces) == (0, 0)
+        assert part.source == str(DATA / "two_bodies.step")
+    with pytest.raises(PartError, match="2 bodies.*'block', 'peg'.*--body"):
+        load_part(DATA / "two_bodies.step")
+    assert load_part(DATA / "two_bodies.step", body="peg").name == "peg"
+    with pytest.raises(PartError, match="no body named 'pin'"):
+        load_part(DATA / "two_bodies.step", body="pin")
+
+
+def test_corrupt_step_gives_part_error_and_keeps_stdout_clean(capfd):
+    with pytest.raises(PartError) as info:
+        load_parts(DATA / "corrupt.step")
+    message = str(info.value)
+    assert "corrupt.step" in message and "re-export" in message
+    out, _ = capfd.readouterr()
+    assert out == ""  # OpenCASCADE's own messages must not reach stdout (--json)
+
+
+def test_not_a_step_file(tmp_path):
+    bad = tmp_path / "notes.step"
+    bad.write_text("this is not CAD data\n")
+    with pytest.raises(PartError, match="notes.step: not a STEP file"):
+        load_parts(bad)
+
+
+def test_missing_file_and_unknown_suffix(tmp_path):
+    with pytest.raises(PartError, match="no such file"):
+        load_parts(tmp_path / "nothing.step")
+    odd = tmp_path / "part.xyz"
+    odd.write_text("1 2 3\n")
+    with pytest.raises(PartError, match="unknown part file type.*\\.step"):
+        load_parts(odd)
+    assert issubclass(PartError, InputError) and issubclass(PartError, ValueError)
+
+
+def test_bad_tolerance():
+    with pytest.raises(PartError, match="tolerance"):
+        load_parts(ASSETS / "peg_in_hole/peg.step", tolerance=-1)
+
+
+# --------------------------------------------------------------------------- mesh files
+def test_stl_triangle_soup_is_welded_closed(tmp_path):
+    import trimesh
+
+    v, f = box_mesh(2.0)
+    soup = trimesh.Trimesh(v[f].reshape(-1, 3), np.arange(36).reshape(12, 3), process=False)
+    path = tmp_path / "box.stl"
+    soup.export(path)
+    part = load_part(path)
+    assert part.unit == "unspecified" and part.name == "box"
+    assert len(part.vertices) == 8 and part.triangles == 12
+    assert part.volume == pytest.approx(8.0)
+    assert part.warnings == ()
+
+
+def test_obj_loads(tmp_path):
+    v, f = box_mesh(3.0)
+    lines = [f"v {x} {y} {z}" for x, y, z in v] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
+    path = tmp_path / "cube.obj"
+    path.write_text("\n".join(lines) + "\n")
+    part = load_part(path)
+    assert part.volume == pytest.approx(27.0)
+    np.testing.assert_allclose(part.bounds, [(-1.5,) * 3, (1.5,) * 3])
+
+
+def test_obj_with_nan_is_rejected(tmp_path):
+    v, f = box_mesh()
+    lines = [f"v {x} {y} {z}" for x, y, z in v] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
+    lines[3] = "v nan 0 0"
+    path = tmp_path / "nan.obj"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(PartError, match="nan.obj: 1 of 8 vertices have non-finite"):
+        load_part(path)
+
+
+def test_empty_files(tmp_path):
+    empty = tmp_path / "empty.stl"
+    empty.write_bytes(b"")
+    with pytest.raises(PartError, match="empty.stl: the file is empty"):
+        load_part(empty)
+    no_faces = tmp_path / "points.obj"
+    no_faces.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    with pytest.raises(PartError, match="points.obj"):
+        load_part(no_faces)
+
+
+def test_corrupt_stl(tmp_path):
+    bad = tmp_path / "bad.stl"
+    bad.write_bytes(b"\x00" * 80 + (1000).to_bytes(4, "little") + b"\x01\x02\x03")
+    with pytest.raises(PartError, match="bad.stl"):
+        load_part(bad)
+
+
+# --------------------------------------------------------------------------- check_mesh
+def test_check_mesh_empty_and_nan():
+    with pytest.raises(PartError, match="src: the mesh is empty"):
+        check_mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=int), source="src")
+    v, f = box_mesh()
+    v[2, 1] = np.inf
+    with pytest.raises(PartError, match="non-finite"):
+        check_mesh(v, f, source="src")
+
+
+def test_check_mesh_bad_indices():
+    v, f = box_mesh()
+    f[0, 0] = 8
+    with pytest.raises(PartError, match="face indices outside 0..7"):
+        check_mesh(v, f, source="src")
+
+
+def test_inverted_normals_are_flipped():
+    v, f = box_mesh()
+    v2, f2, warnings = check_mesh(v, f[:, ::-1], source="inv.stl")
+    assert any("inv.stl" in w and "pointed inwards" in w for w in warnings)
+    part = part_from_mesh(v, f[:, ::-1])
+    assert part.volume == pytest.approx(8.0)
+    np.testing.assert_array_equal(np.sort(f2, axis=1), np.sort(f, axis=1))
+
+
+def test_inconsistent_winding_is_repaired():
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    f = np.array(sphere.faces)
+    rng = np.random.default_rng(1)
+    bad = rng.choice(len(f), size=7, replace=False)
+    f[bad] = f[bad][:, ::-1]
+    v2, f2, warnings = check_mesh(np.array(sphere.vertices), f, source="s.ply")
+    assert any("7 of 320 triangles were wound against" in w for w in warnings), warnings
+    np.testing.assert_array_equal(f2, sphere.faces)  # exactly the original winding back
+    assert _edge_defects(f2) == (0, 0)
+
+
+def test_open_mesh_warns_but_loads():
+    v, f = box_mesh()
+    v2, f2, warnings = check_mesh(v, f[1:], source="open.stl")
+    assert len(f2) == 11
+    assert any("open.stl: the mesh is not watertight: 3 boundary edges" in w for w in warnings)
+    assert _signed_volume_positive(v2, f2)
+
+
+def _signed_volume_positive(v, f):
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return np.einsum("ij,ij->i", a - v.mean(0), np.cross(b - v.mean(0), c - v.mean(0))).sum() > 0
+
+
+def test_degenerate_and_duplicate_triangles_are_dropped():
+    v, f = box_mesh()
+    v = np.vstack([v, [[-1, -1, 0.0]]])  # vertex 8: midpoint of edge 0-1 (collinear)
+    extra = np.array([[0, 0, 5], [0, 8, 1], [2, 3, 7]])  # repeated, zero area, duplicate
+    v2, f2, warnings = check_mesh(v, np.vstack([f, extra]), source="d.off")
+    assert len(f2) == 12
+    assert any("dropped 2 degenerate triangles" in w for w in warnings), warnings
+    assert any("dropped 1 duplicate triangles" in w for w in warnings), warnings
+    assert len(v2) == 8  # the unused midpoint is gone
+
+
+def test_near_duplicate_vertices_are_welded():
+    v, f = box_mesh(20.0)
+    soup = v[f].reshape(-1, 3)
+    soup = soup + np.random.default_rng(0).normal(scale=1e-7, size=soup.shape)
+    v2, f2, warnings = check_mesh(soup, np.arange(36).reshape(12, 3), source="soup")
+    assert len(v2) == 8 and warnings == ()
+    assert _edge_defects(f2) == (0, 0)
+
+
+def test_part_arrays_are_read_only():
+    v, f = box_mesh()
+    part = part_from_mesh(v, f, name="box")
+    with pytest.raises(ValueError):
+        part.vertices[0, 0] = 5.0
+    assert part.diagonal == pytest.approx(math.sqrt(12))
+    assert part.area == pytest.approx(24.0)
