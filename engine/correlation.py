@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+import types
 from dataclasses import dataclass
 from typing import Any
 
@@ -285,21 +286,24 @@ class Correlator:
         Evaluation
         """
         start = time.perf_counter()
-        rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
-        t = np.asarray(translation, dtype=np.float64).reshape(3)
-        if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(t))):
+        rot = np.ascontiguousarray(rotation, dtype=np.float64).reshape(3, 3)
+        t = np.ascontiguousarray(translation, dtype=np.float64).reshape(3)
+        if not math.isfinite(float(rot.sum()) + float(t.sum())):
             raise ValueError("pose contains NaN or infinite values")
         self.stats["evaluations"] += 1
-        if not self.boxes_overlap(rot, t):
-            sums = np.zeros(7)
-        else:
-            if self.rotation:
-                self.stats["torque_sums"] += 1
-            if self._backend == "numpy":
+        if self.rotation:
+            self.stats["torque_sums"] += 1
+        if self._backend == "numpy":
+            if self.boxes_overlap(rot, t):
                 sums = self._sums_numpy(rot, t)
             else:
-                sums = self._kernels[self._backend].sums(self, rot, t)
-        energy, force, torque = self._finish(sums, rot)
+                sums = np.zeros(7)
+            energy, force, torque = self._finish(sums, rot)
+        else:
+            out = self._kernels[self._backend].pose(self, rot, t)
+            energy = float(out[0])
+            force = out[1:4]
+            torque = out[4:7] if self.rotation else None
         return Evaluation(
             energy=energy,
             force=force,
@@ -542,18 +546,262 @@ def _make_kernel(name: str, correlator: Correlator) -> Any:
 
 
 def _median_microseconds(correlator: Correlator, kernel: Any, calls: int = 30) -> float:
-    """Median wall time of ``kernel.sums`` at a few generic poses (after one warm-up)."""
+    """Median wall time of ``kernel.pose`` at a few generic poses (after one warm-up)."""
     rng = np.random.default_rng(0)
     from engine.pose import rotation_matrix
 
     rot = rotation_matrix(rng.normal(size=3))
     t = correlator.centre_fixed - rot @ correlator.centre_moving
-    kernel.sums(correlator, rot, t)
+    kernel.pose(correlator, rot, t)
     times = []
     for _ in range(calls):
         rot = rotation_matrix(rng.normal(size=3))
         t = correlator.centre_fixed - rot @ correlator.centre_moving + rng.normal(size=3)
         start = time.perf_counter()
-        kernel.sums(correlator, rot, t)
+        kernel.pose(correlator, rot, t)
         times.append(time.perf_counter() - start)
     return float(np.median(times) * 1e6)
+
+
+# ---------------------------------------------------------------------- numba backend
+def _pose_kernel(
+    rot, t, fixed_kept, table, radius, kept, c1, c2, half1, half2, h, n_h, q, kappa,
+    moments, partial,
+):
+    """Energy, force and torque at one pose, all in compiled code: (7,) float64.
+
+    Returns ``[E, F (3), T (3)]`` (torque zeros when ``moments`` is False). Same sums as
+    ``Correlator._sums_numpy`` and the same finishing as ``Correlator._finish``.
+    fixed_kept (K, K, K) complex64; table (B^3, C) float32 interleaved (C = 8 or 2);
+    kept (K,) float64; partial (K, 7) float64 scratch, one row per kx plane (so the kx
+    loop can run in parallel without a shared accumulator).
+    """
+    out = np.zeros(7)
+    # part 2's rotated grid box (one cell of margin) must meet part 1's, else all zero
+    rc2 = np.empty(3)
+    for a in range(3):
+        rc2[a] = rot[a, 0] * c2[0] + rot[a, 1] * c2[1] + rot[a, 2] * c2[2]
+        extent = (abs(rot[a, 0]) * half2[0] + abs(rot[a, 1]) * half2[1]
+                  + abs(rot[a, 2]) * half2[2])
+        if abs(rc2[a] + t[a] - c1[a]) >= half1[a] + extent + h:
+            return out
+    nk = kept.shape[0]
+    side = 2 * radius + 2
+    px = np.empty(nk, dtype=np.complex128)
+    py = np.empty(nk, dtype=np.complex128)
+    pz = np.empty(nk, dtype=np.complex128)
+    scale = 2.0 * np.pi / n_h
+    s_x = t[0] + rc2[0] - c1[0]
+    s_y = t[1] + rc2[1] - c1[1]
+    s_z = t[2] + rc2[2] - c1[2]
+    for i in range(nk):
+        px[i] = np.exp(1j * (scale * kept[i] * s_x))
+        py[i] = np.exp(1j * (scale * kept[i] * s_y))
+        pz[i] = np.exp(1j * (scale * kept[i] * s_z))
+    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
+    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
+    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
+    for ix in prange(nk):
+        kx = kept[ix]
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        s6 = 0.0
+        for iy in range(nk):
+            ky = kept[iy]
+            pxy = px[ix] * py[iy]
+            # R^T k = kx R[0,:] + ky R[1,:] + kz R[2,:]; lattice index u = -q R^T k
+            a0 = kx * r00 + ky * r10
+            a1 = kx * r01 + ky * r11
+            a2 = kx * r02 + ky * r12
+            row_im = 0.0
+            for iz in range(nk):
+                kz = kept[iz]
+                rk0 = a0 + kz * r20
+                rk1 = a1 + kz * r21
+                rk2 = a2 + kz * r22
+                ux = -q * rk0
+                uy = -q * rk1
+                uz = -q * rk2
+                fx = np.floor(ux)
+                fy = np.floor(uy)
+                fz = np.floor(uz)
+                tx = np.float32(ux - fx)
+                ty = np.float32(uy - fy)
+                tz = np.float32(uz - fz)
+                sx = np.float32(1.0) - tx
+                sy = np.float32(1.0) - ty
+                sz = np.float32(1.0) - tz
+                b00 = ((int(fx) + radius) * side + int(fy) + radius) * side + int(fz) + radius
+                b01 = b00 + side
+                b10 = b00 + side * side
+                b11 = b10 + side
+                w000 = sx * sy * sz
+                w001 = sx * sy * tz
+                w010 = sx * ty * sz
+                w011 = sx * ty * tz
+                w100 = tx * sy * sz
+                w101 = tx * sy * tz
+                w110 = tx * ty * sz
+                w111 = tx * ty * tz
+                g_re = (w000 * table[b00, 0] + w001 * table[b00 + 1, 0]
+                        + w010 * table[b01, 0] + w011 * table[b01 + 1, 0]
+                        + w100 * table[b10, 0] + w101 * table[b10 + 1, 0]
+                        + w110 * table[b11, 0] + w111 * table[b11 + 1, 0])
+                g_im = (w000 * table[b00, 1] + w001 * table[b00 + 1, 1]
+                        + w010 * table[b01, 1] + w011 * table[b01 + 1, 1]
+                        + w100 * table[b10, 1] + w101 * table[b10 + 1, 1]
+                        + w110 * table[b11, 1] + w111 * table[b11 + 1, 1])
+                c = fixed_kept[ix, iy, iz] * pxy * pz[iz]
+                c_re = c.real
+                c_im = c.imag
+                cg_re = c_re * g_re - c_im * g_im
+                cg_im = c_re * g_im + c_im * g_re
+                s0 += cg_re
+                row_im += cg_im
+                s3 += cg_im * kz
+                if moments:
+                    mv0 = (w000 * table[b00, 2] + w001 * table[b00 + 1, 2]
+                           + w010 * table[b01, 2] + w011 * table[b01 + 1, 2]
+                           + w100 * table[b10, 2] + w101 * table[b10 + 1, 2]
+                           + w110 * table[b11, 2] + w111 * table[b11 + 1, 2])
+                    mv1 = (w000 * table[b00, 3] + w001 * table[b00 + 1, 3]
+                           + w010 * table[b01, 3] + w011 * table[b01 + 1, 3]
+                           + w100 * table[b10, 3] + w101 * table[b10 + 1, 3]
+                           + w110 * table[b11, 3] + w111 * table[b11 + 1, 3])
+                    mv2 = (w000 * table[b00, 4] + w001 * table[b00 + 1, 4]
+                           + w010 * table[b01, 4] + w011 * table[b01 + 1, 4]
+                           + w100 * table[b10, 4] + w101 * table[b10 + 1, 4]
+                           + w110 * table[b11, 4] + w111 * table[b11 + 1, 4])
+                    mv3 = (w000 * table[b00, 5] + w001 * table[b00 + 1, 5]
+                           + w010 * table[b01, 5] + w011 * table[b01 + 1, 5]
+                           + w100 * table[b10, 5] + w101 * table[b10 + 1, 5]
+                           + w110 * table[b11, 5] + w111 * table[b11 + 1, 5])
+                    mv4 = (w000 * table[b00, 6] + w001 * table[b00 + 1, 6]
+                           + w010 * table[b01, 6] + w011 * table[b01 + 1, 6]
+                           + w100 * table[b10, 6] + w101 * table[b10 + 1, 6]
+                           + w110 * table[b11, 6] + w111 * table[b11 + 1, 6])
+                    mv5 = (w000 * table[b00, 7] + w001 * table[b00 + 1, 7]
+                           + w010 * table[b01, 7] + w011 * table[b01 + 1, 7]
+                           + w100 * table[b10, 7] + w101 * table[b10 + 1, 7]
+                           + w110 * table[b11, 7] + w111 * table[b11 + 1, 7])
+                    im0 = c_re * mv1 + c_im * mv0
+                    im1 = c_re * mv3 + c_im * mv2
+                    im2 = c_re * mv5 + c_im * mv4
+                    s4 += im1 * rk2 - im2 * rk1
+                    s5 += im2 * rk0 - im0 * rk2
+                    s6 += im0 * rk1 - im1 * rk0
+            s1 += row_im * kx
+            s2 += row_im * ky
+        partial[ix, 0] = s0
+        partial[ix, 1] = s1
+        partial[ix, 2] = s2
+        partial[ix, 3] = s3
+        partial[ix, 4] = s4
+        partial[ix, 5] = s5
+        partial[ix, 6] = s6
+    sums = np.zeros(7)
+    for ix in range(nk):
+        for j in range(7):
+            sums[j] += partial[ix, j]
+    factor = 2.0 * np.pi * kappa / n_h
+    out[0] = -kappa * sums[0]
+    for a in range(3):
+        out[1 + a] = -factor * sums[1 + a]
+    if moments:
+        # local = S_m + c2 x (R^T S_k); torque = -factor R local
+        rs0 = r00 * sums[1] + r10 * sums[2] + r20 * sums[3]
+        rs1 = r01 * sums[1] + r11 * sums[2] + r21 * sums[3]
+        rs2 = r02 * sums[1] + r12 * sums[2] + r22 * sums[3]
+        l0 = sums[4] + c2[1] * rs2 - c2[2] * rs1
+        l1 = sums[5] + c2[2] * rs0 - c2[0] * rs2
+        l2 = sums[6] + c2[0] * rs1 - c2[1] * rs0
+        for a in range(3):
+            out[4 + a] = -factor * (rot[a, 0] * l0 + rot[a, 1] * l1 + rot[a, 2] * l2)
+    return out
+
+
+def _prange_placeholder(n):  # replaced by numba.prange when numba is present
+    return range(n)
+
+
+prange = _prange_placeholder
+_NUMBA_FUNCS: dict[bool, Any] = {}
+
+
+def _numba_function(parallel: bool) -> Any:
+    """The compiled sum, serial or parallel over kx planes (compiled once, cached on disk)."""
+    global prange
+    if parallel not in _NUMBA_FUNCS:
+        import numba
+
+        prange = numba.prange
+        # A distinct function object (own name) per variant, so the two compiled versions
+        # get separate on-disk cache entries.
+        name = "_pose_kernel_parallel" if parallel else "_pose_kernel_serial"
+        func = types.FunctionType(_pose_kernel.__code__.replace(co_name=name), globals(), name)
+        func.__qualname__ = name
+        func.__doc__ = _pose_kernel.__doc__
+        _NUMBA_FUNCS[parallel] = numba.njit(
+            fastmath=True, cache=True, parallel=parallel, nogil=True
+        )(func)
+    return _NUMBA_FUNCS[parallel]
+
+
+class NumbaKernel:
+    """Per-pose sums compiled in process with numba (serial or two threads, measured)."""
+
+    def __init__(self, correlator: Correlator) -> None:
+        try:
+            import numba
+        except ImportError as exc:  # pragma: no cover - depends on the install
+            raise RuntimeError("numba is not installed: `pip install numba`") from exc
+        self.threads = max(1, min(2, numba.config.NUMBA_NUM_THREADS))
+        self._serial = _numba_function(False)
+        self._parallel = _numba_function(True) if self.threads > 1 else None
+        self.parallel = False
+        self._modes = -1
+        self.prepare(correlator)
+        if self._parallel is not None:
+            serial = _median_microseconds(correlator, self, calls=15)
+            self.parallel = True
+            par = _median_microseconds(correlator, self, calls=15)
+            self.parallel = par < serial
+
+    def set_modes(self, correlator: Correlator) -> None:
+        self._modes = -1  # rebind lazily: the table is rebuilt on first use
+
+    def describe(self) -> str:
+        return f"numba ({self.threads if self.parallel else 1} thread{'s' if self.parallel else ''})"
+
+    def prepare(self, correlator: Correlator) -> None:
+        """Bind the arrays of the current truncation (call after set_modes)."""
+        table, radius = correlator.moving_table()
+        self._partial = np.zeros((correlator.modes, 7))
+        self._args = (
+            correlator._fixed_kept,
+            table.reshape(-1, table.shape[-1]),
+            radius,
+            correlator._kept.astype(np.float64),
+            correlator.centre_fixed,
+            correlator.centre_moving,
+            correlator.half_fixed,
+            correlator.half_moving,
+            correlator.spacing,
+            correlator.size * correlator.spacing,
+            float(correlator.oversample_factor),
+            correlator.kappa,
+            correlator.rotation,
+            self._partial,
+        )
+        self._modes = correlator.modes
+
+    def pose(self, correlator: Correlator, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(7,) float64 ``[E, F (3), T (3)]`` at one pose."""
+        if self._modes != correlator.modes:
+            self.prepare(correlator)
+        func = self._parallel if self.parallel else self._serial
+        return func(rot, t, *self._args)
