@@ -504,11 +504,28 @@ def start_engine(
     frame_queue : int
         Frames kept for the GUI; older ones are dropped.
     """
+    from engine.devices import DeviceError, MouseDevice, open_device
     from engine.loop import EngineLoop, build_simulation
 
-    sim = build_simulation(handle, modes=modes, backend=backend, prepare=False)
+    sim, model = build_simulation(handle, modes=modes, backend=backend, prepare=False)
+    notice = None
+    if device is None:
+        cfg = handle.config.device
+        try:
+            device = open_device(cfg.kind, sim.proxy_pose, dict(cfg.options), handle.path.parent)
+        except DeviceError as exc:
+            device = MouseDevice(sim.proxy_pose)
+            notice = DeviceEvent(cfg.kind, False, str(exc), fallback="mouse")
     loop = EngineLoop(
-        sim, device=device, rate_hz=rate_hz, realtime=realtime, frame_queue=frame_queue
+        sim,
+        model=model,
+        device=device,
+        rate_hz=rate_hz,
+        realtime=realtime,
+        frame_queue=frame_queue,
+        prepare=True,
     )
+    if notice is not None:
+        loop.events.append(notice)
     loop.start()
     return EngineHandle(loop)

@@ -1,0 +1,701 @@
+"""The engine loop: one thread owns the simulation and steps it at a fixed rate.
+
+Data crossing threads: frozen commands in (``engine.api``), immutable :class:`engine.api.Frame`
+snapshots and frozen events out. Channels:
+
+- commands: ``queue.SimpleQueue`` (unbounded, none dropped), drained between steps;
+- frames: ``collections.deque(maxlen=N)``: appending drops the oldest frame when the reader is
+  slow (stale poses are worthless to a viewer), appends and pops are atomic in CPython;
+- events: ``collections.deque`` (unbounded: progress, ready, errors are never dropped).
+
+Timing: the loop targets ``next += dt`` on ``time.perf_counter`` and waits by sleeping until
+about 0.3 ms before the deadline (Python's sleep overshoots by 60-100 us) and spinning the rest.
+After an overrun of more than 5 periods it re-anchors rather than racing to catch up. With
+``realtime=False`` it steps as fast as it can (simulated time still advances by ``dt``).
+
+Background work: descriptor (re)computation and landscapes run in a worker thread; the loop
+keeps using the old field until the worker hands over a new one, which is swapped in between
+two steps.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import queue
+import sys
+import threading
+import time
+import traceback
+from array import array
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from engine import api
+from engine.coupling import (
+    HapticLimits,
+    NullField,
+    Simulation,
+    field_for_effects,
+)
+from engine.devices import Device, DeviceError, MouseDevice, open_device
+from engine.dynamics import RigidBody
+from engine.errors import Cancelled
+from engine.pose import rotation_matrix
+from engine.simconfig import CouplingParams, Effects, Physics, resolve_physics
+
+#: Seconds before a deadline at which the loop stops sleeping and spins.
+SPIN_MARGIN = 0.0003
+#: Steps between refreshes of the period statistics in frames.
+STATS_EVERY = 100
+#: Periods kept for the statistics window.
+STATS_WINDOW = 1000
+
+
+def _ro(values: Any) -> np.ndarray:
+    arr = np.array(values, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
+def period_stats(periods_s: np.ndarray) -> api.PeriodStats:
+    """:class:`engine.api.PeriodStats` of an array of periods in seconds."""
+    p = np.asarray(periods_s, dtype=np.float64)
+    if len(p) == 0:
+        return api.PeriodStats()
+    us = p * 1e6
+    q = np.percentile(us, [50, 1, 99])
+    return api.PeriodStats(
+        rate_hz=float(len(p) / p.sum()) if p.sum() > 0 else 0.0,
+        median_us=float(q[0]),
+        p1_us=float(q[1]),
+        p99_us=float(q[2]),
+        max_us=float(us.max()),
+        window=int(len(p)),
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# what a scene needs to (re)build its simulation
+
+
+class SceneModel:
+    """Builds physics and geometric fields for a loaded scene (constant data, no state).
+
+    Parameters
+    ----------
+    handle : engine.api.SceneHandle
+    modes : int, optional
+        K (default: the scene's ``[correlation] modes`` or 16).
+    backend : str
+        Per-pose backend for the correlator.
+    """
+
+    def __init__(self, handle: Any, *, modes: int | None = None, backend: str = "auto"):
+        self.handle = handle
+        self.config = handle.config
+        self.scene = handle.scene
+        self.moving = handle.parts[1] if len(handle.parts) > 1 else handle.parts[0]
+        self.has_pair = len(handle.parts) > 1
+        self.modes = int(modes or getattr(self.scene, "modes", None) or 16)
+        self.backend = backend
+        self.start_pose = np.asarray(handle.start_pose, float)
+
+    def physics(
+        self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
+    ) -> Physics:
+        config = self.config if coupling is None else replace(self.config, coupling=coupling)
+        return resolve_physics(
+            config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa
+        )
+
+    def body(self, physics: Physics) -> RigidBody:
+        return RigidBody(physics.mass, physics.inertia, physics.center)
+
+    def descriptors(
+        self,
+        effects: Effects,
+        *,
+        sigma: float | None = None,
+        penalty: float | None = None,
+        progress: Callable[[float], None] | None = None,
+        cancel: Callable[[], bool] | None = None,
+    ) -> tuple[Any, Any]:
+        """The two descriptors for ``effects.guidance`` (skeletal or collision-only)."""
+        from engine.store import descriptors_for_scene
+
+        scene = self.scene
+        if sigma is not None or penalty is not None:
+            scene = _scene_with_params(scene, sigma, penalty)
+        descs = descriptors_for_scene(
+            scene, backend=None, progress=progress, cancel=cancel
+        )
+        d1, d2 = descs[0], descs[1]
+        if effects.guidance == "collision":
+            from engine.collision import collision_descriptor
+
+            d1 = collision_descriptor(d1, self.handle.parts[0])
+            d2 = collision_descriptor(d2, self.handle.parts[1])
+        return d1, d2
+
+    def field(
+        self,
+        effects: Effects,
+        kappa: float,
+        locked_rotation: np.ndarray,
+        *,
+        sigma: float | None = None,
+        penalty: float | None = None,
+        modes: int | None = None,
+        progress: Callable[[float], None] | None = None,
+        cancel: Callable[[], bool] | None = None,
+    ) -> tuple[Any, tuple[Any, ...]]:
+        """(field, descriptors) for ``effects``; nothing is built that effects switch off."""
+        if effects.guidance == "none" or not self.has_pair:
+            return NullField(), ()
+        from engine.correlation import Correlator
+
+        def stage(lo: float, hi: float) -> Callable[[float], None] | None:
+            if progress is None:
+                return None
+            return lambda f: progress(lo + (hi - lo) * float(f))
+
+        d1, d2 = self.descriptors(
+            effects, sigma=sigma, penalty=penalty, progress=stage(0.0, 0.9), cancel=cancel
+        )
+        if cancel is not None and cancel():
+            raise Cancelled("recompute cancelled")
+        k = int(modes or self.modes)
+
+        def make(rotation: bool) -> Any:
+            return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend, kappa=1.0)
+
+        field = field_for_effects(effects, make, kappa=kappa, locked_rotation=locked_rotation)
+        if progress is not None:
+            progress(1.0)
+        return field, (d1, d2)
+
+
+def _scene_with_params(scene: Any, sigma: float | None, penalty: float | None) -> Any:
+    """A copy of the scene with new descriptor sigma / penalty (frozen dataclass replace)."""
+    changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty)) if v is not None}
+    params = getattr(scene, "descriptor", None) or getattr(scene, "descriptor_params", None)
+    if params is not None:
+        name = "descriptor" if hasattr(scene, "descriptor") else "descriptor_params"
+        return replace(scene, **{name: replace(params, **changes)})
+    return replace(scene, **changes)
+
+
+def build_simulation(
+    handle: Any,
+    *,
+    modes: int | None = None,
+    backend: str = "auto",
+    prepare: bool = True,
+    coupled: bool = True,
+) -> tuple[Simulation, SceneModel]:
+    """Simulation of a scene handle.
+
+    With ``prepare=True`` the descriptors and correlator are built now (blocking); with
+    False the field starts as :class:`NullField` and :class:`EngineLoop` builds it in its
+    worker (``EngineLoop(..., model=model)``).
+    """
+    model = SceneModel(handle, modes=modes, backend=backend)
+    effects = handle.config.effects
+    physics = model.physics(effects)
+    body = model.body(physics)
+    dev = handle.config.device
+    limits = HapticLimits(
+        force_scale=dev.force_scale,
+        max_force=dev.max_force if dev.max_force is not None else math.inf,
+    )
+    field: Any = NullField()
+    if prepare:
+        field, _ = model.field(effects, physics.kappa, rotation_matrix(model.start_pose[3:]))
+    sim = Simulation(body, physics, effects, field, model.start_pose, limits=limits,
+                     coupled=coupled)
+    return sim, model
+
+
+# ---------------------------------------------------------------------------------------------
+# the loop
+
+
+class EngineLoop:
+    """Fixed-rate stepping of a :class:`Simulation` in its own thread (or the caller's).
+
+    Parameters
+    ----------
+    sim : Simulation
+    model : SceneModel, optional
+        Needed for commands that rebuild things (descriptor params, effects, coupling) and to
+        prepare the field in the background when ``prepare`` is True.
+    device : Device, optional
+        Drives the proxy (default: a MouseDevice at the start pose).
+    rate_hz : float, optional
+        Default ``1 / sim.dt``; setting it changes the step.
+    realtime : bool
+        Hold the rate on the wall clock; False: as fast as possible.
+    frame_queue : int
+        Frames kept for readers (older dropped).
+    publish_every : int
+        Publish a frame every this many steps.
+    prepare : bool
+        Build the model's field in the background on start (ReadyEvent when done).
+    on_step : callable(sim, proxy_pose), optional
+        Called after each step in the loop thread (recording).
+    keep_periods : bool
+        Keep every period (seconds) in ``periods`` (benchmarks).
+    switch_interval : float, optional
+        If given, ``sys.setswitchinterval`` while the loop runs (how long another thread may
+        hold the GIL before the loop gets it back); restored at the end.
+    """
+
+    def __init__(
+        self,
+        sim: Simulation,
+        *,
+        model: SceneModel | None = None,
+        device: Device | None = None,
+        rate_hz: float | None = None,
+        realtime: bool = True,
+        frame_queue: int = 64,
+        publish_every: int = 1,
+        prepare: bool = False,
+        on_step: Callable[[Simulation, np.ndarray], None] | None = None,
+        keep_periods: bool = False,
+        switch_interval: float | None = None,
+    ):
+        self.sim = sim
+        self.model = model
+        if rate_hz is not None:
+            sim.dt = 1.0 / float(rate_hz)
+        self.dt = sim.dt
+        self.realtime = realtime
+        self.device = device or MouseDevice(sim.proxy_pose)
+        self.mouse = self.device if isinstance(self.device, MouseDevice) else None
+        self.frames: collections.deque[api.Frame] = collections.deque(maxlen=int(frame_queue))
+        self.events: collections.deque[Any] = collections.deque()
+        self.commands: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.publish_every = max(1, int(publish_every))
+        self.prepare = prepare
+        self.on_step = on_step
+        self.keep_periods = keep_periods
+        self.periods = array("d")
+        self.switch_interval = switch_interval
+        self.frames_published = 0
+        self.overruns = 0
+        self.paused = False
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._worker: threading.Thread | None = None
+        self._worker_cancel = threading.Event()
+        self._handover: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._recompute: float | None = None
+        self._effects = sim.effects
+        self._coupling = model.config.coupling if model is not None else None
+        self._kappa: float | None = None
+        self._params: dict[str, float] = {}
+        self._stats = api.PeriodStats()
+        self._window = np.zeros(STATS_WINDOW)
+        self._window_n = 0
+        self.thread_name = ""
+
+    # -- channel API (any thread) --------------------------------------------------------------
+    def send(self, command: Any) -> None:
+        if not isinstance(command, api.Command.__args__):  # type: ignore[attr-defined]
+            raise TypeError(f"not an engine command: {command!r}")
+        self.commands.put(command)
+
+    def poll_frames(self, max_frames: int | None = None) -> list[api.Frame]:
+        out = []
+        pop = self.frames.popleft
+        while self.frames and (max_frames is None or len(out) < max_frames):
+            try:
+                out.append(pop())
+            except IndexError:
+                break
+        return out
+
+    def poll_events(self) -> list[Any]:
+        out = []
+        while self.events:
+            try:
+                out.append(self.events.popleft())
+            except IndexError:
+                break
+        return out
+
+    def start(self) -> None:
+        """Run the loop in a new daemon thread."""
+        self._thread = threading.Thread(target=self._thread_main, name="skelasm-engine", daemon=True)
+        self._thread.start()
+
+    def is_alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        self._worker_cancel.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+
+    def _thread_main(self) -> None:
+        try:
+            self.run()
+        except Exception as exc:  # deliver, never raise into another thread
+            self.events.append(api.ErrorEvent(_message(exc), type(exc).__name__, fatal=True))
+            self.events.append(api.StoppedEvent(self.sim.steps, "error"))
+
+    # -- the loop (runs in the calling thread) ------------------------------------------------
+    def run(self, max_steps: int | None = None) -> int:
+        """Step until Stop (or ``max_steps`` steps); returns the steps taken."""
+        self.thread_name = threading.current_thread().name
+        old_switch = sys.getswitchinterval()
+        if self.switch_interval is not None:
+            sys.setswitchinterval(self.switch_interval)
+        if self.prepare and self.model is not None:
+            self._start_worker("correlator", self._prepare_job())
+        sim = self.sim
+        dt = self.dt
+        perf = time.perf_counter
+        sleep = time.sleep
+        steps = 0
+        last = perf()
+        deadline = last + dt
+        reason = "stopped"
+        try:
+            while not self._stop.is_set():
+                t_step = perf()
+                if not self.commands.empty():
+                    self._apply_commands()
+                    if self._stop.is_set():
+                        break
+                if not self._handover.empty():
+                    self._take_handover()
+                self._read_device()
+                if not self.paused:
+                    sim.step()
+                    self._write_device()
+                    if self.on_step is not None:
+                        self.on_step(sim, sim.proxy_pose)
+                steps += 1
+                step_us = (perf() - t_step) * 1e6
+                if steps % self.publish_every == 0:
+                    self._publish(step_us)
+                if max_steps is not None and steps >= max_steps:
+                    reason = "done"
+                    break
+                if self.realtime:
+                    now = perf()
+                    remaining = deadline - now
+                    if remaining > SPIN_MARGIN:
+                        sleep(remaining - SPIN_MARGIN)
+                    while perf() < deadline:
+                        pass
+                    now = perf()
+                    if now - deadline > 5 * dt:
+                        self.overruns += 1
+                        deadline = now
+                    deadline += dt
+                now = perf()
+                self._record_period(now - last)
+                last = now
+        finally:
+            if self.switch_interval is not None:
+                sys.setswitchinterval(old_switch)
+            self._worker_cancel.set()
+            try:
+                self.device.write_force(np.zeros(3), np.zeros(3))
+            except Exception:
+                pass
+            self.events.append(api.StoppedEvent(sim.steps, reason))
+        return steps
+
+    # -- pieces of a step -----------------------------------------------------------------------
+    def _record_period(self, period: float) -> None:
+        self._window[self._window_n % STATS_WINDOW] = period
+        self._window_n += 1
+        if self.keep_periods:
+            self.periods.append(period)
+        if self._window_n % STATS_EVERY == 0:
+            n = min(self._window_n, STATS_WINDOW)
+            self._stats = period_stats(self._window[:n])
+
+    def _read_device(self) -> None:
+        try:
+            pose = self.device.read_pose(self.sim.time)
+        except DeviceError as exc:
+            self._fallback_to_mouse(str(exc))
+            return
+        except Exception as exc:
+            self._fallback_to_mouse(f"{self.device.name}: {exc}")
+            return
+        if pose is not None:
+            self.sim.set_proxy(pose)
+
+    def _write_device(self) -> None:
+        if not self.device.capabilities.force_feedback:
+            return
+        try:
+            self.device.write_force(self.sim.haptic_force, self.sim.haptic_torque)
+        except Exception as exc:
+            self._fallback_to_mouse(str(exc))
+
+    def _fallback_to_mouse(self, message: str) -> None:
+        lost = self.device.name
+        try:
+            self.device.disconnect()
+        except Exception:
+            pass
+        self.mouse = MouseDevice()
+        self.device = self.mouse
+        self.events.append(api.DeviceEvent(lost, False, message, fallback="mouse"))
+
+    def _publish(self, step_us: float) -> None:
+        sim = self.sim
+        s = sim.sample
+        frame = api.Frame(
+            time=sim.time,
+            step=sim.steps,
+            proxy_pose=_ro(sim.proxy_pose),
+            part_pose=_ro(sim.part_pose()),
+            energy=float(s.energy),
+            force=_ro(s.force),
+            torque=_ro(s.torque),
+            coupling_force=_ro(sim.coupling_force),
+            coupling_torque=_ro(sim.coupling_torque),
+            haptic_force=_ro(sim.haptic_force),
+            haptic_torque=_ro(sim.haptic_torque),
+            eval_us=float(s.microseconds),
+            step_us=step_us,
+            period=self._stats,
+            modes=int(getattr(sim.field, "modes", 0)),
+            paused=self.paused,
+            recompute=self._recompute,
+            device=self.device.name,
+        )
+        self.frames.append(frame)
+        self.frames_published += 1
+
+    # -- commands -------------------------------------------------------------------------------
+    def _apply_commands(self) -> None:
+        while True:
+            try:
+                cmd = self.commands.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                self._apply(cmd)
+            except Exception as exc:
+                self.events.append(api.ErrorEvent(_message(exc), type(exc).__name__))
+
+    def _apply(self, cmd: Any) -> None:
+        sim = self.sim
+        if isinstance(cmd, api.SetProxyPose):
+            if self.mouse is not None and self.device is self.mouse:
+                self.mouse.set_pose(cmd.pose)
+            else:
+                sim.set_proxy(np.asarray(cmd.pose))
+        elif isinstance(cmd, api.SetModes):
+            sim.field.set_modes(cmd.modes)
+        elif isinstance(cmd, api.Pause):
+            self.paused = bool(cmd.paused)
+        elif isinstance(cmd, api.Reset):
+            sim.reset(None if cmd.pose is None else np.asarray(cmd.pose, float))
+            if self.mouse is not None:
+                self.mouse.set_pose(sim.proxy_pose)
+        elif isinstance(cmd, api.Stop):
+            self._stop.set()
+        elif isinstance(cmd, api.SetKappa):
+            self._kappa = cmd.kappa
+            self._resolve_physics()
+        elif isinstance(cmd, api.SetCoupling):
+            self._coupling = cmd.coupling
+            self._resolve_physics()
+        elif isinstance(cmd, api.SetEffects):
+            old = self._effects
+            self._effects = cmd.effects
+            rebuild = (
+                old.guidance != cmd.effects.guidance or old.rotation != cmd.effects.rotation
+            )
+            if rebuild:
+                self._start_recompute()
+            else:
+                sim.set_effects(cmd.effects, self._physics())
+        elif isinstance(cmd, api.SetDescriptorParams):
+            if cmd.sigma is not None:
+                self._params["sigma"] = float(cmd.sigma)
+            if cmd.penalty is not None:
+                self._params["penalty"] = float(cmd.penalty)
+            self._start_recompute()
+        elif isinstance(cmd, api.CancelRecompute):
+            self._worker_cancel.set()
+        elif isinstance(cmd, api.SetDevice):
+            self._switch_device(cmd)
+        elif isinstance(cmd, api.RequestLandscape):
+            self._request_landscape(cmd)
+        else:
+            raise TypeError(f"unknown command {cmd!r}")
+
+    def _physics(self) -> Physics:
+        if self.model is None:
+            return replace(self.sim.physics, kappa=self._kappa or self.sim.physics.kappa)
+        return self.model.physics(self._effects, self._coupling, self._kappa)
+
+    def _resolve_physics(self) -> None:
+        self.sim.set_effects(self._effects, self._physics())
+
+    def _switch_device(self, cmd: Any) -> None:
+        base = None
+        if self.model is not None:
+            base = Path(getattr(self.model.scene, "path", ".")).parent
+        try:
+            dev = open_device(cmd.kind, self.sim.proxy_pose, dict(cmd.options), base)
+        except DeviceError as exc:
+            self.events.append(api.DeviceEvent(cmd.kind, False, str(exc), fallback=self.device.name))
+            return
+        try:
+            self.device.disconnect()
+        except Exception:
+            pass
+        self.device = dev
+        self.mouse = dev if isinstance(dev, MouseDevice) else None
+        self.events.append(api.DeviceEvent(cmd.kind, True, f"{cmd.kind} connected", cmd.kind))
+
+    # -- background work ------------------------------------------------------------------------
+    def _start_worker(self, task: str, job: Callable[[Callable[[float], None], Callable[[], bool]], Any]) -> None:
+        if self._worker is not None and self._worker.is_alive():
+            self._worker_cancel.set()  # superseded: the old one stops at its next check
+        cancel_flag = threading.Event()
+        self._worker_cancel = cancel_flag
+        self._recompute = 0.0
+
+        def progress(fraction: float) -> None:
+            self._recompute = float(fraction)
+            self.events.append(api.ProgressEvent(task, float(fraction)))
+
+        def body() -> None:
+            try:
+                result = job(progress, cancel_flag.is_set)
+            except Cancelled:
+                self._handover.put(("cancelled", task, cancel_flag))
+                return
+            except Exception as exc:
+                self._handover.put(("error", exc, cancel_flag))
+                return
+            self._handover.put(("done", result, cancel_flag))
+
+        self._worker = threading.Thread(target=body, name=f"skelasm-{task}", daemon=True)
+        self._worker.start()
+
+    def _prepare_job(self) -> Callable[..., Any]:
+        model = self.model
+        assert model is not None
+        effects = self._effects
+        physics = self.sim.physics
+        rot = self.sim.state.rotation.copy()
+
+        def job(progress: Callable[[float], None], cancel: Callable[[], bool]) -> Any:
+            field, descs = model.field(effects, physics.kappa, rot, progress=progress, cancel=cancel)
+            return ("ready", field, descs, effects)
+
+        return job
+
+    def _start_recompute(self) -> None:
+        if self.model is None:
+            raise RuntimeError("this engine has no scene model to recompute from")
+        model = self.model
+        effects = self._effects
+        params = dict(self._params)
+        modes = int(getattr(self.sim.field, "modes", 0)) or None
+        kappa = self._physics().kappa
+        rot = self.sim.state.rotation.copy()
+
+        def job(progress: Callable[[float], None], cancel: Callable[[], bool]) -> Any:
+            t0 = time.perf_counter()
+            field, descs = model.field(
+                effects, kappa, rot, sigma=params.get("sigma"), penalty=params.get("penalty"),
+                modes=modes, progress=progress, cancel=cancel,
+            )
+            return ("swap", field, descs, effects, params, time.perf_counter() - t0)
+
+        self._start_worker("descriptors", job)
+
+    def _request_landscape(self, cmd: Any) -> None:
+        field = self.sim.field
+        correlator = getattr(field, "correlator", None)
+        if correlator is None:
+            self.events.append(api.ErrorEvent("no landscape: guidance is off", "ValueError"))
+            return
+        rotvec = cmd.rotvec if cmd.rotvec is not None else tuple(self.sim.part_pose()[3:])
+        rot = rotation_matrix(np.asarray(rotvec, float))
+
+        def run() -> None:
+            try:
+                land = correlator.landscape(rot)
+                self.events.append(api.LandscapeReady(land, tuple(map(float, rotvec))))
+            except Exception as exc:
+                self.events.append(api.ErrorEvent(_message(exc), type(exc).__name__))
+
+        # correlator.landscape reads only constant spectra: safe beside evaluate()
+        threading.Thread(target=run, name="skelasm-landscape", daemon=True).start()
+
+    def _take_handover(self) -> None:
+        while True:
+            try:
+                kind, payload, flag = self._handover.get_nowait()
+            except queue.Empty:
+                return
+            current = flag is self._worker_cancel
+            if current:
+                self._recompute = None
+            if kind == "cancelled":
+                if current:
+                    self.events.append(api.ProgressEvent(str(payload), 1.0, "cancelled"))
+                continue
+            if kind == "error":
+                self.events.append(api.ErrorEvent(_message(payload), type(payload).__name__))
+                continue
+            if not current or flag.is_set():
+                continue  # superseded result: drop it
+            tag = payload[0]
+            field, descs, effects = payload[1], payload[2], payload[3]
+            if effects != self._effects:
+                continue  # effects changed meanwhile; a newer job is on its way
+            modes = int(getattr(self.sim.field, "modes", 0))
+            if modes and getattr(field, "modes", 0) not in (0, modes):
+                field.set_modes(modes)  # keep the K the user picked meanwhile
+            self.sim.set_effects(effects, self._physics())
+            self.sim.set_field(field)
+            if tag == "ready":
+                self.events.append(api.ReadyEvent(tuple(descs), _backend_name(field)))
+            else:
+                params = payload[4]
+                d = descs[0] if descs else None
+                dp = getattr(d, "params", None)
+                self.events.append(
+                    api.DescriptorsSwapped(
+                        tuple(descs),
+                        float(getattr(dp, "sigma", params.get("sigma", 0.0)) or 0.0),
+                        float(getattr(dp, "penalty", params.get("penalty", 0.0)) or 0.0),
+                        float(payload[5]),
+                    )
+                )
+
+
+def _backend_name(field: Any) -> str:
+    c = getattr(field, "correlator", None)
+    return str(getattr(c, "backend_name", "") or type(field).__name__)
+
+
+def _message(exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    if not isinstance(exc, (ValueError, OSError)):
+        tb = traceback.extract_tb(exc.__traceback__)
+        if tb:
+            text += f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})"
+    return text
