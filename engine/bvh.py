@@ -8,9 +8,12 @@ the same layout:
 - ``tri`` ``(m, 16)``: ``a`` (3), ``e1 = b - a`` (3), ``e2 = c - a`` (3), the area vector
   ``N = (e1 x e2) / 2`` (3, outward for counter-clockwise faces seen from outside), the
   radius of the triangle about its centroid (1), three unused.
-- ``node`` ``(n, 16)``: bounding box ``lo`` (3), ``hi`` (3), the area-weighted centroid ``c``
+- ``node`` ``(n, 32)``: bounding box ``lo`` (3), ``hi`` (3), the area-weighted centroid ``c``
   (3), the summed area vector (3), a radius about ``c`` that bounds every vertex below the
-  node (1), total area (1), two unused.
+  node (1), total area (1), two unused, then the first moment
+  ``S[a, b] = sum_i N_i[a] (g_i - c)[b]`` (9, row-major; ``g_i`` the triangle centroids),
+  which lets a lumped cluster be integrated to second order (see engine.descriptor),
+  seven unused.
 - ``node_index`` ``(n, 4)`` int32: left child, right child (``-1`` for a leaf), first
   triangle, number of triangles. Children always have larger indices than their parent.
 
@@ -37,7 +40,7 @@ class TriangleTree:
     ----------
     tri : (m, 16) float64
         Packed triangles in tree order (see module docstring).
-    node : (n, 16) float64
+    node : (n, 32) float64
         Packed node geometry.
     node_index : (n, 4) int32
         Children and triangle ranges.
@@ -148,7 +151,7 @@ def _split(centroids, leaf_size):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def _node_geometry(tri, index):  # pragma: no cover - compiled
     n = index.shape[0]
-    node = np.zeros((n, 16))
+    node = np.zeros((n, 32))
     for nd in range(n - 1, -1, -1):
         left = index[nd, 0]
         right = index[nd, 1]
@@ -175,6 +178,12 @@ def _node_geometry(tri, index):  # pragma: no cover - compiled
                 centre = weighted / area_sum
             else:
                 centre = 0.5 * (lo + hi)
+            moment = np.zeros((3, 3))
+            for k in range(start, start + count):
+                for a in range(3):
+                    for b in range(3):
+                        g = tri[k, b] + (tri[k, 3 + b] + tri[k, 6 + b]) / 3.0
+                        moment[a, b] += tri[k, 9 + a] * (g - centre[b])
             radius = 0.0
             for k in range(start, start + count):
                 for corner in range(3):
@@ -203,14 +212,24 @@ def _node_geometry(tri, index):  # pragma: no cover - compiled
             rr = np.sqrt(np.sum((node[right, 6:9] - centre) ** 2)) + node[right, 12]
             radius = max(rl, rr)
             # The box gives another bound; keep the smaller.
-            corner = np.maximum(np.abs(hi - centre), np.abs(lo - centre))
-            radius = min(radius, np.sqrt(np.sum(corner**2)))
+            far = np.maximum(np.abs(hi - centre), np.abs(lo - centre))
+            radius = min(radius, np.sqrt(np.sum(far**2)))
+            moment = np.zeros((3, 3))
+            for child in (left, right):
+                for a in range(3):
+                    for b in range(3):
+                        moment[a, b] += node[child, 16 + 3 * a + b] + node[child, 9 + a] * (
+                            node[child, 6 + b] - centre[b]
+                        )
         node[nd, 0:3] = lo
         node[nd, 3:6] = hi
         node[nd, 6:9] = centre
         node[nd, 9:12] = area_vec
         node[nd, 12] = radius
         node[nd, 13] = area_sum
+        for a in range(3):
+            for b in range(3):
+                node[nd, 16 + 3 * a + b] = moment[a, b]
     return node
 
 

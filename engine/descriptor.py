@@ -67,7 +67,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from engine.bvh import TriangleTree, build_tree, pack_triangles
+from engine.bvh import TriangleTree, build_tree
 from engine.errors import Cancelled, InputError, ResourceError
 from engine.grid import Grid
 
@@ -81,6 +81,8 @@ THETA_NODE = 0.25
 THETA_WINDING = 0.5
 #: Pieces and clusters beyond (1 + GAUSS_CUTOFF * sigma) |xi| are skipped.
 GAUSS_CUTOFF = 6.0
+#: Distances within TIE (grid cells) count as equal when picking the nearest triangle.
+TIE = 1e-4
 #: Deepest subdivision of one triangle.
 MAX_LEVEL = 40
 #: Explicit stack sizes (pieces: 3 per level + 1; nodes: tree depth + 1).
@@ -265,15 +267,20 @@ def _tri_solid_angle(px, py, pz, tri, k):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover - compiled
-    """(squared distance, triangle index) of the nearest triangle."""
+    """(distance, triangle index) of the nearest triangle.
+
+    Triangles within TIE of the best distance count as tied and the lowest index wins, so
+    float32 and float64 pick the same triangle on edges and corners.
+    """
     best = np.inf
-    best_k = -1
+    best_k = 1 << 30
     if not use_tree:
         for k in range(tri.shape[0]):
-            d = _tri_dist2(px, py, pz, tri, k)
-            if d < best:
-                best = d
-                best_k = k
+            d = math.sqrt(_tri_dist2(px, py, pz, tri, k))
+            if d < best - TIE or (d <= best + TIE and k < best_k):
+                if d < best or k < best_k:
+                    best_k = k
+                best = min(best, d)
         return best, best_k
     sp = 0
     stack[sp] = 0
@@ -291,15 +298,16 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover 
                 bd += (lo - v) ** 2
             elif v > hi:
                 bd += (v - hi) ** 2
-        if bd >= best:
+        if bd > (best + TIE) * (best + TIE):
             continue
         left = nidx[nd, 0]
         if left < 0:
             for k in range(nidx[nd, 2], nidx[nd, 2] + nidx[nd, 3]):
-                d2 = _tri_dist2(px, py, pz, tri, k)
-                if d2 < best:
-                    best = d2
-                    best_k = k
+                d = math.sqrt(_tri_dist2(px, py, pz, tri, k))
+                if d < best - TIE or (d <= best + TIE and k < best_k):
+                    if d < best or k < best_k:
+                        best_k = k
+                    best = min(best, d)
         else:
             right = nidx[nd, 1]
             # Visit the child whose centre is nearer first (push it last).
@@ -366,6 +374,45 @@ def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2):  # pragma: n
     den = xi * xi + eta2
     f = f / (den * den)
     return f * (xi * xi - eta2), f * (-2.0 * xi * eta)
+
+
+@numba.njit(cache=True)
+def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover - compiled
+    """(re, im) of a lumped cluster, to second order in its size.
+
+    The centroid term ``w(eta) N.u`` plus the first-order correction ``sum_ab J_ab S_ab``
+    with ``J`` the Jacobian of ``V(q) = w(eta) (q - p)/eta`` at the centroid and ``S`` the
+    cluster's first moment (engine.bvh), which removes the O(r/d) error of clusters whose
+    normals differ (edges, corners, thin walls):
+    ``J_ab = (w' - w/eta) u_a u_b + (w/eta) delta_ab``,
+    ``w'/w = -2i/zeta - x/(sigma^2 |xi|)``.
+    """
+    dx = node[nd, 6] - px
+    dy = node[nd, 7] - py
+    dz = node[nd, 8] - pz
+    eta2 = dx * dx + dy * dy + dz * dz
+    if eta2 <= 0.0:
+        return 0.0, 0.0
+    eta = math.sqrt(eta2)
+    ux = dx / eta
+    uy = dy / eta
+    uz = dz / eta
+    x = eta * inv_axi - 1.0
+    g = math.exp(-x * x * inv2s2)
+    den = xi * xi + eta2
+    g = g / (den * den)
+    wr = g * (xi * xi - eta2)
+    wi = g * (-2.0 * xi * eta)
+    nu = node[nd, 9] * ux + node[nd, 10] * uy + node[nd, 11] * uz
+    usu = (
+        ux * (node[nd, 16] * ux + node[nd, 17] * uy + node[nd, 18] * uz)
+        + uy * (node[nd, 19] * ux + node[nd, 20] * uy + node[nd, 21] * uz)
+        + uz * (node[nd, 22] * ux + node[nd, 23] * uy + node[nd, 24] * uz)
+    )
+    trs = node[nd, 16] + node[nd, 20] + node[nd, 24]
+    fr = nu + (-2.0 * eta / den - 2.0 * x * inv2s2 * inv_axi - 1.0 / eta) * usu + trs / eta
+    fi = (-2.0 * xi / den) * usu
+    return wr * fr - wi * fi, wr * fi + wi * fr
 
 
 @numba.njit(cache=True)
@@ -475,8 +522,7 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node
         if dc - r > cut:
             continue
         if not (r > theta_node * max(dc, eps) or r > gauss_node):
-            tr, ti = _term(px, py, pz, cx, cy, cz, node[nd, 9], node[nd, 10], node[nd, 11], xi,
-                           inv_axi, inv2s2)  # fmt: skip
+            tr, ti = _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2)
             re += tr
             im += ti
         elif nidx[nd, 0] < 0:
@@ -515,26 +561,32 @@ def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, t
         if mode == 0:
             continue
         inside = w > 0.5
-        d2, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, nstack)
-        dist = math.sqrt(d2)
-        out[i, 2] = -dist if inside else dist
-        if mode == 1:
-            continue
-        sgn = -1.0 if inside else 1.0
-        if dist < eps and kn >= 0:
+        dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, nstack)
+        nn = 0.0
+        off = 0.0
+        if dist < eps:
             nx = tri[kn, 9]
             ny = tri[kn, 10]
             nz = tri[kn, 11]
             nn = math.sqrt(nx * nx + ny * ny + nz * nz)
             if nn > 0.0:
-                # Closest point q, then p' = q + sgn * eps * n_hat (q = p - offset along n
-                # is not known here; the push along n from p keeps p's tangential position).
+                # Within a hair of the boundary the winding number is about 0.5 and its
+                # rounding would pick the side: take it from the height above the nearest
+                # triangle's plane instead, the boundary itself counting as inside.
                 off = ((px - tri[kn, 0]) * nx + (py - tri[kn, 1]) * ny + (pz - tri[kn, 2]) * nz)
                 off = off / nn
-                step = sgn * eps - off
-                px = px + step * nx / nn
-                py = py + step * ny / nn
-                pz = pz + step * nz / nn
+                inside = off < 0.5 * eps
+        out[i, 2] = -dist if inside else dist
+        if mode == 1:
+            continue
+        sgn = -1.0 if inside else 1.0
+        if nn > 0.0:
+            # Move p along the normal to height eps on its side, keeping its tangential
+            # position: the value there is the one-sided limit on a face.
+            step = sgn * eps - off
+            px = px + step * nx / nn
+            py = py + step * ny / nn
+            pz = pz + step * nz / nn
         xi = sgn * max(dist, eps)
         re, im = _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node,
                           eps, cut_k, nstack, pstack)  # fmt: skip
@@ -608,11 +660,11 @@ class _Local:
 
 
 def _localise(triangles: np.ndarray, centre: np.ndarray, scale: float, use_tree: bool) -> _Local:
+    # Brute force keeps the tree's triangle order too, so that ties between equally near
+    # triangles (lowest index wins) resolve the same way in both methods.
     local = (triangles - centre) / scale
-    if use_tree:
-        tree = build_tree(local)
-        return _Local(centre, scale, tree, tree.tri)
-    return _Local(centre, scale, None, pack_triangles(local))
+    tree = build_tree(local)
+    return _Local(centre, scale, tree if use_tree else None, tree.tri)
 
 
 def _run(
@@ -641,7 +693,7 @@ def _run(
         if use_tree:
             node, nidx = local.tree.node, local.tree.node_index
         else:
-            node, nidx = np.zeros((1, 16)), np.full((1, 4), -1, dtype=np.int32)
+            node, nidx = np.zeros((1, 32)), np.full((1, 4), -1, dtype=np.int32)
 
         def chunk(lo: int, hi: int) -> None:
             _evaluate(
