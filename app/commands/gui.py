@@ -1,0 +1,39 @@
+"""`skelasm gui [SCENE]`: the desktop application (PySide6 + pyvistaqt).
+
+Qt is imported only inside :func:`run`, so the rest of the command line works without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "gui",
+        help="open the desktop application (drag parts, watch forces, tune parameters)",
+        description="Open the desktop application on a scene (default: the peg-in-hole "
+        "example). Without a screen, run it under a virtual display: "
+        "xvfb-run -a -s '-screen 0 1920x1080x24' skelasm gui ...",
+    )
+    parser.add_argument("scene", nargs="?", default=None,
+                        help="scene (.toml) or part file (STEP, STL, OBJ, PLY, OFF)")
+    parser.add_argument("--screenshot", metavar="OUT.png", default=None,
+                        help="save a picture of the whole window (after --quit-after seconds, "
+                        "default 5) and quit")
+    parser.add_argument("--quit-after", metavar="SECONDS", type=float, default=None,
+                        help="quit after this many seconds")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.quit_after is not None and args.quit_after < 0:
+        raise ValueError(f"--quit-after must be zero or positive, got {args.quit_after}")
+    try:
+        from app.gui.app import run as run_gui
+    except ImportError as exc:
+        raise RuntimeError(
+            f"the GUI needs PySide6, pyvista and pyvistaqt ({exc}); "
+            "install them with: pip install 'skelasm[gui]'"
+        ) from exc
+    return run_gui(args.scene, screenshot=args.screenshot, quit_after=args.quit_after)

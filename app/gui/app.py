@@ -1,0 +1,73 @@
+"""Start-up of the desktop application: QApplication, window, optional timed screenshot."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
+
+
+def make_application(argv: list[str] | None = None):
+    """The QApplication (created once), with the organisation and application names that
+    QSettings uses."""
+    from PySide6 import QtWidgets
+
+    from app.gui.main_window import APPLICATION, ORGANISATION
+
+    app = QtWidgets.QApplication.instance()
+    if app is None:
+        app = QtWidgets.QApplication(argv if argv is not None else [sys.argv[0]])
+    app.setOrganizationName(ORGANISATION)
+    app.setApplicationName(APPLICATION)
+    return app
+
+
+def check_display() -> str | None:
+    """A message when no display is reachable (pyvistaqt needs an OpenGL window), else None."""
+    if sys.platform.startswith("linux"):
+        platform = os.environ.get("QT_QPA_PLATFORM", "")
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) and \
+                platform not in ("offscreen", "minimal", "vnc"):
+            return ("no display: set DISPLAY, or run under a virtual one, e.g. "
+                    "`xvfb-run -a -s '-screen 0 1920x1080x24' skelasm gui ...`")
+    return None
+
+
+def run(scene: str | None = None, *, screenshot: str | None = None,
+        quit_after: float | None = None) -> int:
+    """Open the window on ``scene`` (default: the peg-in-hole example) and run the event loop.
+
+    With ``quit_after`` seconds, the window saves ``screenshot`` (if given) and quits then;
+    with only ``screenshot``, it does so after 5 seconds.
+    """
+    problem = check_display()
+    if problem:
+        raise RuntimeError(problem)
+    from PySide6 import QtCore
+
+    app = make_application()
+    from app.gui.main_window import MainWindow
+
+    window = MainWindow()
+    window.show()
+    path = Path(scene) if scene else DEFAULT_SCENE
+    window.open_path(path, wait=True)
+    status = {"code": 0}
+    if window.session.handle is None and window.last_error:
+        print(f"skelasm gui: {window.last_error}", file=sys.stderr)
+        status["code"] = 2 if quit_after is not None or screenshot else 0
+    if screenshot and quit_after is None:
+        quit_after = 5.0
+    if quit_after is not None:
+        def finish() -> None:
+            if screenshot:
+                out = window.save_screenshot(screenshot)
+                print(f"skelasm gui: saved {out}")
+            window.close()
+            app.quit()
+
+        QtCore.QTimer.singleShot(int(quit_after * 1000), finish)
+    app.exec()
+    return status["code"]

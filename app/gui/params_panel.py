@@ -1,0 +1,223 @@
+"""The parameter panel: accuracy (m'), descriptor parameters, kappa, coupling and effects.
+
+It only emits engine commands (``engine.api`` dataclasses) through :attr:`command`; the
+window forwards them. m' applies at once; sigma and penalty are debounced (a slider drag
+sends one request when it settles) because each starts a background recompute, which the
+engine runs while the old descriptors stay in use.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from PySide6 import QtCore, QtWidgets
+
+from app.gui.widgets import SliderField
+from engine import api
+from engine.simconfig import AXES, GUIDANCE, CouplingParams, Effects
+
+
+class ParamsPanel(QtWidgets.QWidget):
+    """Sliders and fields for the live parameters.
+
+    Signals
+    -------
+    command(object)
+        An ``engine.api`` command to send.
+    """
+
+    command = QtCore.Signal(object)
+    DEBOUNCE_MS = 350
+
+    def __init__(self, parent=None):
+        super().__init__(parent)
+        self._effects = Effects()
+        self._coupling = CouplingParams()
+        lay = QtWidgets.QVBoxLayout(self)
+        lay.setContentsMargins(4, 4, 4, 4)
+
+        acc = QtWidgets.QGroupBox("Accuracy")
+        form = QtWidgets.QFormLayout(acc)
+        self.modes = SliderField(4, 48, 16, integer=True)
+        self.modes.setObjectName("modes")
+        self.modes_label = QtWidgets.QLabel()
+        form.addRow("K (modes/axis)", self.modes)
+        form.addRow("m' = K³", self.modes_label)
+        self.modes.valueChanged.connect(self._modes_changed)
+        self._show_modes(16)
+        lay.addWidget(acc)
+
+        desc = QtWidgets.QGroupBox("Descriptors (recomputed in the background)")
+        form = QtWidgets.QFormLayout(desc)
+        self.sigma = SliderField(0.05, 3.0, 0.5, decimals=3, log=True)
+        self.penalty = SliderField(1.0, 20.0, 3.0, decimals=2, log=True)
+        form.addRow("sigma", self.sigma)
+        form.addRow("penalty P", self.penalty)
+        self.progress = QtWidgets.QProgressBar()
+        self.progress.setRange(0, 1000)
+        self.progress.setValue(0)
+        self.progress.setTextVisible(True)
+        self.progress.setFormat("idle")
+        self.cancel = QtWidgets.QPushButton("Cancel")
+        self.cancel.setEnabled(False)
+        row = QtWidgets.QHBoxLayout()
+        row.addWidget(self.progress, 1)
+        row.addWidget(self.cancel)
+        form.addRow(row)
+        self._debounce = QtCore.QTimer(self, singleShot=True, interval=self.DEBOUNCE_MS)
+        self._debounce.timeout.connect(self._send_descriptor_params)
+        self.sigma.valueChanged.connect(lambda _v: self._debounce.start())
+        self.penalty.valueChanged.connect(lambda _v: self._debounce.start())
+        self.cancel.clicked.connect(self._cancel)
+        lay.addWidget(desc)
+
+        sim = QtWidgets.QGroupBox("Forces")
+        form = QtWidgets.QFormLayout(sim)
+        self.kappa_default = QtWidgets.QCheckBox("scale-free default")
+        self.kappa_default.setChecked(True)
+        self.kappa = SliderField(1e-4, 1e4, 1.0, decimals=4, log=True)
+        self.kappa.setEnabled(False)
+        form.addRow("kappa", self.kappa_default)
+        form.addRow("", self.kappa)
+        self.coupling = SliderField(0.5, 50.0, 10.0, decimals=1, log=True, suffix=" Hz")
+        self.coupling.setToolTip(
+            "Coupling stiffness as the natural frequency of part + spring: k = m (2 pi f)^2,\n"
+            "so the same setting works whatever the unit of length."
+        )
+        form.addRow("coupling", self.coupling)
+        self.kappa_default.toggled.connect(self._kappa_changed)
+        self.kappa.valueChanged.connect(lambda _v: self._kappa_changed())
+        self.coupling.valueChanged.connect(self._coupling_changed)
+        lay.addWidget(sim)
+
+        eff = QtWidgets.QGroupBox("Effects")
+        form = QtWidgets.QFormLayout(eff)
+        self.guidance = QtWidgets.QComboBox()
+        self.guidance.addItems(GUIDANCE)
+        self.rotation = QtWidgets.QCheckBox("rotation free")
+        self.damping = QtWidgets.QCheckBox("damping")
+        self.gravity = QtWidgets.QCheckBox("gravity")
+        form.addRow("guidance", self.guidance)
+        box = QtWidgets.QHBoxLayout()
+        for w in (self.rotation, self.damping, self.gravity):
+            box.addWidget(w)
+        form.addRow(box)
+        self.set_effects(self._effects, emit=False)
+        self.guidance.currentTextChanged.connect(lambda _t: self._effects_changed())
+        for w in (self.rotation, self.damping, self.gravity):
+            w.toggled.connect(lambda _b: self._effects_changed())
+        lay.addWidget(eff)
+
+        buttons = QtWidgets.QHBoxLayout()
+        self.pause = QtWidgets.QPushButton("Pause")
+        self.pause.setCheckable(True)
+        self.reset = QtWidgets.QPushButton("Reset pose")
+        buttons.addWidget(self.pause)
+        buttons.addWidget(self.reset)
+        self.pause.toggled.connect(self._pause_toggled)
+        self.reset.clicked.connect(lambda: self.command.emit(api.Reset()))
+        lay.addLayout(buttons)
+        lay.addStretch(1)
+        self._gravity_vector: tuple[float, float, float] | None = None
+
+    # ------------------------------------------------------------------ from the scene
+    def load_config(self, config, modes: int, sigma: float, penalty: float) -> None:
+        """Show a scene's settings without sending anything."""
+        self.modes.setValueSilently(modes)
+        self._show_modes(modes)
+        self.sigma.setValueSilently(sigma)
+        self.penalty.setValueSilently(penalty)
+        self._coupling = config.coupling
+        self.coupling.setValueSilently(config.coupling.frequency_hz)
+        kappa = config.simulation.kappa
+        self.kappa_default.blockSignals(True)
+        self.kappa_default.setChecked(kappa is None)
+        self.kappa_default.blockSignals(False)
+        self.kappa.setEnabled(kappa is not None)
+        if kappa is not None:
+            self.kappa.setValueSilently(kappa)
+        self.set_effects(config.effects, emit=False)
+        self.set_progress(None)
+
+    def set_effects(self, effects: Effects, *, emit: bool = True) -> None:
+        self._effects = effects
+        if effects.gravity is not None:
+            self._gravity_vector = effects.gravity
+        widgets = (self.guidance, self.rotation, self.damping, self.gravity)
+        for w in widgets:
+            w.blockSignals(True)
+        self.guidance.setCurrentText(effects.guidance)
+        self.rotation.setChecked(effects.rotation)
+        self.damping.setChecked(effects.damping)
+        self.gravity.setChecked(effects.gravity is not None)
+        for w in widgets:
+            w.blockSignals(False)
+        if emit:
+            self.command.emit(api.SetEffects(effects))
+
+    # ------------------------------------------------------------------ progress
+    def set_progress(self, fraction: float | None, text: str = "") -> None:
+        """Show a running recompute (0..1) or, with None, an idle bar."""
+        if fraction is None:
+            self.progress.setValue(0)
+            self.progress.setFormat(text or "idle")
+            self.cancel.setEnabled(False)
+            return
+        self.progress.setValue(int(round(1000 * min(max(fraction, 0.0), 1.0))))
+        self.progress.setFormat(text or "recomputing descriptors %p%")
+        self.cancel.setEnabled(True)
+
+    # ------------------------------------------------------------------ handlers
+    def _show_modes(self, k: int) -> None:
+        self.modes_label.setText(f"{k ** 3:,}")
+
+    def _modes_changed(self, k: float) -> None:
+        self._show_modes(int(k))
+        self.command.emit(api.SetModes(int(k)))
+
+    def _send_descriptor_params(self) -> None:
+        self.set_progress(0.0, "starting recompute")
+        self.command.emit(
+            api.SetDescriptorParams(sigma=self.sigma.value(), penalty=self.penalty.value())
+        )
+
+    def flush(self) -> None:
+        """Send a pending (debounced) descriptor request now."""
+        if self._debounce.isActive():
+            self._debounce.stop()
+            self._send_descriptor_params()
+
+    def _cancel(self) -> None:
+        self._debounce.stop()
+        self.command.emit(api.CancelRecompute())
+        self.set_progress(None, "cancelled")
+
+    def _kappa_changed(self, *_args) -> None:
+        custom = not self.kappa_default.isChecked()
+        self.kappa.setEnabled(custom)
+        self.command.emit(api.SetKappa(self.kappa.value() if custom else None))
+
+    def _coupling_changed(self, hz: float) -> None:
+        # absolute gains would override the frequency; the slider speaks frequency only
+        self._coupling = replace(self._coupling, frequency_hz=hz, stiffness=None,
+                                 angular_stiffness=None, damping=None, angular_damping=None)
+        self.command.emit(api.SetCoupling(self._coupling))
+
+    def _effects_changed(self) -> None:
+        axes = AXES if self.rotation.isChecked() else AXES[:3]
+        kept = [a for a in self._effects.axes if a in AXES[:3]] or list(AXES[:3])
+        if self.rotation.isChecked():
+            axes = tuple(kept) + AXES[3:]
+        else:
+            axes = tuple(kept)
+        gravity = None
+        if self.gravity.isChecked():
+            gravity = self._gravity_vector or (0.0, 0.0, -9810.0)
+        effects = Effects(guidance=self.guidance.currentText(), axes=axes,
+                          damping=self.damping.isChecked(), gravity=gravity)
+        self._effects = effects
+        self.command.emit(api.SetEffects(effects))
+
+    def _pause_toggled(self, paused: bool) -> None:
+        self.pause.setText("Resume" if paused else "Pause")
+        self.command.emit(api.Pause(paused))

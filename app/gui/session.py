@@ -1,0 +1,234 @@
+"""The GUI's side of the engine boundary: open scenes, run the engine, drain its output.
+
+Everything here runs on the GUI thread except :func:`_open_worker`, which loads a scene in
+a short-lived thread and hands the frozen ``SceneHandle`` (or the exception) back through a
+queued Qt signal. The engine thread is reached only through ``engine.api``: commands go in
+with :meth:`Session.send`, frames and events come out of :meth:`Session.poll`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PySide6 import QtCore
+
+from engine import api
+from engine import pose as posemath
+
+SCENE_SUFFIXES = (".toml",)
+PART_SUFFIXES = (".step", ".stp", ".stl", ".obj", ".ply", ".off")
+FILE_FILTER = (
+    "Scenes and parts (*.toml *.step *.stp *.stl *.obj *.ply *.off);;"
+    "Scenes (*.toml);;Parts (*.step *.stp *.stl *.obj *.ply *.off);;All files (*)"
+)
+
+
+def real_engine_available() -> bool:
+    """True when the engine's loop and scene loader are installed (not just the api)."""
+    return all(importlib.util.find_spec(m) is not None for m in ("engine.loop", "engine.scene"))
+
+
+def engine_backend():
+    """The module providing ``open_scene`` and ``start_engine``: ``engine.api``, or the
+    stand-in while the engine's loop has not landed."""
+    if real_engine_available():
+        return api
+    from app.gui import standin
+
+    return standin
+
+
+@dataclass(frozen=True)
+class PartView:
+    """What the 3D view needs of a part: its mesh in its own frame and its world pose."""
+
+    name: str
+    vertices: np.ndarray  # (n, 3) float64
+    faces: np.ndarray  # (m, 3) int64
+    pose: np.ndarray  # (6,) float64 world pose
+    moving: bool
+
+
+class Session(QtCore.QObject):
+    """One open scene and the engine running on it.
+
+    Signals
+    -------
+    opened(object)
+        A new scene is loaded and its engine started (the ``SceneHandle``).
+    open_failed(str, str)
+        Path and message of a scene or part that could not be opened; the previous scene
+        and its engine keep running.
+    """
+
+    opened = QtCore.Signal(object)
+    open_failed = QtCore.Signal(str, str)
+    _loaded = QtCore.Signal(object, object, str)  # handle or None, exception or None, path
+
+    def __init__(self, parent=None, *, realtime: bool = True, engine_kwargs=None):
+        super().__init__(parent)
+        self.backend = engine_backend()
+        self.realtime = realtime
+        self.engine_kwargs = dict(engine_kwargs or {})
+        self.handle: api.SceneHandle | None = None
+        self.engine: api.EngineHandle | None = None
+        self.loading: str | None = None
+        self._tmp = tempfile.TemporaryDirectory(prefix="skelasm-gui-")
+        self._generated = 0
+        self._loaded.connect(self._on_loaded)
+
+    @property
+    def engine_name(self) -> str:
+        return "engine" if self.backend is api else "preview engine (engine.loop not installed)"
+
+    # ------------------------------------------------------------------ opening
+    def open(self, path: str | Path) -> None:
+        """Open a scene file, or a part file as the moving part of the current scene.
+
+        Returns at once; ``opened`` or ``open_failed`` follows.
+        """
+        path = Path(path)
+        try:
+            scene_path = self._scene_path_for(path)
+        except (OSError, ValueError) as exc:
+            self.open_failed.emit(str(path), str(exc))
+            return
+        self.loading = str(path)
+        threading.Thread(target=self._open_worker, args=(scene_path, str(path)),
+                         name="skelasm-open", daemon=True).start()
+
+    def open_sync(self, path: str | Path) -> None:
+        """Open in the calling thread (command line start-up, tests)."""
+        path = Path(path)
+        try:
+            handle = self.backend.open_scene(self._scene_path_for(path))
+        except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
+            self._on_loaded(None, exc, str(path))
+            return
+        self._on_loaded(handle, None, str(path))
+
+    def _open_worker(self, scene_path: Path, original: str) -> None:
+        try:
+            handle = self.backend.open_scene(scene_path)
+        except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
+            self._loaded.emit(None, exc, original)
+            return
+        self._loaded.emit(handle, None, original)
+
+    def _scene_path_for(self, path: Path) -> Path:
+        suffix = path.suffix.lower()
+        if not path.exists():
+            raise OSError(f"{path}: no such file")
+        if suffix in SCENE_SUFFIXES:
+            return path
+        if suffix not in PART_SUFFIXES:
+            raise ValueError(
+                f"{path}: unknown file type {suffix or '(none)'}; open a scene (.toml) or a "
+                f"part ({', '.join(PART_SUFFIXES)})"
+            )
+        return self._scene_with_part(path)
+
+    def _scene_with_part(self, part_path: Path) -> Path:
+        """A generated scene: the current fixed part and ``part_path`` as the moving part.
+
+        Without a current scene the part is shown alone as the fixed part.
+        """
+        import tomli_w
+
+        parts = []
+        spec = {"name": f"untitled ({part_path.name})", "units": "mm"}
+        if self.handle is not None:
+            scene = self.handle.scene
+            first = scene.parts[0]
+            spec["units"] = getattr(scene, "units", "mm")
+            parts.append({
+                "name": first.name,
+                "file": str(Path(self.handle.path).parent / first.file),
+                "pose": [float(x) for x in first.pose],
+            })
+            # start above the fixed part, clear of it
+            v = self.handle.parts[0].vertices
+            height = float(np.ptp(v[:, 2])) if len(v) else 1.0
+            pose = list(first.pose)
+            pose[2] = float(first.pose[2]) + float(v[:, 2].max()) + 0.75 * height
+            parts.append({"name": part_path.stem, "file": str(part_path.resolve()),
+                          "pose": [float(x) for x in pose]})
+        else:
+            parts.append({"name": part_path.stem, "file": str(part_path.resolve()),
+                          "pose": [0.0] * 6})
+        spec["part"] = parts
+        self._generated += 1
+        out = Path(self._tmp.name) / f"generated_{self._generated}.toml"
+        out.write_text(tomli_w.dumps(spec))
+        return out
+
+    def _on_loaded(self, handle, error, path: str) -> None:
+        self.loading = None
+        if error is not None:
+            self.open_failed.emit(path, _message(error))
+            return
+        old = self.engine
+        self.engine = None
+        if old is not None:
+            old.stop()
+        self.handle = handle
+        if len(handle.parts) >= 2:
+            try:
+                self.engine = self.backend.start_engine(
+                    handle, realtime=self.realtime, **self.engine_kwargs
+                )
+            except Exception as exc:  # noqa: BLE001
+                self.open_failed.emit(path, f"the engine did not start: {_message(exc)}")
+        self.opened.emit(handle)
+
+    # ------------------------------------------------------------------ running
+    def send(self, command) -> None:
+        if self.engine is not None:
+            self.engine.send(command)
+
+    def poll(self) -> tuple[list, list]:
+        """Frames (oldest first) and events since the last call."""
+        if self.engine is None:
+            return [], []
+        return self.engine.poll_frames(), self.engine.poll_events()
+
+    def part_views(self) -> list[PartView]:
+        if self.handle is None:
+            return []
+        views = []
+        n = len(self.handle.parts)
+        specs = self.handle.scene.parts
+        for i, (part, spec) in enumerate(zip(self.handle.parts, specs, strict=True)):
+            moving = i == 1 and n >= 2
+            pose = self.handle.world_pose(self.handle.start_pose) if moving else spec.pose
+            views.append(PartView(part.name, np.asarray(part.vertices, float),
+                                  np.asarray(part.faces, np.int64),
+                                  np.asarray(pose, float), moving))
+        return views
+
+    def world(self, relative_pose: np.ndarray) -> np.ndarray:
+        return self.handle.world_pose(relative_pose)
+
+    def relative(self, world_pose: np.ndarray) -> np.ndarray:
+        return self.handle.relative_pose(world_pose)
+
+    def part1_rotation(self) -> np.ndarray:
+        return posemath.rotation_matrix(self.handle.part1_world_pose[3:])
+
+    def close(self) -> None:
+        if self.engine is not None:
+            self.engine.stop()
+            self.engine = None
+        self._tmp.cleanup()
+
+
+def _message(exc: BaseException) -> str:
+    text = str(exc) or exc.__class__.__name__
+    if isinstance(exc, ValueError | OSError):
+        return text
+    return f"{exc.__class__.__name__}: {text}"

@@ -1,0 +1,99 @@
+"""A cheap strip chart: energy and force magnitude over the last seconds, drawn with QPainter.
+
+Samples go into fixed-size numpy ring buffers; painting draws at most one point per pixel
+column, so the cost does not grow with the engine rate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6 import QtCore, QtGui, QtWidgets
+
+
+class StripChart(QtWidgets.QWidget):
+    """Two traces (energy, |force|) against time, each with its own vertical scale.
+
+    Parameters
+    ----------
+    seconds : float
+        Width of the time window shown.
+    capacity : int
+        Samples kept; older ones are overwritten.
+    """
+
+    TRACES = (("energy", QtGui.QColor(31, 119, 180)), ("|force|", QtGui.QColor(214, 39, 40)))
+
+    def __init__(self, parent=None, *, seconds: float = 10.0, capacity: int = 4000):
+        super().__init__(parent)
+        self.seconds = float(seconds)
+        self._t = np.full(capacity, np.nan)  # (capacity,) float64 seconds
+        self._v = np.full((capacity, 2), np.nan)  # (capacity, 2) energy, |force|
+        self._next = 0
+        self.setMinimumHeight(110)
+        self.setSizePolicy(QtWidgets.QSizePolicy.Expanding, QtWidgets.QSizePolicy.Preferred)
+
+    def add(self, t: float, energy: float, force: float) -> None:
+        """Append one sample (time in seconds, energy, force magnitude)."""
+        i = self._next % len(self._t)
+        self._t[i] = t
+        self._v[i] = (energy, force)
+        self._next += 1
+
+    def clear(self) -> None:
+        self._t[:] = np.nan
+        self._v[:] = np.nan
+        self._next = 0
+
+    def samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) times and (k, 2) values inside the window, oldest first."""
+        n = min(self._next, len(self._t))
+        if n == 0:
+            return np.zeros(0), np.zeros((0, 2))
+        order = (np.arange(n) + (self._next - n)) % len(self._t)
+        t, v = self._t[order], self._v[order]
+        keep = t >= t[-1] - self.seconds
+        return t[keep], v[keep]
+
+    def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt API)
+        p = QtGui.QPainter(self)
+        p.fillRect(self.rect(), self.palette().base())
+        w, h = self.width(), self.height()
+        margin_top, margin_bottom = 16, 4
+        plot_h = max(h - margin_top - margin_bottom, 1)
+        t, v = self.samples()
+        p.setPen(self.palette().text().color())
+        font = p.font()
+        font.setPointSizeF(max(font.pointSizeF() * 0.85, 6))
+        p.setFont(font)
+        if len(t) < 2:
+            p.drawText(QtCore.QRectF(0, 0, w, h), QtCore.Qt.AlignCenter, "no samples yet")
+            p.end()
+            return
+        t_end = t[-1]
+        x = (w - 1) * (1.0 - (t_end - t) / self.seconds)
+        # one point per pixel column is enough for a chart this size
+        col = np.clip(x.astype(np.intp), 0, w - 1)
+        _, first = np.unique(col[::-1], return_index=True)
+        pick = np.sort(len(col) - 1 - first)
+        label_x = 4
+        for k, (name, colour) in enumerate(self.TRACES):
+            y = v[pick, k]
+            ok = np.isfinite(y)
+            if not np.any(ok):
+                continue
+            lo, hi = float(np.min(y[ok])), float(np.max(y[ok]))
+            if hi - lo < 1e-12 * max(abs(hi), 1.0):
+                lo, hi = lo - 0.5, hi + 0.5
+            ys = margin_top + plot_h * (1.0 - (y - lo) / (hi - lo))
+            xs = x[pick][ok]
+            poly = QtGui.QPolygonF(
+                [QtCore.QPointF(float(a), float(b)) for a, b in zip(xs, ys[ok], strict=True)]
+            )
+            p.setPen(QtGui.QPen(colour, 1.5))
+            p.drawPolyline(poly)
+            text = f"{name} {y[ok][-1]:.4g}  [{lo:.3g}, {hi:.3g}]"
+            p.drawText(label_x, 12, text)
+            label_x += p.fontMetrics().horizontalAdvance(text) + 12
+        p.setPen(self.palette().mid().color())
+        p.drawText(w - 60, h - 6, f"last {self.seconds:.0f} s")
+        p.end()
