@@ -1,0 +1,259 @@
+"""Scene files: parsing, defaults, errors with line numbers, save and reload."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine.loading import _edge_defects
+from engine.pose import compose, pose_to_matrix
+from engine.scene import (
+    DEFAULT_GRID,
+    DEFAULT_MODES,
+    SceneError,
+    key_line,
+    load_scene,
+    load_scene_parts,
+    relative_start_pose,
+    save_scene,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENES = sorted((ROOT / "assets").glob("*/scene.toml"))
+
+MINIMAL = """\
+assembled_pose = [0, 0, -15, 0, 0, 0]
+
+[[part]]
+file = "block.step"
+
+[[part]]
+file = "peg.step"
+pose = [1, 2, 3, 0, 0, 0.5]
+"""
+
+
+@pytest.fixture
+def scene_dir(tmp_path):
+    src = ROOT / "assets" / "peg_in_hole"
+    for name in ("block.step", "peg.step"):
+        (tmp_path / name).write_bytes((src / name).read_bytes())
+    return tmp_path
+
+
+def write(folder: Path, text: str, name: str = "scene.toml") -> Path:
+    path = folder / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_example_scenes_exist():
+    assert {p.parent.name for p in SCENES} == {"peg_in_hole", "boss_pins", "bracket_slot",
+                                              "dovetail"}
+
+
+@pytest.mark.parametrize("path", SCENES, ids=lambda p: p.parent.name)
+def test_example_scene_is_consistent(path):
+    scene = load_scene(path)
+    assert scene.units == "mm"
+    assert len(scene.parts) == 2
+    assert scene.parts[0].fixed and not scene.parts[1].fixed
+    assert np.allclose(scene.parts[0].pose, 0)
+    assert 48 <= scene.descriptor.grid <= 64
+    axis = scene.insertion_axis
+    assert axis is not None and np.linalg.norm(axis) == pytest.approx(1.0)
+    # the start pose is the assembled pose backed off along the insertion axis, no rotation
+    start = relative_start_pose(scene)
+    offset = start[:3] - scene.assembled_pose[:3]
+    assert np.allclose(start[3:], 0) and np.allclose(scene.assembled_pose[3:], 0)
+    back = -float(offset @ axis)
+    assert back > 0
+    assert np.allclose(offset, -back * axis)
+    # parts are closed, and at the start they do not overlap (boxes separated along the axis)
+    fixed, moving = load_scene_parts(scene)
+    for part in (fixed, moving):
+        assert _edge_defects(part.faces) == (0, 0)
+    lo2, hi2 = moving.bounds + start[:3]
+    lo1, hi1 = fixed.bounds
+    gap = np.maximum(lo2 - hi1, lo1 - hi2).max()
+    assert gap > 0
+
+
+@pytest.mark.parametrize("path", SCENES, ids=lambda p: p.parent.name)
+def test_assembled_parts_interlock_without_overlap(path):
+    """At the assembled pose the parts touch (zero clearance) but do not overlap.
+
+    Sample points of the moving part's surface, pushed slightly inwards, must lie outside
+    the fixed part; pushed outwards, some (those on the mating faces) must lie inside it.
+    """
+    import trimesh
+
+    scene = load_scene(path)
+    fixed, moving = load_scene_parts(scene)
+    m1 = trimesh.Trimesh(fixed.vertices, fixed.faces, process=False)
+    m2 = trimesh.Trimesh(moving.vertices, moving.faces, process=False)
+    m2.apply_transform(pose_to_matrix(scene.assembled_pose))
+    points, index = trimesh.sample.sample_surface_even(m2, 3000, seed=1)
+    normals = m2.face_normals[index]
+    eps = 0.05
+    inside_in = m1.contains(points - eps * normals)  # inside the moving part
+    inside_out = m1.contains(points + eps * normals)  # just outside the moving part
+    assert inside_in.mean() < 0.01  # no interpenetration
+    assert inside_out.mean() > 0.05  # the mating faces touch
+
+
+def test_minimal_scene_defaults(scene_dir):
+    scene = load_scene(write(scene_dir, MINIMAL))
+    assert scene.name == scene_dir.name and scene.units == "mm"
+    assert scene.descriptor.grid == DEFAULT_GRID and scene.descriptor.spacing is None
+    assert scene.modes == DEFAULT_MODES and scene.insertion_axis is None
+    assert [p.name for p in scene.parts] == ["block", "peg"]
+    assert scene.parts[1].file == (scene_dir / "peg.step").resolve()
+    assert scene.sections == {}
+    np.testing.assert_allclose(relative_start_pose(scene), [1, 2, 3, 0, 0, 0.5])
+    params = scene.params
+    assert (params.sigma, params.penalty, params.lambda_out) == (0.5, 3.0, 1.0)
+
+
+def test_relative_start_pose_with_a_moved_fixed_part(scene_dir):
+    text = MINIMAL.replace('file = "block.step"', 'file = "block.step"\npose = [5, 0, 0, 0, 0, 1]')
+    scene = load_scene(write(scene_dir, text))
+    rel = relative_start_pose(scene)
+    np.testing.assert_allclose(compose(scene.parts[0].pose, rel), scene.parts[1].pose, atol=1e-12)
+
+
+def test_simulation_sections_and_mass_keys_are_kept_raw(scene_dir):
+    text = MINIMAL + '\nmass = 0.2\n\n[simulation]\nrate_hz = 500\n\n[device]\nkind = "csv"\n'
+    scene = load_scene(write(scene_dir, text))
+    assert scene.sections == {"simulation": {"rate_hz": 500}, "device": {"kind": "csv"}}
+    assert scene.parts[1].extras == {"mass": 0.2}
+    assert scene.parts[0].extras == {}
+
+
+@pytest.mark.parametrize(
+    "text, line, pattern",
+    [
+        # unknown keys name the line and list the valid ones
+        (MINIMAL.replace("[[part]]\nfile = \"peg", "[[part]]\ncolour = 1\nfile = \"peg"), 7,
+         "unknown key 'colour' in \\[\\[part\\]\\] #2; valid keys: name, file, pose"),
+        (MINIMAL + "\n[descriptor]\nsigma = 0.5\nsgima = 1\n", 12,
+         "unknown key 'sgima' in \\[descriptor\\]; valid keys: sigma, penalty"),
+        ("speed = 3\n" + MINIMAL, 1, "unknown key 'speed' in the scene"),
+        (MINIMAL + "\n[descriptor]\nsigma = -1\n", 11, "sigma in \\[descriptor\\] must be positive"),
+        (MINIMAL + "\n[descriptor]\ngrid = 64\nspacing = 0.5\n", 12, "grid or spacing"),
+        (MINIMAL + "\n[descriptor]\ngrid = 6.5\n", 11, "grid in \\[descriptor\\] must be an integer"),
+        (MINIMAL + "\n[correlation]\nmodes = 0\n", 11, "modes"),
+        (MINIMAL.replace("pose = [1, 2, 3, 0, 0, 0.5]", "pose = [1, 2, 3]"), 8,
+         "pose in \\[\\[part\\]\\] #2 must be six numbers"),
+        (MINIMAL.replace("peg.step", "nothing.step"), 7, "part file 'nothing.step' not found"),
+        ('units = "furlong"\n' + MINIMAL, 1, "units must be one of mm"),
+        (MINIMAL.replace("[[part]]\nfile = \"peg", "[[part]]\nfixed = true\nfile = \"peg"), 7,
+         "first \\[\\[part\\]\\] is the fixed one"),
+        (MINIMAL.replace("assembled_pose = [0, 0, -15, 0, 0, 0]", "assembled_pose = [0, 0, 'a']"),
+         1, "assembled_pose in the scene must be six numbers"),
+        ("insertion_axis = [0, 0, 0]\n" + MINIMAL, 1, "insertion_axis must not be zero"),
+        (MINIMAL.replace('file = "peg.step"', 'file = "peg.step"\nname = "block"'), 8,
+         "two parts named 'block'"),
+        (MINIMAL + "[[part]]\nfile = \"peg.step\"\n", 9, "3 \\[\\[part\\]\\] tables"),
+        (MINIMAL.replace('file = "peg.step"\n', ""), 6, "\\[\\[part\\]\\] #2 has no file"),
+        # bad TOML: tomllib's own line
+        (MINIMAL.replace("[[part]]\nfile = \"peg", "[[part]]\nname = peg\nfile = \"peg"), 7,
+         "not valid TOML"),
+        (MINIMAL.replace("pose = [1, 2, 3, 0, 0, 0.5]", "pose = [1, 2, 3, 0, 0, 0.5"), 8,
+         "not valid TOML.*end of document"),
+    ],
+)
+def test_errors_name_the_line(scene_dir, text, line, pattern):
+    path = write(scene_dir, text)
+    with pytest.raises(SceneError, match=pattern) as info:
+        load_scene(path)
+    assert info.value.line == line, str(info.value)
+    assert str(info.value).startswith(f"{path}:{line}: ")
+    assert isinstance(info.value, ValueError)
+
+
+def test_missing_assembled_pose_and_parts(scene_dir):
+    with pytest.raises(SceneError, match="assembled_pose is missing"):
+        load_scene(write(scene_dir, MINIMAL.replace("assembled_pose = [0, 0, -15, 0, 0, 0]", "")))
+    with pytest.raises(SceneError, match="no \\[\\[part\\]\\] tables"):
+        load_scene(write(scene_dir, "assembled_pose = [0, 0, 0, 0, 0, 0]\n"))
+    with pytest.raises(SceneError, match="no such scene file"):
+        load_scene(scene_dir / "absent.toml")
+
+
+def test_key_line_lookup():
+    text = textwrap.dedent("""\
+        a = 1
+        [t]
+        b = 2   # comment
+        "c" = 3
+        [[p]]
+        x = 1
+        [[p]]
+        x = 2
+        [t.sub]
+        b = 9
+        """)
+    assert key_line(text, (), "a") == 1
+    assert key_line(text, ("t",), "b") == 3
+    assert key_line(text, ("t",), "c") == 4
+    assert key_line(text, ("p", 1), "x") == 8
+    assert key_line(text, ("p", 1)) == 7
+    assert key_line(text, ("t", "sub"), "b") == 10
+    assert key_line(text, ("t",), "zzz") == 2  # falls back to the table's header
+    assert key_line(text, ("nothing",), "x") is None
+
+
+def test_save_and_reload_round_trip(scene_dir, tmp_path):
+    text = MINIMAL + textwrap.dedent("""\
+        mass = 0.25
+        tolerance = 0.02
+
+        [descriptor]
+        spacing = 0.75
+        sigma = 0.7
+
+        [correlation]
+        modes = 12
+
+        [coupling]
+        frequency_hz = 8.0
+        """)
+    scene = load_scene(write(scene_dir, 'insertion_axis = [0, 0, -2]\n' + text))
+    out = tmp_path / "elsewhere" / "copy.toml"
+    out.parent.mkdir()
+    save_scene(scene, out)
+    again = load_scene(out)
+    assert again.units == scene.units and again.modes == 12
+    assert again.descriptor == scene.descriptor
+    assert again.descriptor.spacing == 0.75 and again.descriptor.grid is None
+    np.testing.assert_allclose(again.assembled_pose, scene.assembled_pose)
+    np.testing.assert_allclose(again.insertion_axis, [0, 0, -1])
+    assert again.sections == {"coupling": {"frequency_hz": 8.0}}
+    for a, b in zip(again.parts, scene.parts):
+        assert a.name == b.name and a.file == b.file and a.fixed == b.fixed
+        assert a.extras == b.extras and a.tolerance == b.tolerance
+        np.testing.assert_allclose(a.pose, b.pose)
+    assert "../" in out.read_text()  # part files written relative to the new location
+
+
+def test_scene_parts_take_the_scene_unit(tmp_path):
+    src = ROOT / "assets" / "dovetail"
+    text = (src / "slide.step").read_text()
+    (tmp_path / "slide_m.step").write_text(
+        text.replace("SI_UNIT(.MILLI.,.METRE.)", "SI_UNIT($,.METRE.)"))
+    (tmp_path / "block.step").write_bytes((src / "block.step").read_bytes())
+    path = write(tmp_path, """\
+        assembled_pose = [0, 10, 0, 0, 0, 0]
+        [[part]]
+        file = "block.step"
+        [[part]]
+        file = "slide_m.step"
+        """)
+    block, slide = load_scene_parts(load_scene(path))
+    assert slide.unit == "mm"
+    np.testing.assert_allclose(slide.bounds, [(-10e3, -30e3, -8e3), (10e3, 0, 5e3)], atol=0.1)
+    assert any("converted from m" in w for w in slide.warnings)
