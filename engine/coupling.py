@@ -292,6 +292,7 @@ class Simulation:
         pose = self.start_pose if pose is None else np.asarray(pose, float).reshape(6)
         self.state = BodyState.at_pose(self.body, pose)
         self.time = 0.0
+        self.step_time = 0.0
         self.steps = 0
         self.set_proxy(pose)
         self.sample = FieldSample()
@@ -361,6 +362,7 @@ class Simulation:
             translation_mask=self._tmask_opt,
             rotation_mask=self._rmask_opt,
         )
+        self.step_time = self.time
         self.time += self.dt
         self.steps += 1
         return sample
