@@ -1,0 +1,108 @@
+"""Landscapes: one inverse FFT against per-pose evaluation and brute-force sums."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import pytest
+
+from engine.correlation import Correlator
+from engine.grid import Grid
+from engine.pose import rotation_matrix
+
+H = 0.5
+GRID1 = Grid((-3.0, -3.0, -3.0), H, (13, 13, 13))
+GRID2 = Grid((-2.5, -2.0, -2.5), H, (11, 9, 11))
+
+
+def gaussian(grid, mu, s, a):
+    p = grid.points()
+    return (a * np.exp(-np.sum((p - np.asarray(mu)) ** 2, -1) / (2 * s * s))).astype(np.complex64)
+
+
+@pytest.fixture(scope="module")
+def corr():
+    r1 = gaussian(GRID1, (0.2, -0.1, 0.3), 0.8, 1 + 1j) + gaussian(GRID1, (-1, 0.5, 0), 0.7, -1j)
+    r2 = gaussian(GRID2, (0.3, 0.2, -0.2), 0.7, 2 - 1j)
+    return Correlator(types.SimpleNamespace(rho=r1, grid=GRID1),
+                      types.SimpleNamespace(rho=r2, grid=GRID2),
+                      modes=10_000, backend="numpy", use_cache=False)
+
+
+def test_identity_full_modes_equals_brute_force(corr):
+    land = corr.landscape(np.eye(3))
+    rho1 = gaussian(GRID1, (0.2, -0.1, 0.3), 0.8, 1 + 1j) + gaussian(GRID1, (-1, 0.5, 0), 0.7, -1j)
+    rho2 = gaussian(GRID2, (0.3, 0.2, -0.2), 0.7, 2 - 1j)
+    rng = np.random.default_rng(1)
+    for _ in range(6):
+        idx = rng.integers(0, land.energy.shape[0], size=3)
+        t = np.array([ax[i] for ax, i in zip(land.translations, idx)])
+        shift = np.rint((t + np.asarray(GRID2.origin) - np.asarray(GRID1.origin)) / H).astype(int)
+        total = 0j
+        for i in range(rho2.shape[0]):
+            for j in range(rho2.shape[1]):
+                for k in range(rho2.shape[2]):
+                    a, b, c = i + shift[0], j + shift[1], k + shift[2]
+                    if 0 <= a < 13 and 0 <= b < 13 and 0 <= c < 13:
+                        total += complex(rho1[a, b, c]) * complex(rho2[i, j, k])
+        expected = -(total * H**3).real
+        assert land.energy[tuple(idx)] == pytest.approx(expected, abs=1e-5 * float(np.abs(land.energy).max()))
+
+
+def test_matches_per_pose_evaluation(corr):
+    rot = rotation_matrix(np.array([0.3, -0.6, 0.2]))
+    corr.set_modes(8)
+    land = corr.landscape(rot)
+    assert land.modes == 8
+    rng = np.random.default_rng(2)
+    n = land.energy.shape[0]
+    for _ in range(5):
+        idx = rng.integers(n // 4, 3 * n // 4, size=3)
+        t = np.array([ax[i] for ax, i in zip(land.translations, idx)])
+        ev = corr.evaluate(rot, t)
+        scale = float(np.abs(land.energy).max())
+        assert land.energy[tuple(idx)] == pytest.approx(ev.energy, abs=1e-5 * scale)
+        np.testing.assert_allclose(land.force[(slice(None),) + tuple(idx)], ev.force,
+                                   atol=1e-5 * np.abs(land.force).max())
+        looked = land.lookup(t)
+        assert looked.energy == pytest.approx(ev.energy, abs=1e-5 * scale)
+        assert looked.torque is None
+    corr.set_modes(10_000)
+
+
+def test_lookup_interpolates_and_is_zero_outside(corr):
+    land = corr.landscape(np.eye(3), forces=False)
+    x, y, z = land.translations
+    n = len(x)
+    i, j, k = n // 2, n // 2 + 1, n // 2 - 1
+    t = np.array([0.5 * (x[i] + x[i + 1]), y[j], z[k]])
+    expected = 0.5 * (land.energy[i, j, k] + land.energy[i + 1, j, k])
+    assert land.lookup(t).energy == pytest.approx(expected, rel=1e-6)
+    far = land.lookup(np.array([x[-1] + 10 * H, 0, 0]))
+    assert far.energy == 0.0 and not np.any(far.force)
+
+
+def test_section_and_minimum(corr):
+    land = corr.landscape(np.eye(3), forces=False)
+    t_min, e_min = land.minimum()
+    assert e_min == pytest.approx(land.energy.min())
+    section, u, v = land.section("xy", t_min[2])
+    assert section.shape == (len(u), len(v))
+    assert section.min() == pytest.approx(e_min, rel=1e-6)
+    section_xz, _, _ = land.section("xz", t_min[1])
+    assert section_xz.min() == pytest.approx(e_min, rel=1e-6)
+    with pytest.raises(ValueError, match="valid: xy, xz, yz"):
+        land.section("xx", 0.0)
+    with pytest.raises(ValueError, match="outside"):
+        land.section("xy", 1e6)
+
+
+def test_far_from_overlap_is_zero(corr):
+    rot = rotation_matrix(np.array([0.2, 0.1, 0.4]))
+    land = corr.landscape(rot, forces=False)
+    x, y, z = land.translations
+    for idx in [(0, 0, 0), (len(x) - 1, 0, len(z) // 2)]:
+        t = np.array([x[idx[0]], y[idx[1]], z[idx[2]]])
+        if not corr.boxes_overlap(rot, t):
+            assert land.energy[idx] == 0.0

@@ -1,0 +1,93 @@
+"""Spectra: centred zero-padded FFTs against direct Fourier sums and Gaussian transforms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.grid import Grid
+from engine.spectrum import compute_spectrum, fast_size, kept_indices
+
+
+def _smooth(n: int) -> bool:
+    for p in (2, 3, 5, 7):
+        while n % p == 0:
+            n //= p
+    return n == 1
+
+
+@pytest.mark.parametrize("target", [1, 7, 33, 97, 131, 211])
+def test_fast_size_is_smallest_even_smooth(target):
+    n = fast_size(target)
+    assert n >= target and n % 2 == 0 and _smooth(n)
+    assert not any(m % 2 == 0 and _smooth(m) for m in range(max(target, 2), n))
+
+
+def test_values_and_moments_equal_direct_sums():
+    rng = np.random.default_rng(0)
+    grid = Grid((0.3, -1.2, 2.0), 0.25, (5, 6, 4))
+    rho = (rng.normal(size=grid.shape) + 1j * rng.normal(size=grid.shape)).astype(np.complex64)
+    size = 8
+    spec = compute_spectrum(rho, grid, size, moments=True, use_cache=False)
+    points = grid.points().reshape(-1, 3)
+    centre = grid.center
+    h = grid.spacing
+    for k in [(0, 0, 0), (1, -2, 3), (-4, 3, -1), (2, 2, 2)]:
+        w = np.asarray(k) / (size * h)
+        phase = np.exp(-2j * np.pi * (points - centre) @ w)
+        expected = h**3 * np.sum(rho.ravel() * phase)
+        idx = tuple(np.mod(k, size))
+        assert spec.values[idx] == pytest.approx(expected, rel=1e-5, abs=1e-6)
+        for a in range(3):
+            moment = h**3 * np.sum((points[:, a] - centre[a]) * rho.ravel() * phase)
+            assert spec.moments[(a,) + idx] == pytest.approx(moment, rel=1e-5, abs=1e-6)
+
+
+def test_gaussian_has_its_closed_form_transform():
+    """FT of exp(-|p - mu|^2 / 2 s^2) about c is (2 pi s^2)^1.5 exp(-2 pi^2 s^2 w^2 - 2 pi i w.(mu - c))."""
+    grid = Grid((-4.0, -4.0, -4.0), 0.4, (21, 21, 21))
+    mu = np.array([0.3, -0.5, 0.2])
+    s = 0.9
+    p = grid.points()
+    rho = np.exp(-np.sum((p - mu) ** 2, axis=-1) / (2 * s * s)).astype(np.complex64)
+    spec = compute_spectrum(rho, grid, 32, use_cache=False)
+    k = np.fft.fftfreq(32, 1 / 32)
+    kx, ky, kz = np.meshgrid(k, k, k, indexing="ij")
+    w = np.stack([kx, ky, kz], -1) / (32 * grid.spacing)
+    expected = (2 * np.pi * s * s) ** 1.5 * np.exp(
+        -2 * np.pi**2 * s * s * np.sum(w * w, -1) - 2j * np.pi * w @ (mu - grid.center)
+    )
+    assert np.abs(spec.values - expected).max() < 1e-4 * np.abs(expected).max()
+
+
+def test_spectra_are_cached(tmp_path, monkeypatch):
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    grid = Grid((0, 0, 0), 1.0, (4, 4, 4))
+    rho = np.ones(grid.shape, dtype=np.complex64)
+    first = compute_spectrum(rho, grid, 8, moments=True)
+    second = compute_spectrum(rho, grid, 8, moments=True)
+    assert not first.from_cache and second.from_cache
+    np.testing.assert_array_equal(first.values, second.values)
+    np.testing.assert_array_equal(first.moments, second.moments)
+    other = compute_spectrum(rho, grid, 8, moments=False)  # a different entry
+    assert not other.from_cache and other.moments is None
+
+
+def test_bad_inputs_are_rejected():
+    grid = Grid((0, 0, 0), 1.0, (4, 4, 4))
+    with pytest.raises(ValueError, match="grid shape"):
+        compute_spectrum(np.zeros((3, 4, 4), np.complex64), grid, 8, use_cache=False)
+    with pytest.raises(ValueError, match="smaller"):
+        compute_spectrum(np.zeros((4, 4, 4), np.complex64), grid, 2, use_cache=False)
+    bad = np.zeros((4, 4, 4), np.complex64)
+    bad[1, 1, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        compute_spectrum(bad, grid, 8, use_cache=False)
+
+
+def test_kept_indices():
+    np.testing.assert_array_equal(kept_indices(4, 16), [-2, -1, 0, 1])
+    np.testing.assert_array_equal(kept_indices(3, 16), [-1, 0, 1])
+    np.testing.assert_array_equal(np.sort(np.mod(kept_indices(16, 16), 16)), np.arange(16))
+    with pytest.raises(ValueError):
+        kept_indices(17, 16)
