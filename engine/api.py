@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
@@ -254,20 +254,20 @@ class Stop:
     """End the engine thread."""
 
 
-Command = Union[
-    SetProxyPose,
-    SetModes,
-    SetDescriptorParams,
-    CancelRecompute,
-    SetEffects,
-    SetCoupling,
-    SetKappa,
-    SetDevice,
-    RequestLandscape,
-    Pause,
-    Reset,
-    Stop,
-]
+Command = (
+    SetProxyPose
+    | SetModes
+    | SetDescriptorParams
+    | CancelRecompute
+    | SetEffects
+    | SetCoupling
+    | SetKappa
+    | SetDevice
+    | RequestLandscape
+    | Pause
+    | Reset
+    | Stop
+)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -340,15 +340,15 @@ class StoppedEvent:
     reason: str = "stopped"
 
 
-Event = Union[
-    ProgressEvent,
-    ReadyEvent,
-    DescriptorsSwapped,
-    LandscapeReady,
-    DeviceEvent,
-    ErrorEvent,
-    StoppedEvent,
-]
+Event = (
+    ProgressEvent
+    | ReadyEvent
+    | DescriptorsSwapped
+    | LandscapeReady
+    | DeviceEvent
+    | ErrorEvent
+    | StoppedEvent
+)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -405,19 +405,13 @@ def open_scene(path: str | Path) -> SceneHandle:
     engine.scene.SceneError, engine.simconfig.SimConfigError, engine.loading.PartError
         ValueError subclasses with the file, the line and the fix.
     """
-    from engine.loading import load_part
-    from engine.pose import relative_pose
-    from engine.scene import load_scene
+    from engine.scene import load_scene, load_scene_parts, relative_start_pose
     from engine.simconfig import simconfig_from_scene
 
     scene = load_scene(path)
     config = simconfig_from_scene(scene)
-    base = Path(scene.path).parent
-    parts = tuple(load_part(_part_path(base, spec.file)) for spec in scene.parts)
-    if len(scene.parts) >= 2:
-        start = relative_pose(scene.parts[0].pose, scene.parts[1].pose)
-    else:
-        start = np.zeros(6)
+    parts = tuple(load_scene_parts(scene))
+    start = relative_start_pose(scene) if len(scene.parts) >= 2 else np.zeros(6)
     return SceneHandle(
         scene=scene,
         config=config,
@@ -426,11 +420,6 @@ def open_scene(path: str | Path) -> SceneHandle:
         assembled_pose=_frozen_array(scene.assembled_pose, (6,)),
         path=Path(scene.path),
     )
-
-
-def _part_path(base: Path, file: Any) -> Path:
-    p = Path(file)
-    return p if p.is_absolute() else base / p
 
 
 class EngineHandle:

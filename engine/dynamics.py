@@ -122,7 +122,8 @@ def kinetic_energy(body: RigidBody, state: BodyState) -> float:
     R = state.rotation
     i_world = R @ body.inertia @ R.T
     return float(
-        0.5 * body.mass * state.velocity @ state.velocity + 0.5 * state.omega @ i_world @ state.omega
+        0.5 * body.mass * state.velocity @ state.velocity
+        + 0.5 * state.omega @ i_world @ state.omega
     )
 
 

@@ -28,9 +28,10 @@ import threading
 import time
 import traceback
 from array import array
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -331,7 +332,9 @@ class EngineLoop:
 
     def start(self) -> None:
         """Run the loop in a new daemon thread."""
-        self._thread = threading.Thread(target=self._thread_main, name="skelasm-engine", daemon=True)
+        self._thread = threading.Thread(
+            target=self._thread_main, name="skelasm-engine", daemon=True
+        )
         self._thread.start()
 
     def is_alive(self) -> bool:
@@ -556,7 +559,9 @@ class EngineLoop:
         try:
             dev = open_device(cmd.kind, self.sim.proxy_pose, dict(cmd.options), base)
         except DeviceError as exc:
-            self.events.append(api.DeviceEvent(cmd.kind, False, str(exc), fallback=self.device.name))
+            self.events.append(
+                api.DeviceEvent(cmd.kind, False, str(exc), fallback=self.device.name)
+            )
             return
         try:
             self.device.disconnect()
@@ -567,7 +572,7 @@ class EngineLoop:
         self.events.append(api.DeviceEvent(cmd.kind, True, f"{cmd.kind} connected", cmd.kind))
 
     # -- background work ------------------------------------------------------------------------
-    def _start_worker(self, task: str, job: Callable[[Callable[[float], None], Callable[[], bool]], Any]) -> None:
+    def _start_worker(self, task: str, job: Callable[..., Any]) -> None:
         if self._worker is not None and self._worker.is_alive():
             self._worker_cancel.set()  # superseded: the old one stops at its next check
         cancel_flag = threading.Event()
@@ -600,7 +605,9 @@ class EngineLoop:
         rot = self.sim.state.rotation.copy()
 
         def job(progress: Callable[[float], None], cancel: Callable[[], bool]) -> Any:
-            field, descs = model.field(effects, physics.kappa, rot, progress=progress, cancel=cancel)
+            field, descs = model.field(
+                effects, physics.kappa, rot, progress=progress, cancel=cancel
+            )
             return ("ready", field, descs, effects)
 
         return job

@@ -122,7 +122,9 @@ class Effects:
 
     def __post_init__(self) -> None:
         if self.guidance not in GUIDANCE:
-            raise ValueError(f"guidance must be one of {', '.join(GUIDANCE)}; got {self.guidance!r}")
+            raise ValueError(
+                f"guidance must be one of {', '.join(GUIDANCE)}; got {self.guidance!r}"
+            )
         bad = [a for a in self.axes if a not in AXES]
         if bad:
             raise ValueError(f"unknown axes {bad}; valid axes are {', '.join(AXES)}")

@@ -11,6 +11,7 @@ from sim_fakes import well
 
 from engine.coupling import (
     CorrelatorField,
+    CouplingGains,
     HapticLimits,
     LandscapeField,
     NullField,
@@ -18,7 +19,6 @@ from engine.coupling import (
     clamp_norm,
     coupling_wrench,
     field_for_effects,
-    CouplingGains,
 )
 from engine.dynamics import RigidBody
 from engine.pose import rotation_matrix

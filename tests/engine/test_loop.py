@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
@@ -12,10 +11,10 @@ from sim_fakes import well
 from engine import api
 from engine.coupling import CorrelatorField, Simulation
 from engine.devices import Device, DeviceCapabilities, DeviceError
+from engine.dynamics import RigidBody
 from engine.errors import Cancelled
 from engine.loop import EngineLoop, period_stats
 from engine.simconfig import Effects, SimConfig, resolve_physics
-from engine.dynamics import RigidBody
 
 
 def tetra():

@@ -1,0 +1,154 @@
+"""`skelasm simulate SCENE`: run a scene headless and report where the part ended up."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="run a scene headless (scripted proxy) and report the final pose and timing",
+        description="Step a scene's simulation without a GUI. The proxy follows --trajectory "
+        "(CSV t,tx,ty,tz,rx,ry,rz relative to part 1) or stays at the start pose.",
+    )
+    p.add_argument("scene", help="scene file (TOML)")
+    p.add_argument("--trajectory", metavar="IN.csv", help="proxy trajectory CSV")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="simulated seconds (default: the trajectory's length + 1 s, else the "
+                   "scene's [simulation] seconds)")
+    p.add_argument("--log", metavar="OUT.csv", help="record every step (CSV, or .npz)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", dest="realtime", action="store_true",
+                      help="hold the scene's rate on the wall clock")
+    mode.add_argument("--as-fast-as-possible", dest="realtime", action="store_false",
+                      help="step as fast as possible (default)")
+    p.set_defaults(realtime=False)
+    p.add_argument("--guidance", choices=("skeletal", "collision", "none"),
+                   help="override the scene's [effects] guidance")
+    p.add_argument("--modes", type=int, help="override the scene's [correlation] modes")
+    p.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba", "opencl"),
+                   help="per-pose evaluator of the correlator")
+    p.add_argument("--start", type=float, nargs=6, metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
+                   help="start pose of part 2 relative to part 1 (default: the scene's)")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    import numpy as np
+
+    from engine.api import open_scene
+    from engine.devices import DeviceError, MouseDevice, TrajectoryDevice, open_device
+    from engine.loop import EngineLoop, build_simulation, period_stats
+    from engine.pose import relative_pose
+    from engine.recording import Recorder
+
+    handle = open_scene(args.scene)
+    if args.guidance:
+        effects = replace(handle.config.effects, guidance=args.guidance)
+        handle = replace(handle, config=replace(handle.config, effects=effects))
+    if args.start is not None:
+        handle = replace(handle, start_pose=np.asarray(args.start, float))
+    sim, model = build_simulation(handle, modes=args.modes, backend=args.backend, prepare=True)
+
+    notes = []
+    if args.trajectory:
+        device = TrajectoryDevice(args.trajectory)
+    else:
+        cfg = handle.config.device
+        try:
+            device = open_device(cfg.kind, sim.proxy_pose, dict(cfg.options), handle.path.parent)
+        except DeviceError as exc:
+            notes.append(f"{exc}")
+            device = MouseDevice(sim.proxy_pose)
+    if args.seconds is not None:
+        seconds = args.seconds
+    elif isinstance(device, TrajectoryDevice):
+        seconds = device.duration + 1.0
+    else:
+        seconds = handle.config.simulation.seconds
+    if not (seconds > 0 and math.isfinite(seconds)):
+        raise ValueError(f"--seconds must be positive, got {seconds!r}")
+    steps = max(1, int(round(seconds / sim.dt)))
+
+    recorder = Recorder(capacity=steps) if args.log else None
+    loop = EngineLoop(
+        sim,
+        model=model,
+        device=device,
+        realtime=args.realtime,
+        keep_periods=True,
+        on_step=recorder.on_step if recorder else None,
+    )
+    import time
+
+    t0 = time.perf_counter()
+    taken = loop.run(max_steps=steps)
+    wall = time.perf_counter() - t0
+    device.disconnect()
+    for event in loop.poll_events():
+        msg = getattr(event, "message", "")
+        if msg and type(event).__name__ in ("DeviceEvent", "ErrorEvent"):
+            notes.append(msg)
+    if recorder is not None:
+        recorder.save(args.log)
+
+    final = sim.part_pose()
+    target = np.asarray(handle.assembled_pose, float)
+    error_pose = relative_pose(target, final)
+    stats = period_stats(np.asarray(loop.periods))
+    frames = loop.poll_frames()
+    eval_us = [f.eval_us for f in frames]
+    result = {
+        "scene": str(handle.path),
+        "guidance": sim.effects.guidance,
+        "axes": list(sim.effects.axes),
+        "backend": getattr(getattr(sim.field, "correlator", None), "backend_name", "")
+        or type(sim.field).__name__,
+        "modes": int(getattr(sim.field, "modes", 0)),
+        "final_pose": [float(v) for v in final],
+        "assembled_pose": [float(v) for v in target],
+        "distance_to_assembled": float(np.linalg.norm(error_pose[:3])),
+        "angle_to_assembled_deg": float(np.degrees(np.linalg.norm(error_pose[3:]))),
+        "steps": int(taken),
+        "simulated_seconds": float(sim.time),
+        "wall_seconds": float(wall),
+        "realtime": bool(args.realtime),
+        "rate_hz": float(taken / wall) if wall > 0 else 0.0,
+        "period_us": {
+            "median": stats.median_us,
+            "p1": stats.p1_us,
+            "p99": stats.p99_us,
+            "max": stats.max_us,
+        },
+        "eval_us_median_last": float(np.median(eval_us)) if eval_us else 0.0,
+        "final_energy": float(sim.sample.energy),
+        "haptic_force": [float(v) for v in sim.haptic_force],
+        "notes": notes,
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        for n in notes:
+            print(f"note: {n}", file=sys.stderr)
+        f = result["final_pose"]
+        mode = "realtime" if args.realtime else "as fast as possible"
+        print(f"{result['scene']}: {taken} steps ({sim.time:.3f} s simulated) in {wall:.2f} s "
+              f"wall, {result['rate_hz']:.0f} steps/s ({mode})")
+        print(f"guidance {result['guidance']}, evaluator {result['backend']}, K = {result['modes']}")
+        print("final pose  t = (" + ", ".join(f"{v:.4g}" for v in f[:3]) + "), r = ("
+              + ", ".join(f"{v:.4g}" for v in f[3:]) + ")")
+        print(f"to assembled: {result['distance_to_assembled']:.4g} {handle.scene.units}, "
+              f"{result['angle_to_assembled_deg']:.3g} deg")
+        p = result["period_us"]
+        print(f"period us: median {p['median']:.1f}, p1 {p['p1']:.1f}, p99 {p['p99']:.1f}, "
+              f"max {p['max']:.1f}")
+        if args.log:
+            print(f"log: {args.log}")
+    return 0
