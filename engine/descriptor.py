@@ -58,6 +58,7 @@ precision.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Callable
@@ -88,6 +89,8 @@ MAX_LEVEL = 40
 #: Explicit stack sizes (pieces: 3 per level + 1; nodes: tree depth + 1).
 PIECE_STACK = 128
 NODE_STACK = 64
+
+_log = logging.getLogger(__name__)
 
 METHODS = ("tree", "brute")
 #: Points evaluated between progress reports / cancel checks.
@@ -638,10 +641,22 @@ def _check_memory(n_points: int, what: str) -> None:
 
 
 def _resolve_backend(backend: Any):
+    """The Backend to use. An automatic choice whose OpenCL device cannot compile the
+    kernel falls back to numpy (logged); an explicit OpenCL choice raises BackendError."""
     from engine.backend import Backend, get_backend
 
     if backend is None:
-        return get_backend()
+        chosen = get_backend()
+        if chosen.name == "opencl":
+            from engine.descriptor_cl import kernel_builds
+
+            if not kernel_builds(chosen):
+                _log.warning(
+                    "OpenCL device %s cannot compile the descriptor kernel; using numpy",
+                    chosen.device_name,
+                )
+                return get_backend("numpy")
+        return chosen
     if isinstance(backend, Backend):
         return backend
     if isinstance(backend, str):

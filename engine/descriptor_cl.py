@@ -1,0 +1,490 @@
+"""OpenCL kernels of the skeletal density descriptor (pyopencl; any device).
+
+Works on the packed triangle and hierarchy arrays of :mod:`engine.bvh` (sent as float32 in
+local units: grid cells about the grid centre) and query points ``(k, 3)`` in the same
+units. One work-item evaluates one point: winding number, exact nearest distance, then
+the boundary sum, with the same rules, constants and traversal order as the numba
+reference in :mod:`engine.descriptor`, so both agree to float32 precision. Accumulators
+are double where the device has ``cl_khr_fp64`` (PoCL does; many GPUs do not), else float.
+Subdivision and traversal use explicit private stacks (no recursion in OpenCL C).
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from typing import Any
+
+import numpy as np
+
+from engine import descriptor as _d
+
+KERNEL_SOURCE = r"""
+#ifdef USE_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double acc_t;
+#else
+typedef float acc_t;
+#endif
+
+#define TS 16   /* floats per triangle */
+#define NS 32   /* floats per node */
+
+inline float seg_dist2(float3 p, float3 a, float3 b)
+{
+    float3 u = b - a;
+    float3 w = p - a;
+    float uu = dot(u, u);
+    float t = 0.0f;
+    if (uu > 0.0f) {
+        t = dot(w, u) / uu;
+        t = fmin(fmax(t, 0.0f), 1.0f);
+    }
+    float3 d = w - t * u;
+    return dot(d, d);
+}
+
+float tri_dist2(float3 p, __global const float *t)
+{
+    float3 a = (float3)(t[0], t[1], t[2]);
+    float3 ab = (float3)(t[3], t[4], t[5]);
+    float3 ac = (float3)(t[6], t[7], t[8]);
+    float3 n = (float3)(t[9], t[10], t[11]);
+    float ab2 = dot(ab, ab);
+    float ac2 = dot(ac, ac);
+    float n2 = dot(n, n);
+    if (4.0f * n2 <= 1e-12f * ab2 * ac2) {
+        float d = seg_dist2(p, a, a + ab);
+        d = fmin(d, seg_dist2(p, a, a + ac));
+        d = fmin(d, seg_dist2(p, a + ab, a + ac));
+        return d;
+    }
+    float3 ap = p - a;
+    float d1 = dot(ab, ap);
+    float d2 = dot(ac, ap);
+    float3 q = a;
+    if (!(d1 <= 0.0f && d2 <= 0.0f)) {
+        float3 bp = ap - ab;
+        float d3 = dot(ab, bp);
+        float d4 = dot(ac, bp);
+        float3 cp = ap - ac;
+        float d5 = dot(ab, cp);
+        float d6 = dot(ac, cp);
+        float vc = d1 * d4 - d3 * d2;
+        float vb = d5 * d2 - d1 * d6;
+        float va = d3 * d6 - d5 * d4;
+        if (d3 >= 0.0f && d4 <= d3) {
+            q = a + ab;
+        } else if (vc <= 0.0f && d1 >= 0.0f && d3 <= 0.0f) {
+            q = a + (d1 / (d1 - d3)) * ab;
+        } else if (d6 >= 0.0f && d5 <= d6) {
+            q = a + ac;
+        } else if (vb <= 0.0f && d2 >= 0.0f && d6 <= 0.0f) {
+            q = a + (d2 / (d2 - d6)) * ac;
+        } else if (va <= 0.0f && (d4 - d3) >= 0.0f && (d5 - d6) >= 0.0f) {
+            float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+            q = a + ab + w * (ac - ab);
+        } else {
+            float denom = 1.0f / (va + vb + vc);
+            q = a + (vb * denom) * ab + (vc * denom) * ac;
+        }
+    }
+    float3 d = p - q;
+    return dot(d, d);
+}
+
+float tri_solid_angle(float3 p, __global const float *t)
+{
+    float3 a = (float3)(t[0], t[1], t[2]) - p;
+    float3 b = a + (float3)(t[3], t[4], t[5]);
+    float3 c = a + (float3)(t[6], t[7], t[8]);
+    float la = length(a);
+    float lb = length(b);
+    float lc = length(c);
+    float num = dot(a, cross(b, c));
+    float den = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la;
+    return 2.0f * atan2(num, den);
+}
+
+/* Nearest triangle: (distance, index); ties within TIE go to the lowest index. */
+void nearest(float3 p, __global const float *tri, int m, __global const float *node,
+             __global const int *nidx, int use_tree, float *out_d, int *out_k)
+{
+    float best = INFINITY;
+    int best_k = 1 << 30;
+    if (!use_tree) {
+        for (int k = 0; k < m; ++k) {
+            float d = sqrt(tri_dist2(p, tri + TS * k));
+            if (d < best - TIE || (d <= best + TIE && k < best_k)) {
+                if (d < best || k < best_k) best_k = k;
+                best = fmin(best, d);
+            }
+        }
+        *out_d = best;
+        *out_k = best_k;
+        return;
+    }
+    int stack[NODE_STACK];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+        int nd = stack[--sp];
+        __global const float *nb = node + NS * nd;
+        float3 lo = (float3)(nb[0], nb[1], nb[2]);
+        float3 hi = (float3)(nb[3], nb[4], nb[5]);
+        float3 e = fmax(lo - p, (float3)(0.0f)) + fmax(p - hi, (float3)(0.0f));
+        float bd = dot(e, e);
+        if (bd > (best + TIE) * (best + TIE)) continue;
+        int left = nidx[4 * nd];
+        if (left < 0) {
+            int k0 = nidx[4 * nd + 2];
+            int k1 = k0 + nidx[4 * nd + 3];
+            for (int k = k0; k < k1; ++k) {
+                float d = sqrt(tri_dist2(p, tri + TS * k));
+                if (d < best - TIE || (d <= best + TIE && k < best_k)) {
+                    if (d < best || k < best_k) best_k = k;
+                    best = fmin(best, d);
+                }
+            }
+        } else {
+            int right = nidx[4 * nd + 1];
+            float3 cl = (float3)(node[NS * left + 6], node[NS * left + 7], node[NS * left + 8]) - p;
+            float3 cr = (float3)(node[NS * right + 6], node[NS * right + 7], node[NS * right + 8]) - p;
+            if (dot(cl, cl) < dot(cr, cr)) {
+                stack[sp] = right;
+                stack[sp + 1] = left;
+            } else {
+                stack[sp] = left;
+                stack[sp + 1] = right;
+            }
+            sp += 2;
+        }
+    }
+    *out_d = best;
+    *out_k = best_k;
+}
+
+float winding(float3 p, __global const float *tri, int m, __global const float *node,
+              __global const int *nidx, int use_tree, float theta_w)
+{
+    acc_t total = 0;
+    if (!use_tree) {
+        for (int k = 0; k < m; ++k) total += tri_solid_angle(p, tri + TS * k);
+        return (float)total / (4.0f * M_PI_F);
+    }
+    int stack[NODE_STACK];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+        int nd = stack[--sp];
+        __global const float *nb = node + NS * nd;
+        float3 d = (float3)(nb[6], nb[7], nb[8]) - p;
+        float dc = length(d);
+        if (nb[12] < theta_w * dc) {
+            total += dot((float3)(nb[9], nb[10], nb[11]), d) / (dc * dc * dc);
+        } else if (nidx[4 * nd] < 0) {
+            int k0 = nidx[4 * nd + 2];
+            int k1 = k0 + nidx[4 * nd + 3];
+            for (int k = k0; k < k1; ++k) total += tri_solid_angle(p, tri + TS * k);
+        } else {
+            stack[sp] = nidx[4 * nd];
+            stack[sp + 1] = nidx[4 * nd + 1];
+            sp += 2;
+        }
+    }
+    return (float)total / (4.0f * M_PI_F);
+}
+
+/* zeta^-2 g dA_perp for area vector n at c (g without its constant). */
+inline float2 term(float3 p, float3 c, float3 n, float xi, float inv_axi, float inv2s2)
+{
+    float3 d = c - p;
+    float eta2 = dot(d, d);
+    if (eta2 <= 0.0f) return (float2)(0.0f, 0.0f);
+    float eta = sqrt(eta2);
+    float x = eta * inv_axi - 1.0f;
+    float f = exp(-x * x * inv2s2) * dot(n, d) / eta;
+    float den = xi * xi + eta2;
+    f = f / (den * den);
+    return (float2)(f * (xi * xi - eta2), f * (-2.0f * xi * eta));
+}
+
+/* A lumped cluster to second order (see engine.descriptor._node_term). */
+float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, float inv2s2)
+{
+    float3 d = (float3)(nb[6], nb[7], nb[8]) - p;
+    float eta2 = dot(d, d);
+    if (eta2 <= 0.0f) return (float2)(0.0f, 0.0f);
+    float eta = sqrt(eta2);
+    float3 u = d / eta;
+    float x = eta * inv_axi - 1.0f;
+    float g = exp(-x * x * inv2s2);
+    float den = xi * xi + eta2;
+    g = g / (den * den);
+    float wr = g * (xi * xi - eta2);
+    float wi = g * (-2.0f * xi * eta);
+    float nu = dot((float3)(nb[9], nb[10], nb[11]), u);
+    float usu = u.x * (nb[16] * u.x + nb[17] * u.y + nb[18] * u.z)
+              + u.y * (nb[19] * u.x + nb[20] * u.y + nb[21] * u.z)
+              + u.z * (nb[22] * u.x + nb[23] * u.y + nb[24] * u.z);
+    float trs = nb[16] + nb[20] + nb[24];
+    float fr = nu + (-2.0f * eta / den - 2.0f * x * inv2s2 * inv_axi - 1.0f / eta) * usu + trs / eta;
+    float fi = (-2.0f * xi / den) * usu;
+    return (float2)(wr * fr - wi * fi, wr * fi + wi * fr);
+}
+
+/* One triangle with per-point adaptive subdivision; pieces as (u, v, s). */
+void tri_rho(float3 p, __global const float *t, float xi, float inv_axi, float inv2s2,
+             float cut, float theta, float gauss_size, float eps, acc_t *re, acc_t *im)
+{
+    float3 a = (float3)(t[0], t[1], t[2]);
+    float3 e1 = (float3)(t[3], t[4], t[5]);
+    float3 e2 = (float3)(t[6], t[7], t[8]);
+    float3 n = (float3)(t[9], t[10], t[11]);
+    float r0 = t[12];
+    if (n.x == 0.0f && n.y == 0.0f && n.z == 0.0f) return;
+    const float min_s = ldexp(1.0f, -MAX_LEVEL);
+    float stack[3 * PIECE_STACK];
+    int sp = 0;
+    stack[0] = 0.0f;
+    stack[1] = 0.0f;
+    stack[2] = 1.0f;
+    sp = 1;
+    while (sp > 0) {
+        --sp;
+        float u = stack[3 * sp];
+        float v = stack[3 * sp + 1];
+        float s = stack[3 * sp + 2];
+        float as = fabs(s);
+        float cu = u + s / 3.0f;
+        float cv = v + s / 3.0f;
+        float3 c = a + cu * e1 + cv * e2;
+        float r = r0 * as;
+        float dc = length(c - p);
+        if (dc - r > cut) continue;
+        if ((r > theta * fmax(dc, eps) || r > gauss_size) && as > min_s && sp + 4 <= PIECE_STACK) {
+            float h = 0.5f * s;
+            int b = 3 * sp;
+            stack[b] = u;          stack[b + 1] = v;          stack[b + 2] = h;
+            stack[b + 3] = u + h;  stack[b + 4] = v;          stack[b + 5] = h;
+            stack[b + 6] = u;      stack[b + 7] = v + h;      stack[b + 8] = h;
+            stack[b + 9] = u + h;  stack[b + 10] = v + h;     stack[b + 11] = -h;
+            sp += 4;
+            continue;
+        }
+        float a2 = as * as;
+        float2 tv = term(p, c, n * a2, xi, inv_axi, inv2s2);
+        *re += tv.x;
+        *im += tv.y;
+    }
+}
+
+__kernel void skeletal(__global const float *pts, int npts,
+                       __global const float *tri, int m,
+                       __global const float *node, __global const int *nidx,
+                       int use_tree, int mode,
+                       float sigma, float lam_in, float lam_out,
+                       float theta, float theta_node, float theta_w, float eps, float cut_k,
+                       __global float *out)
+{
+    int i = get_global_id(0);
+    if (i >= npts) return;
+    float3 p = (float3)(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2]);
+    float w = winding(p, tri, m, node, nidx, use_tree, theta_w);
+    out[4 * i + 3] = w;
+    out[4 * i] = 0.0f;
+    out[4 * i + 1] = 0.0f;
+    out[4 * i + 2] = 0.0f;
+    if (mode == 0) return;
+    int inside = w > 0.5f;
+    float dist;
+    int kn;
+    nearest(p, tri, m, node, nidx, use_tree, &dist, &kn);
+    float3 nrm = (float3)(0.0f);
+    float nn = 0.0f;
+    float off = 0.0f;
+    if (dist < eps) {
+        __global const float *t = tri + TS * kn;
+        nrm = (float3)(t[9], t[10], t[11]);
+        nn = length(nrm);
+        if (nn > 0.0f) {
+            off = dot(p - (float3)(t[0], t[1], t[2]), nrm) / nn;
+            inside = off < 0.5f * eps;
+        }
+    }
+    out[4 * i + 2] = inside ? -dist : dist;
+    if (mode == 1) return;
+    float sgn = inside ? -1.0f : 1.0f;
+    if (nn > 0.0f) p += (sgn * eps - off) * (nrm / nn);
+    float xi = sgn * fmax(dist, eps);
+    float axi = fabs(xi);
+    float inv_axi = 1.0f / axi;
+    float inv2s2 = 1.0f / (2.0f * sigma * sigma);
+    float cut = (1.0f + cut_k * sigma) * axi;
+    float gauss_piece = theta * sigma * axi;
+    float gauss_node = theta_node * sigma * axi;
+    acc_t re = 0, im = 0;
+    if (!use_tree) {
+        for (int k = 0; k < m; ++k)
+            tri_rho(p, tri + TS * k, xi, inv_axi, inv2s2, cut, theta, gauss_piece, eps, &re, &im);
+    } else {
+        int stack[NODE_STACK];
+        int sp = 0;
+        stack[sp++] = 0;
+        while (sp > 0) {
+            int nd = stack[--sp];
+            __global const float *nb = node + NS * nd;
+            float r = nb[12];
+            float dc = length((float3)(nb[6], nb[7], nb[8]) - p);
+            if (dc - r > cut) continue;
+            if (!(r > theta_node * fmax(dc, eps) || r > gauss_node)) {
+                float2 tv = node_term(p, nb, xi, inv_axi, inv2s2);
+                re += tv.x;
+                im += tv.y;
+            } else if (nidx[4 * nd] < 0) {
+                int k0 = nidx[4 * nd + 2];
+                int k1 = k0 + nidx[4 * nd + 3];
+                for (int k = k0; k < k1; ++k)
+                    tri_rho(p, tri + TS * k, xi, inv_axi, inv2s2, cut, theta, gauss_piece, eps,
+                            &re, &im);
+            } else {
+                stack[sp] = nidx[4 * nd];
+                stack[sp + 1] = nidx[4 * nd + 1];
+                sp += 2;
+            }
+        }
+    }
+    float c = inside ? lam_in : -lam_out;
+    float norm = c / (sqrt(2.0f * M_PI_F) * sigma);
+    out[4 * i] = (float)(norm * re);
+    out[4 * i + 1] = (float)(norm * im);
+}
+"""
+
+_programs: "weakref.WeakKeyDictionary[Any, Any]" = weakref.WeakKeyDictionary()
+_lock = threading.Lock()
+
+
+def _has_fp64(device: Any) -> bool:
+    return "cl_khr_fp64" in device.extensions
+
+
+def build_program(context: Any) -> Any:
+    """Compile (once per context) and return the program."""
+    import pyopencl as cl
+
+    with _lock:
+        prog = _programs.get(context)
+        if prog is None:
+            dev = context.devices[0]
+            options = [
+                f"-DPIECE_STACK={_d.PIECE_STACK}",
+                f"-DNODE_STACK={_d.NODE_STACK}",
+                f"-DMAX_LEVEL={_d.MAX_LEVEL}",
+                f"-DTIE={_d.TIE!r}f",
+            ]
+            if _has_fp64(dev):
+                options.append("-DUSE_DOUBLE")
+            try:
+                prog = cl.Program(context, KERNEL_SOURCE).build(options=options)
+            except (cl.Error, RuntimeError) as exc:
+                from engine.backend import BackendError
+
+                lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower()]
+                why = lines[-1] if lines else str(exc).splitlines()[0]
+                raise BackendError(
+                    f"the OpenCL device {dev.name.strip()} ({dev.platform.name.strip()}) cannot "
+                    f"compile the descriptor kernel ({why}); use --backend numpy, or pick "
+                    "another device with --device / SKELASM_DEVICE"
+                ) from exc
+            _programs[context] = prog
+        return prog
+
+
+def kernel_builds(backend: Any) -> bool:
+    """Whether the descriptor kernel compiles on this OpenCL backend."""
+    from engine.backend import BackendError
+
+    try:
+        build_program(backend.context)
+    except BackendError:
+        return False
+    return True
+
+
+class OpenCLDescriptor:
+    """The compiled kernel on one backend (context and queue)."""
+
+    def __init__(self, backend: Any) -> None:
+        self.backend = backend
+        self.program = build_program(backend.context)
+        self.kernel = self.program.skeletal
+
+    _instances: "dict[int, OpenCLDescriptor]" = {}
+
+    @classmethod
+    def for_backend(cls, backend: Any) -> OpenCLDescriptor:
+        """Shared instance per backend."""
+        key = id(backend.context)
+        inst = cls._instances.get(key)
+        if inst is None or inst.backend.context is not backend.context:
+            inst = cls(backend)
+            cls._instances[key] = inst
+        return inst
+
+    def prepare(self, tri: np.ndarray, tree: Any, params: Any):
+        """Upload one mesh; returns ``evaluate(points (k, 3) float, mode) -> (k, 4) float64``.
+
+        Parameters
+        ----------
+        tri : (m, 16) float64
+            Packed triangles (tree order).
+        tree : TriangleTree or None
+            None for brute force.
+        params : DescriptorParams
+        """
+        import pyopencl as cl
+
+        ctx = self.backend.context
+        queue = self.backend.queue
+        mf = cl.mem_flags
+        tri32 = np.ascontiguousarray(tri, dtype=np.float32)
+        if tree is not None:
+            node32 = np.ascontiguousarray(tree.node, dtype=np.float32)
+            nidx = np.ascontiguousarray(tree.node_index, dtype=np.int32)
+            use_tree = 1
+        else:
+            node32 = np.zeros((1, 32), np.float32)
+            nidx = np.full((1, 4), -1, np.int32)
+            use_tree = 0
+        tri_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tri32)
+        node_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=node32)
+        nidx_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=nidx)
+        m = np.int32(tri32.shape[0])
+        scalars = [
+            np.float32(params.sigma),
+            np.float32(params.lambda_in),
+            np.float32(params.lambda_out),
+            np.float32(_d.THETA),
+            np.float32(_d.THETA_NODE),
+            np.float32(_d.THETA_WINDING),
+            np.float32(_d.EPS_FLOOR),
+            np.float32(_d.GAUSS_CUTOFF),
+        ]
+        kernel = self.kernel
+
+        def evaluate(points: np.ndarray, mode: int) -> np.ndarray:
+            k = points.shape[0]
+            pts = np.ascontiguousarray(points, dtype=np.float32)
+            out = np.empty((k, 4), np.float32)
+            pts_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pts)
+            out_buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+            kernel(
+                queue, (k,), None, pts_buf, np.int32(k), tri_buf, m, node_buf, nidx_buf,
+                np.int32(use_tree), np.int32(mode), *scalars, out_buf,
+            )  # fmt: skip
+            cl.enqueue_copy(queue, out, out_buf)
+            queue.finish()
+            return out.astype(np.float64)
+
+        return evaluate
