@@ -1,0 +1,332 @@
+"""Descriptors on disk and in the cache: a part's skeletal density on its grid, with provenance.
+
+A :class:`Descriptor` is ``rho (nx, ny, nz) complex64`` sampled on a :class:`engine.grid.Grid`
+in the part's own frame, plus the parameters it was computed with. ``Descriptor.save`` writes
+an ``.npz`` with (at least) ``rho``, ``origin`` (3 floats: where grid index (0, 0, 0) lies in
+the part's frame), ``spacing``, ``shape``, ``sigma``, ``penalty`` and ``lambda_out``.
+
+:func:`descriptor_for_part` goes through ``engine.cache.load_or_compute``, keyed by the mesh's
+bytes, the grid, the parameters, the method, the descriptor module's numerical constants and
+:data:`FORMAT_VERSION`; a second call with the same inputs loads the stored array. The key does
+not include the backend: the numpy and OpenCL paths agree to float32 precision, so either one's
+result serves both.
+
+All parts of a scene share one grid spacing (so that the correlation needs no resampling at
+R = I): :func:`scene_spacing` picks it, :func:`descriptors_for_scene` computes both.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.errors import InputError
+from engine.grid import Grid, grid_for_bounds
+
+#: Bumped whenever the stored layout or the meaning of a stored descriptor changes.
+FORMAT_VERSION = 1
+#: Cache kind (sub-folder of the cache directory).
+CACHE_KIND = "descriptor"
+
+
+@dataclass(frozen=True, eq=False)
+class Descriptor:
+    """A part's skeletal density on a grid.
+
+    Attributes
+    ----------
+    rho : (nx, ny, nz) complex64
+        Samples; ``rho[i, j, k]`` at ``grid.origin + grid.spacing * (i, j, k)`` (read-only).
+    grid : Grid
+        Where the samples lie, in the part's own frame.
+    params : engine.descriptor.DescriptorParams
+        sigma, penalty, lambda_out.
+    triangles : int
+        Triangles of the mesh it was computed from.
+    backend : str
+        Backend that computed it (``"numpy"``, ``"opencl"``), as stored.
+    seconds : float
+        Wall time of the call that produced this object (a cache load when ``from_cache``).
+    from_cache : bool
+        Whether it was loaded from the cache.
+    name : str
+        The part's name.
+    method : str
+        ``"tree"`` or ``"brute"``.
+    compute_seconds : float
+        Wall time the computation itself took (when it was computed, even if now cached).
+    """
+
+    rho: np.ndarray
+    grid: Grid
+    params: Any
+    triangles: int
+    backend: str
+    seconds: float
+    from_cache: bool = False
+    name: str = ""
+    method: str = "tree"
+    compute_seconds: float = float("nan")
+
+    def __post_init__(self) -> None:
+        rho = np.asarray(self.rho)
+        if rho.shape != tuple(self.grid.shape):
+            raise ValueError(f"rho has shape {rho.shape} but the grid is {self.grid.shape}")
+        rho = np.ascontiguousarray(rho, dtype=np.complex64)
+        rho.setflags(write=False)
+        object.__setattr__(self, "rho", rho)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The ``.npz`` contents: rho, origin, spacing, shape, parameters and provenance."""
+        return {
+            "rho": np.asarray(self.rho),
+            "origin": np.asarray(self.grid.origin, dtype=np.float64),
+            "spacing": np.asarray(self.grid.spacing, dtype=np.float64),
+            "shape": np.asarray(self.grid.shape, dtype=np.int64),
+            "sigma": np.asarray(self.params.sigma, dtype=np.float64),
+            "penalty": np.asarray(self.params.penalty, dtype=np.float64),
+            "lambda_out": np.asarray(self.params.lambda_out, dtype=np.float64),
+            "triangles": np.asarray(self.triangles, dtype=np.int64),
+            "backend": np.asarray(self.backend),
+            "method": np.asarray(self.method),
+            "name": np.asarray(self.name),
+            "compute_seconds": np.asarray(self.compute_seconds, dtype=np.float64),
+            "format_version": np.asarray(FORMAT_VERSION, dtype=np.int64),
+        }
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write an ``.npz`` (suffix added if missing) and return its path."""
+        p = Path(path)
+        if p.suffix != ".npz":
+            p = p.with_name(p.name + ".npz")
+        if p.parent and not p.parent.exists():
+            raise OSError(f"{p.parent}: no such folder for the output file")
+        np.savez(p, **self.arrays())
+        return p
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Descriptor:
+        """Read a descriptor written by :meth:`save` (or ``skelasm precompute``)."""
+        p = Path(path)
+        t0 = time.perf_counter()
+        try:
+            with np.load(p, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except FileNotFoundError:
+            raise InputError(f"{p}: no such descriptor file") from None
+        except (OSError, ValueError, EOFError) as exc:
+            raise InputError(f"{p}: not a readable descriptor file ({exc}); compute it again "
+                             "with `skelasm precompute`") from exc
+        return cls._from_arrays(arrays, source=str(p), seconds=time.perf_counter() - t0,
+                                from_cache=False)
+
+    @classmethod
+    def _from_arrays(cls, arrays: dict[str, np.ndarray], *, source: str, seconds: float,
+                     from_cache: bool) -> Descriptor:
+        from engine.descriptor import DescriptorParams
+
+        missing = [k for k in ("rho", "origin", "spacing", "sigma", "penalty", "lambda_out")
+                   if k not in arrays]
+        if missing:
+            raise InputError(f"{source}: not a descriptor file (missing {', '.join(missing)})")
+        version = int(arrays.get("format_version", FORMAT_VERSION))
+        if version > FORMAT_VERSION:
+            raise InputError(f"{source}: descriptor format {version} is newer than this "
+                             f"program's ({FORMAT_VERSION}); update skelasm")
+        rho = arrays["rho"]
+        grid = Grid(tuple(float(x) for x in arrays["origin"]), float(arrays["spacing"]),
+                    tuple(int(n) for n in rho.shape))
+        params = DescriptorParams(sigma=float(arrays["sigma"]), penalty=float(arrays["penalty"]),
+                                  lambda_out=float(arrays["lambda_out"]))
+        return cls(
+            rho=rho, grid=grid, params=params,
+            triangles=int(arrays.get("triangles", -1)),
+            backend=str(arrays.get("backend", "unknown")),
+            seconds=seconds, from_cache=from_cache,
+            name=str(arrays.get("name", "")),
+            method=str(arrays.get("method", "tree")),
+            compute_seconds=float(arrays.get("compute_seconds", np.nan)),
+        )
+
+
+# --------------------------------------------------------------------------- grids
+def grid_for_part(part: Any, *, samples: int | None = None, spacing: float | None = None,
+                  padding: float) -> Grid:
+    """The grid of a part (``engine.loading.Part``): its bounds plus ``padding`` cells."""
+    lower, upper = part.bounds
+    return grid_for_bounds(lower, upper, samples=samples, spacing=spacing, padding=padding)
+
+
+def scene_spacing(scene: Any, parts: Sequence[Any]) -> float:
+    """The one grid spacing of a scene.
+
+    The scene's ``[descriptor] spacing`` if given, else the longest side of the largest part
+    (the largest bounding-box side of all parts) divided by ``[descriptor] grid``.
+    """
+    settings = scene.descriptor
+    if settings.spacing is not None:
+        return float(settings.spacing)
+    longest = max(float(np.max(p.extent)) for p in parts)
+    if not longest > 0:
+        raise InputError(f"{scene.path}: the parts have zero extent; cannot derive a grid")
+    return longest / int(settings.grid)
+
+
+# --------------------------------------------------------------------------- compute / cache
+def _descriptor_constants() -> dict[str, Any]:
+    """Module-level numerical constants of engine.descriptor (they change the result)."""
+    import engine.descriptor as d
+
+    return {k: getattr(d, k) for k in sorted(vars(d)) if k.isupper()
+            and isinstance(getattr(d, k), (int, float, str, tuple))}
+
+
+def cache_key_parts(part: Any, grid: Grid, params: Any, method: str) -> dict[str, Any]:
+    """Everything the cached descriptor of ``part`` depends on (for ``engine.cache``)."""
+    return {
+        "vertices": np.ascontiguousarray(part.vertices, dtype=np.float64),
+        "faces": np.ascontiguousarray(part.faces, dtype=np.int64),
+        "origin": list(grid.origin),
+        "spacing": grid.spacing,
+        "shape": list(grid.shape),
+        "sigma": params.sigma,
+        "penalty": params.penalty,
+        "lambda_out": params.lambda_out,
+        "method": method,
+        "format": FORMAT_VERSION,
+        "constants": _descriptor_constants(),
+    }
+
+
+def descriptor_for_part(
+    part: Any,
+    grid: Grid,
+    params: Any = None,
+    *,
+    backend: Any = None,
+    method: str = "tree",
+    use_cache: bool = True,
+    progress: Callable[[float], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> Descriptor:
+    """The descriptor of ``part`` on ``grid``, from the cache when the same inputs were seen.
+
+    Parameters
+    ----------
+    part : engine.loading.Part
+        Mesh in its own frame (``vertices (n, 3) float64``, ``faces (m, 3) int64``).
+    grid : Grid
+        Where to sample, in the part's frame.
+    params : DescriptorParams, optional
+        Default ``DescriptorParams()``.
+    backend : None, str or engine.backend.Backend
+        Passed to ``compute_descriptor``; not part of the cache key.
+    method : {"tree", "brute"}
+    use_cache : bool
+        False computes and stores nothing.
+    progress, cancel : callables, optional
+        As ``compute_descriptor``; ``progress(1.0)`` is also called on a cache hit.
+
+    Returns
+    -------
+    Descriptor
+    """
+    from engine.cache import load_or_compute
+    from engine.descriptor import METHODS, DescriptorParams, compute_descriptor
+
+    if params is None:
+        params = DescriptorParams()
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    t0 = time.perf_counter()
+    used: dict[str, str] = {}
+
+    def compute() -> dict[str, np.ndarray]:
+        resolved = _resolve_backend(backend)
+        used["backend"] = resolved.name if resolved is not None else str(backend)
+        start = time.perf_counter()
+        rho = compute_descriptor(part.vertices, part.faces, grid, params,
+                                 backend=resolved if resolved is not None else backend,
+                                 method=method, progress=progress, cancel=cancel)
+        seconds = time.perf_counter() - start
+        return {
+            "rho": np.ascontiguousarray(rho, dtype=np.complex64),
+            "backend": np.asarray(used["backend"]),
+            "compute_seconds": np.asarray(seconds, dtype=np.float64),
+        }
+
+    arrays, hit = load_or_compute(CACHE_KIND, cache_key_parts(part, grid, params, method),
+                                  compute, use_cache=use_cache)
+    if hit and progress is not None:
+        progress(1.0)
+    return Descriptor(
+        rho=arrays["rho"], grid=grid, params=params, triangles=int(len(part.faces)),
+        backend=str(arrays.get("backend", used.get("backend", "unknown"))),
+        seconds=time.perf_counter() - t0, from_cache=hit, name=str(getattr(part, "name", "")),
+        method=method, compute_seconds=float(arrays.get("compute_seconds", np.nan)),
+    )
+
+
+def _resolve_backend(backend: Any):
+    """A Backend object for a name or None (so its name can be reported); else as given."""
+    from engine.backend import Backend, get_backend
+
+    if isinstance(backend, Backend):
+        return backend
+    if backend is None or isinstance(backend, str):
+        return get_backend(backend)
+    return None
+
+
+def descriptors_for_scene(
+    scene: Any,
+    *,
+    parts: Sequence[Any] | None = None,
+    backend: Any = None,
+    method: str = "tree",
+    use_cache: bool = True,
+    progress: Callable[[float], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> list[Descriptor]:
+    """Descriptors of every part of a scene, each on its own grid in its own frame.
+
+    All grids share :func:`scene_spacing`; each covers its part's bounds plus the scene's
+    ``[descriptor] padding`` cells.
+
+    Parameters
+    ----------
+    scene : engine.scene.Scene
+    parts : sequence of engine.loading.Part, optional
+        Already loaded parts (default: ``engine.scene.load_scene_parts(scene)``).
+    backend, method, use_cache, progress, cancel
+        As :func:`descriptor_for_part`; progress runs 0..1 over all parts, weighted by
+        grid size.
+    """
+    if parts is None:
+        from engine.scene import load_scene_parts
+
+        parts = load_scene_parts(scene)
+    spacing = scene_spacing(scene, parts)
+    grids = [grid_for_part(p, spacing=spacing, padding=scene.descriptor.padding) for p in parts]
+    params = scene.descriptor.params()
+    total = float(sum(g.size for g in grids)) or 1.0
+    done = 0.0
+    out = []
+    for part, grid in zip(parts, grids):
+        sub = None
+        if progress is not None:
+            base, weight = done, grid.size / total
+
+            def sub(fraction: float, base: float = base, weight: float = weight) -> None:
+                progress(min(1.0, base + weight * fraction))
+
+        out.append(descriptor_for_part(part, grid, params, backend=backend, method=method,
+                                       use_cache=use_cache, progress=sub, cancel=cancel))
+        done += grid.size / total
+    return out

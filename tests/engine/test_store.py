@@ -1,0 +1,183 @@
+"""Descriptor store: npz round trip, cache hits and misses, one spacing per scene."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import engine.descriptor as descriptor_module
+from engine.descriptor import DescriptorParams
+from engine.errors import InputError
+from engine.grid import Grid
+from engine.loading import load_part, part_from_mesh
+from engine.scene import load_scene, load_scene_parts
+from engine.store import (
+    Descriptor,
+    descriptor_for_part,
+    descriptors_for_scene,
+    grid_for_part,
+    scene_spacing,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("SKELASM_CACHE", str(folder))
+    return folder
+
+
+@pytest.fixture
+def fake_compute(monkeypatch):
+    """Replace the descriptor kernel by a cheap function of its inputs, counting calls."""
+    calls = []
+
+    def compute(vertices, faces, grid, params, *, backend=None, method="tree", progress=None,
+                cancel=None):
+        calls.append((grid, params, method))
+        pts = grid.points()
+        value = params.sigma * pts[..., 0] + 1j * (params.penalty + vertices[0, 0] + pts[..., 2])
+        if progress is not None:
+            progress(0.5)
+            progress(1.0)
+        return value.astype(np.complex64)
+
+    monkeypatch.setattr(descriptor_module, "compute_descriptor", compute)
+    return calls
+
+
+def box_part(size=2.0, shift=0.0):
+    h = size / 2
+    v = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)]) + shift
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return part_from_mesh(v, f, name="box")
+
+
+def test_cache_hit_and_miss(fake_compute, private_cache):
+    part = box_part()
+    grid = grid_for_part(part, samples=8, padding=2)
+    first = descriptor_for_part(part, grid, DescriptorParams(), backend="numpy")
+    assert not first.from_cache and len(fake_compute) == 1
+    assert first.backend == "numpy" and first.triangles == 12 and first.name == "box"
+    assert list(private_cache.rglob("*.npz"))
+    second = descriptor_for_part(part, grid, DescriptorParams(), backend="numpy")
+    assert second.from_cache and len(fake_compute) == 1
+    np.testing.assert_array_equal(second.rho, first.rho)
+    assert second.rho.dtype == np.complex64 and second.grid == grid
+    assert second.seconds < 0.5
+    # any changed input recomputes
+    descriptor_for_part(part, grid, DescriptorParams(sigma=0.6), backend="numpy")
+    descriptor_for_part(part, grid, DescriptorParams(penalty=2.0), backend="numpy")
+    descriptor_for_part(part, grid_for_part(part, samples=9, padding=2), backend="numpy")
+    descriptor_for_part(box_part(shift=1e-9), grid, backend="numpy")
+    descriptor_for_part(part, grid, method="brute", backend="numpy")
+    assert len(fake_compute) == 6
+    # and the originals still hit
+    assert descriptor_for_part(part, grid, DescriptorParams(), backend="numpy").from_cache
+
+
+def test_no_cache(fake_compute, private_cache):
+    part = box_part()
+    grid = grid_for_part(part, samples=6, padding=1)
+    a = descriptor_for_part(part, grid, use_cache=False, backend="numpy")
+    b = descriptor_for_part(part, grid, use_cache=False, backend="numpy")
+    assert not a.from_cache and not b.from_cache and len(fake_compute) == 2
+    assert not private_cache.exists() or not list(private_cache.rglob("*.npz"))
+
+
+def test_bad_method(fake_compute):
+    part = box_part()
+    with pytest.raises(ValueError, match="unknown method 'fast'; valid: tree, brute"):
+        descriptor_for_part(part, grid_for_part(part, samples=6, padding=1), method="fast")
+
+
+def test_save_and_load_round_trip(tmp_path):
+    grid = Grid((1.0, -2.0, 0.5), 0.25, (3, 4, 5))
+    rho = (np.arange(60).reshape(3, 4, 5) * (1 - 2j)).astype(np.complex64)
+    d = Descriptor(rho=rho, grid=grid, params=DescriptorParams(0.7, 2.5, 1.5), triangles=12,
+                   backend="numpy", seconds=1.0, name="peg", compute_seconds=1.0)
+    path = d.save(tmp_path / "peg")
+    assert path.name == "peg.npz"
+    with np.load(path) as raw:
+        np.testing.assert_array_equal(raw["rho"], rho)
+        np.testing.assert_array_equal(raw["origin"], [1.0, -2.0, 0.5])
+        assert float(raw["spacing"]) == 0.25
+        assert raw["shape"].tolist() == [3, 4, 5]
+        assert (float(raw["sigma"]), float(raw["penalty"]), float(raw["lambda_out"])) == (
+            0.7, 2.5, 1.5)
+    back = Descriptor.load(path)
+    np.testing.assert_array_equal(back.rho, rho)
+    assert back.grid == grid and back.params == d.params
+    assert back.triangles == 12 and back.backend == "numpy" and back.name == "peg"
+
+
+def test_load_errors(tmp_path):
+    with pytest.raises(InputError, match="no such descriptor file"):
+        Descriptor.load(tmp_path / "absent.npz")
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip file")
+    with pytest.raises(InputError, match="junk.npz: not a readable descriptor file"):
+        Descriptor.load(junk)
+    other = tmp_path / "other.npz"
+    np.savez(other, a=np.zeros(3))
+    with pytest.raises(InputError, match="missing rho"):
+        Descriptor.load(other)
+
+
+def test_rho_shape_must_match_grid():
+    with pytest.raises(ValueError, match="shape"):
+        Descriptor(rho=np.zeros((2, 2, 2), np.complex64), grid=Grid((0, 0, 0), 1.0, (2, 2, 3)),
+                   params=DescriptorParams(), triangles=0, backend="numpy", seconds=0.0)
+
+
+def test_scene_spacing_and_grids(fake_compute):
+    scene = load_scene(ROOT / "assets" / "peg_in_hole" / "scene.toml")
+    parts = load_scene_parts(scene)
+    # the block is 40 mm wide, the peg 30 mm long: h = 40 / grid
+    assert scene_spacing(scene, parts) == pytest.approx(40.0 / scene.descriptor.grid)
+    seen = []
+    out = descriptors_for_scene(scene, parts=parts, backend="numpy", progress=seen.append)
+    assert [d.name for d in out] == ["block", "peg"]
+    h = 40.0 / scene.descriptor.grid
+    for d, part in zip(out, parts):
+        assert d.grid.spacing == pytest.approx(h)
+        pad = scene.descriptor.padding * h
+        assert np.all(np.asarray(d.grid.origin) <= part.bounds[0] - pad + 1e-5)
+        assert np.all(d.grid.upper >= part.bounds[1] + pad - 1e-5)
+        assert np.all(d.grid.upper - d.grid.origin <= part.extent + 2 * pad + 2 * h)
+    assert seen == sorted(seen) and seen[-1] == pytest.approx(1.0)
+
+
+def test_scene_spacing_from_the_scene(tmp_path):
+    text = (ROOT / "assets" / "peg_in_hole" / "scene.toml").read_text()
+    text = text.replace("grid = 56", "spacing = 0.8")
+    for name in ("block.step", "peg.step"):
+        (tmp_path / name).write_bytes((ROOT / "assets" / "peg_in_hole" / name).read_bytes())
+    (tmp_path / "scene.toml").write_text(text.replace("grid = 56 ", "spacing = 0.8 "))
+    scene = load_scene(tmp_path / "scene.toml")
+    assert scene.descriptor.spacing == 0.8
+    assert scene_spacing(scene, load_scene_parts(scene)) == 0.8
+
+
+def test_real_descriptor_is_cached_and_loads_fast(private_cache):
+    """The real kernel on a coarse grid: +i inside, -i outside, and a fast second load."""
+    part = load_part(ROOT / "assets" / "dovetail" / "slide.step")
+    grid = grid_for_part(part, samples=8, padding=1)
+    first = descriptor_for_part(part, grid, backend="numpy")
+    assert not first.from_cache and first.rho.shape == grid.shape
+    assert np.all(np.isfinite(first.rho))
+    # the slide's cap, a 20 x 30 x 5 slab, holds the point (0, -15, 2.5)
+    index = tuple(np.round((np.array([0.0, -15.0, 2.5]) - grid.origin) / grid.spacing).astype(int))
+    assert first.rho[index].imag > 0
+    assert first.rho[0, 0, 0].imag < 0  # a corner of the padded box is outside
+    t0 = time.perf_counter()
+    second = descriptor_for_part(part, grid, backend="numpy")
+    assert time.perf_counter() - t0 < 0.5
+    assert second.from_cache
+    np.testing.assert_array_equal(second.rho, first.rho)
