@@ -64,7 +64,8 @@ def _write_step(path: Path, names: list[str]) -> None:
 
 def _curves_in_box(xmin, ymin, zmin, xmax, ymax, zmax) -> list[int]:
     occ.synchronize()
-    return [t for d, t in gmsh.model.getEntitiesInBoundingBox(xmin, ymin, zmin, xmax, ymax, zmax, 1)]
+    found = gmsh.model.getEntitiesInBoundingBox(xmin, ymin, zmin, xmax, ymax, zmax, 1)
+    return [t for d, t in found]
 
 
 def _fuse(a: int, others: list[int]) -> int:

@@ -23,6 +23,7 @@ normals are repaired, and holes are reported; each repair adds a line to ``Part.
 from __future__ import annotations
 
 import io
+import math
 import os
 import re
 import sys
@@ -231,6 +232,7 @@ def check_mesh(
     *,
     source: str,
     weld_tolerance: float | None = None,
+    report_degenerate: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """Check and repair a triangle mesh; raise for what cannot be repaired.
 
@@ -248,6 +250,9 @@ def check_mesh(
         The file (or name) that messages refer to.
     weld_tolerance : float, optional
         Default ``1e-6 * max(diagonal, largest |coordinate|)``.
+    report_degenerate : bool
+        Warn about dropped degenerate triangles (False for our own STEP tessellation, whose
+        poles and seams collapse to a few of them after welding: nothing the user can fix).
 
     Returns
     -------
@@ -311,10 +316,11 @@ def check_mesh(
     flat = areas <= (1e-10 * max(diagonal, 1e-300)) ** 2
     degenerate = repeated | flat
     if degenerate.any():
-        warnings.append(
-            f"{source}: dropped {int(degenerate.sum())} degenerate triangles (zero area or a "
-            "repeated vertex); harmless, but a finer or cleaner export avoids them"
-        )
+        if report_degenerate:
+            warnings.append(
+                f"{source}: dropped {int(degenerate.sum())} degenerate triangles (zero area or "
+                "a repeated vertex); harmless, but a finer or cleaner export avoids them"
+            )
         f = f[~degenerate]
     if len(f):
         _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
@@ -470,14 +476,28 @@ def _load_step(path: Path, tolerance: float | None) -> list[Part]:
             seen[name] = 1
         v = np.asarray(mesh.vertices, dtype=np.float64)
         v = v @ np.asarray(transform)[:3, :3].T + np.asarray(transform)[:3, 3]
-        v = v / metres  # GLB metres -> the file's unit
+        v = _snap_float32(v / metres)  # GLB metres -> the file's unit
         source = f"{path} (body {name!r})" if len(items) > 1 else str(path)
-        v, f, w = check_mesh(v, np.asarray(mesh.faces), source=source)
+        v, f, w = check_mesh(v, np.asarray(mesh.faces), source=source, report_degenerate=False)
         parts.append(
             Part(name=name, vertices=v, faces=f, source=str(path), unit=unit_name,
                  warnings=tuple(warnings) + w)
         )
     return parts
+
+
+def _snap_float32(v: np.ndarray) -> np.ndarray:
+    """Round coordinates to the decimal step just above float32's resolution.
+
+    GLB stores float32 metres, so 20 mm comes back as 19.99999955 mm. Rounding to a decimal
+    step of about 2.4e-7 times the largest coordinate (four float32 ulps) gives the design's
+    round dimensions back exactly and loses nothing float32 had kept.
+    """
+    largest = float(np.abs(v).max()) if v.size else 0.0
+    if not largest > 0:
+        return v
+    decimals = -int(math.ceil(math.log10(largest * 2.4e-7)))
+    return np.round(v, decimals)
 
 
 def _no_solid_message(path: Path) -> str:
@@ -566,7 +586,7 @@ def _load_mesh(path: Path) -> Part:
         else:
             offsets = np.cumsum([0] + [len(m[0]) for m in meshes[:-1]])
             vertices = np.concatenate([m[0] for m in meshes])
-            faces = np.concatenate([m[1] + o for m, o in zip(meshes, offsets)])
+            faces = np.concatenate([m[1] + o for m, o in zip(meshes, offsets, strict=True)])
     elif hasattr(loaded, "faces"):
         vertices, faces = np.asarray(loaded.vertices), np.asarray(loaded.faces)
     else:
@@ -675,7 +695,7 @@ def _orient_consistently(f: np.ndarray) -> tuple[np.ndarray, int]:
         child, parent = nodes[1:], pred[nodes[1:]]
         odd = np.asarray(parity[child, parent]).ravel() == 2  # (k,) bool
         # parents come before their children in breadth-first order
-        for node, p, o in zip(child.tolist(), parent.tolist(), odd.tolist()):
+        for node, p, o in zip(child.tolist(), parent.tolist(), odd.tolist(), strict=True):
             flip[node] = flip[p] ^ o
         if flip[nodes].sum() * 2 > len(nodes):
             flip[nodes] = ~flip[nodes]

@@ -318,7 +318,7 @@ def descriptors_for_scene(
     total = float(sum(g.size for g in grids)) or 1.0
     done = 0.0
     out = []
-    for part, grid in zip(parts, grids):
+    for part, grid in zip(parts, grids, strict=True):
         sub = None
         if progress is not None:
             base, weight = done, grid.size / total

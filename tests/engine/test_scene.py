@@ -142,9 +142,11 @@ def test_simulation_sections_and_mass_keys_are_kept_raw(scene_dir):
         (MINIMAL + "\n[descriptor]\nsigma = 0.5\nsgima = 1\n", 12,
          "unknown key 'sgima' in \\[descriptor\\]; valid keys: sigma, penalty"),
         ("speed = 3\n" + MINIMAL, 1, "unknown key 'speed' in the scene"),
-        (MINIMAL + "\n[descriptor]\nsigma = -1\n", 11, "sigma in \\[descriptor\\] must be positive"),
+        (MINIMAL + "\n[descriptor]\nsigma = -1\n", 11,
+         "sigma in \\[descriptor\\] must be positive"),
         (MINIMAL + "\n[descriptor]\ngrid = 64\nspacing = 0.5\n", 12, "grid or spacing"),
-        (MINIMAL + "\n[descriptor]\ngrid = 6.5\n", 11, "grid in \\[descriptor\\] must be an integer"),
+        (MINIMAL + "\n[descriptor]\ngrid = 6.5\n", 11,
+         "grid in \\[descriptor\\] must be an integer"),
         (MINIMAL + "\n[correlation]\nmodes = 0\n", 11, "modes"),
         (MINIMAL.replace("pose = [1, 2, 3, 0, 0, 0.5]", "pose = [1, 2, 3]"), 8,
          "pose in \\[\\[part\\]\\] #2 must be six numbers"),
@@ -233,7 +235,7 @@ def test_save_and_reload_round_trip(scene_dir, tmp_path):
     np.testing.assert_allclose(again.assembled_pose, scene.assembled_pose)
     np.testing.assert_allclose(again.insertion_axis, [0, 0, -1])
     assert again.sections == {"coupling": {"frequency_hz": 8.0}}
-    for a, b in zip(again.parts, scene.parts):
+    for a, b in zip(again.parts, scene.parts, strict=True):
         assert a.name == b.name and a.file == b.file and a.fixed == b.fixed
         assert a.extras == b.extras and a.tolerance == b.tolerance
         np.testing.assert_allclose(a.pose, b.pose)

@@ -145,7 +145,7 @@ def test_scene_spacing_and_grids(fake_compute):
     out = descriptors_for_scene(scene, parts=parts, backend="numpy", progress=seen.append)
     assert [d.name for d in out] == ["block", "peg"]
     h = 40.0 / scene.descriptor.grid
-    for d, part in zip(out, parts):
+    for d, part in zip(out, parts, strict=True):
         assert d.grid.spacing == pytest.approx(h)
         pad = scene.descriptor.padding * h
         assert np.all(np.asarray(d.grid.origin) <= part.bounds[0] - pad + 1e-5)

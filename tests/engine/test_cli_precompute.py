@@ -1,0 +1,119 @@
+"""`skelasm precompute` end to end: JSON output, the .npz it writes, the cache, errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+SLIDE = ROOT / "assets" / "dovetail" / "slide.step"  # 28 triangles: fast
+SMALL = ["--grid", "8", "--padding", "1", "--backend", "numpy"]
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+
+
+def run_json(capfd, *argv):
+    code = main(["precompute", *map(str, argv), "--json"])
+    out, err = capfd.readouterr()
+    assert code == 0, err
+    return json.loads(out)  # stdout is exactly one JSON object
+
+
+def test_json_and_output_file(tmp_path, capfd):
+    out = tmp_path / "slide.npz"
+    rec = run_json(capfd, SLIDE, *SMALL, "-o", out)
+    for key in ("grid", "spacing", "triangles", "seconds", "backend", "output"):
+        assert key in rec
+    assert rec["output"] == str(out) and out.is_file()
+    assert rec["triangles"] == 28 and rec["backend"] == "numpy" and rec["unit"] == "mm"
+    assert rec["from_cache"] is False
+    # --grid 8: 8 samples along the longest side (30 mm), one cell of padding each side
+    assert rec["spacing"] == pytest.approx(30 / 8)
+    with np.load(out) as data:
+        rho = data["rho"]
+        assert rho.dtype == np.complex64 and list(rho.shape) == rec["grid"]
+        origin, h = data["origin"], float(data["spacing"])
+        assert h == pytest.approx(rec["spacing"])
+        np.testing.assert_allclose(origin, rec["origin"])
+        assert (float(data["sigma"]), float(data["penalty"]), float(data["lambda_out"])) == (
+            0.5, 3.0, 1.0)
+    # origin is where index (0, 0, 0) lies in the part's frame: the grid covers the part
+    upper = origin + h * (np.array(rho.shape) - 1)
+    assert np.all(origin < [-10, -30, -8]) and np.all(upper > [10, 0, 5])
+    centre = np.round((np.array([0.0, -15.0, 2.5]) - origin) / h).astype(int)
+    assert rho[tuple(centre)].imag > 0 > rho[0, 0, 0].imag  # inside ~ +i, outside ~ -i
+
+
+def test_second_run_hits_the_cache_and_parameters_recompute(capfd):
+    first = run_json(capfd, SLIDE, *SMALL)
+    assert first["output"] == str(Path.cwd() / "slide.npz")  # default: current directory
+    second = run_json(capfd, SLIDE, *SMALL)
+    assert second["from_cache"] is True and second["seconds"] < 0.5
+    third = run_json(capfd, SLIDE, *SMALL, "--sigma", "0.7")
+    assert third["from_cache"] is False and third["sigma"] == 0.7
+    fourth = run_json(capfd, SLIDE, *SMALL, "--no-cache")
+    assert fourth["from_cache"] is False
+
+
+def test_text_output(capfd):
+    assert main(["precompute", str(SLIDE), *SMALL]) == 0
+    out, _ = capfd.readouterr()
+    assert "slide: 28 triangles, grid" in out and "slide.npz" in out
+
+
+def test_multibody_needs_body(capfd, tmp_path):
+    data = ROOT / "tests" / "data" / "two_bodies.step"
+    assert main(["precompute", str(data), *SMALL]) == 2
+    out, err = capfd.readouterr()
+    assert out == ""
+    assert "skelasm precompute: error:" in err and "'block', 'peg'" in err and "--body" in err
+    rec = run_json(capfd, data, "--body", "peg", *SMALL)
+    assert rec["name"] == "peg" and rec["output"] == str(tmp_path / "two_bodies-peg.npz")
+
+
+def test_corrupt_step_is_a_clean_error(capfd):
+    assert main(["precompute", str(ROOT / "tests" / "data" / "corrupt.step"), "--json"]) == 2
+    out, err = capfd.readouterr()
+    assert out == ""
+    assert err.startswith("skelasm precompute: error: ") and "corrupt.step" in err
+    assert "Traceback" not in err
+
+
+def test_missing_file_and_bad_output_folder(capfd, tmp_path):
+    assert main(["precompute", str(tmp_path / "none.step")]) == 2
+    assert "no such file" in capfd.readouterr().err
+    assert main(["precompute", str(SLIDE), *SMALL, "-o", str(tmp_path / "no" / "x.npz")]) == 2
+    assert "no such folder" in capfd.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--grid", "1"], ["--grid", "8", "--spacing", "1"], ["--sigma", "-1"], ["--padding", "x"],
+     ["--backend", "cuda"]],
+)
+def test_bad_options_exit_2(argv, capfd):
+    with pytest.raises(SystemExit) as info:
+        main(["precompute", str(SLIDE), *argv])
+    assert info.value.code == 2
+    assert "precompute" in capfd.readouterr().err
+
+
+def test_scene_computes_both_parts_with_one_spacing(capfd, tmp_path):
+    scene = ROOT / "assets" / "dovetail" / "scene.toml"
+    rec = run_json(capfd, scene, *SMALL)
+    assert [p["name"] for p in rec["parts"]] == ["block", "slide"]
+    # the block's 40 mm side sets the spacing for both
+    assert rec["spacing"] == pytest.approx(40 / 8)
+    for part in rec["parts"]:
+        assert part["spacing"] == pytest.approx(rec["spacing"])
+        assert Path(part["output"]).name == f"dovetail-{part['name']}.npz"
+        assert Path(part["output"]).is_file()
