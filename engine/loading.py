@@ -28,6 +28,7 @@ import os
 import re
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -530,13 +531,25 @@ def _occt_error(text: str) -> str:
     return f" ({lines[0]})" if lines else ""
 
 
+_capture_lock = threading.Lock()
+
+
 @contextmanager
 def _native_output() -> Iterator[list[str]]:
     """Capture what native code writes to file descriptors 1 and 2 (OpenCASCADE's messages).
 
     OpenCASCADE prints parser messages straight to the process's stdout, which would corrupt
-    a ``--json`` result; they are kept here and quoted in the error message instead.
+    a ``--json`` result; they are kept here and quoted in the error message instead. The
+    redirection is process-wide for the few milliseconds of a tessellation (other threads'
+    output in that window lands in the capture too); a lock keeps two loads from nesting it.
     """
+    with _capture_lock:
+        with _redirected() as captured:
+            yield captured
+
+
+@contextmanager
+def _redirected() -> Iterator[list[str]]:
     captured: list[str] = []
     try:
         sys.stdout.flush()

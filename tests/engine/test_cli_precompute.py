@@ -117,3 +117,13 @@ def test_scene_computes_both_parts_with_one_spacing(capfd, tmp_path):
         assert part["spacing"] == pytest.approx(rec["spacing"])
         assert Path(part["output"]).name == f"dovetail-{part['name']}.npz"
         assert Path(part["output"]).is_file()
+
+
+def test_progress_bar_on_a_terminal(capfd, monkeypatch):
+    import sys
+
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    assert main(["precompute", str(SLIDE), *SMALL, "--no-cache"]) == 0
+    out, err = capfd.readouterr()
+    assert "100%|" in err  # tqdm's bar, on stderr
+    assert "%|" not in out
