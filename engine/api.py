@@ -469,6 +469,7 @@ def start_engine(
     modes: int | None = None,
     backend: str = "auto",
     frame_queue: int = 64,
+    process: bool = False,
 ) -> EngineHandle:
     """Start the engine thread on a scene; returns at once.
 
@@ -492,7 +493,20 @@ def start_engine(
         Per-pose evaluator passed to the correlator ("auto", "numba", "numpy", "opencl").
     frame_queue : int
         Frames kept for the GUI; older ones are dropped.
+    process : bool
+        Run the loop in its own process (``engine.loop.ProcessEngine``: frames through
+        shared memory, only the newest kept; commands through a queue), out of reach of the
+        GUI's GIL. The input is then the mouse (SetProxyPose); ReadyEvent carries no
+        descriptors (load them with ``engine.store`` for slice views).
     """
+    if process:
+        from engine.loop import ProcessEngine
+
+        options = {"modes": modes, "backend": backend, "rate_hz": rate_hz,
+                   "realtime": realtime, "switch_interval": None}
+        engine = ProcessEngine(str(handle.path), options=options)
+        engine.start()
+        return EngineHandle(engine)
     from engine.devices import DeviceError, MouseDevice, open_device
     from engine.loop import EngineLoop, build_simulation
 

@@ -44,7 +44,7 @@ from engine.coupling import (
 )
 from engine.devices import Device, DeviceError, MouseDevice, open_device
 from engine.dynamics import RigidBody
-from engine.errors import Cancelled
+from engine.errors import Cancelled, InputError
 from engine.pose import rotation_matrix
 from engine.simconfig import CouplingParams, Effects, Physics, resolve_physics
 
@@ -126,15 +126,28 @@ class SceneModel:
         cancel: Callable[[], bool] | None = None,
     ) -> tuple[Any, Any]:
         """The two descriptors for ``effects.guidance`` (skeletal or collision-only)."""
-        from engine.store import descriptors_for_scene
-
         scene = self.scene
         if sigma is not None or penalty is not None:
             scene = _scene_with_params(scene, sigma, penalty)
-        descs = descriptors_for_scene(
-            scene, backend=None, progress=progress, cancel=cancel
-        )
-        d1, d2 = descs[0], descs[1]
+        try:
+            from engine.store import descriptors_for_scene
+        except ImportError:  # store not installed yet: same grids, computed here
+            d1, d2 = _fallback_descriptors(scene, self.handle.parts, progress, cancel)
+        else:
+            parts = list(self.handle.parts)
+            try:
+                descs = descriptors_for_scene(
+                    scene, parts=parts, backend=None, progress=progress, cancel=cancel
+                )
+            except (Cancelled, InputError):
+                raise
+            except Exception:
+                # the picked compute backend failed (an OpenCL driver that cannot build the
+                # kernels, say): the numpy/numba reference path computes the same values
+                descs = descriptors_for_scene(
+                    scene, parts=parts, backend="numpy", progress=progress, cancel=cancel
+                )
+            d1, d2 = descs[0], descs[1]
         if effects.guidance == "collision":
             from engine.collision import collision_descriptor
 
@@ -178,6 +191,41 @@ class SceneModel:
         if progress is not None:
             progress(1.0)
         return field, (d1, d2)
+
+
+def _fallback_descriptors(scene: Any, parts: Any, progress: Any, cancel: Any) -> tuple[Any, Any]:
+    """Descriptors of both parts on one spacing (the rule of engine.store), cached."""
+    from types import SimpleNamespace
+
+    from engine.cache import load_or_compute
+    from engine.descriptor import DescriptorParams, compute_descriptor
+    from engine.grid import grid_for_bounds
+
+    ds = scene.descriptor
+    params = DescriptorParams(sigma=ds.sigma, penalty=ds.penalty, lambda_out=ds.lambda_out)
+    longest = max(float(np.max(np.ptp(p.vertices, axis=0))) for p in parts[:2])
+    h = ds.spacing if ds.spacing else longest / float(ds.grid)
+    out = []
+    for i, part in enumerate(parts[:2]):
+        v = np.asarray(part.vertices, float)
+        grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), spacing=h, padding=ds.padding)
+
+        def sub(f: float, i: int = i) -> None:
+            if progress is not None:
+                progress(0.5 * i + 0.5 * f)
+
+        key = {"vertices": v, "faces": np.asarray(part.faces, np.int64),
+               "grid": [list(grid.origin), grid.spacing, list(grid.shape)],
+               "params": [params.sigma, params.penalty, params.lambda_out], "version": 1}
+        arrays, _ = load_or_compute(
+            "sim-descriptor", key,
+            lambda v=v, part=part, grid=grid, sub=sub: {
+                "rho": compute_descriptor(v, part.faces, grid, params, backend="numpy",
+                                          progress=sub, cancel=cancel)
+            },
+        )
+        out.append(SimpleNamespace(rho=arrays["rho"], grid=grid, params=params))
+    return out[0], out[1]
 
 
 def _scene_with_params(scene: Any, sigma: float | None, penalty: float | None) -> Any:
@@ -706,3 +754,256 @@ def _message(exc: BaseException) -> str:
         if tb:
             text += f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})"
     return text
+
+
+# ---------------------------------------------------------------------------------------------
+# the loop in its own process
+
+
+#: Layout of the shared-memory frame block (float64 slots); slot 0 is the seqlock counter.
+_SLOTS = {
+    "seq": 0, "time": 1, "step": 2, "proxy": 3, "part": 9, "energy": 15, "force": 16,
+    "torque": 19, "cforce": 22, "ctorque": 25, "hforce": 28, "htorque": 31, "eval_us": 34,
+    "step_us": 35, "modes": 36, "paused": 37, "rate": 38, "median": 39, "p1": 40, "p99": 41,
+    "max": 42, "window": 43,
+}
+_NSLOTS = 48
+
+
+class ProcessEngine:
+    """The engine loop in a child process; frames through shared memory, commands through a
+    ``multiprocessing`` queue. Same reader interface as :class:`EngineLoop` (``send``,
+    ``poll_frames``, ``poll_events``, ``is_alive``, ``stop``), so ``engine.api.EngineHandle``
+    can wrap either.
+
+    The child writes the newest frame into a small float64 block guarded by a sequence counter
+    (odd while writing: a seqlock), so the reader never blocks the loop and never sees a torn
+    frame; only the newest frame is kept (the GUI wants no other). Events (progress, ready,
+    errors) are pickled through a second queue; descriptors are not sent back (they would be
+    large): the GUI loads them itself when it needs slices.
+
+    Parameters
+    ----------
+    scene_path : str
+    options : dict
+        ``modes``, ``backend``, ``rate_hz``, ``realtime``, ``translation_only``, ``fake``,
+        ``switch_interval``.
+    keep_periods : bool
+        The child returns every period at the end (:meth:`stop_and_collect`).
+    """
+
+    def __init__(self, scene_path: str, *, options: dict | None = None,
+                 keep_periods: bool = False):
+        import multiprocessing as mp
+        from multiprocessing import shared_memory
+
+        self._ctx = mp.get_context("spawn")
+        self._shm = shared_memory.SharedMemory(create=True, size=8 * _NSLOTS)
+        self._block = np.ndarray((_NSLOTS,), dtype=np.float64, buffer=self._shm.buf)
+        self._block[:] = 0.0
+        self._commands = self._ctx.Queue()
+        self._events = self._ctx.Queue()
+        self._last_seq = 0.0
+        self._pending: list[Any] = []
+        self._result: Any = None
+        self._proc = self._ctx.Process(
+            target=_process_main,
+            args=(str(scene_path), self._shm.name, self._commands, self._events,
+                  dict(options or {}), keep_periods),
+            name="skelasm-engine-process",
+            daemon=True,
+        )
+
+    def start(self) -> None:
+        self._proc.start()
+
+    def is_alive(self) -> bool:
+        return self._proc.is_alive()
+
+    def send(self, command: Any) -> None:
+        if not isinstance(command, api.Command.__args__):  # type: ignore[attr-defined]
+            raise TypeError(f"not an engine command: {command!r}")
+        self._commands.put(command)
+
+    def poll_frames(self, max_frames: int | None = None) -> list[api.Frame]:
+        b = self._block
+        for _ in range(100):
+            seq = float(b[0])
+            if seq % 2:
+                continue  # the writer is mid-frame
+            snap = b.copy()
+            if float(b[0]) == seq:
+                break
+        else:
+            return []
+        if seq == self._last_seq or seq == 0:
+            return []
+        self._last_seq = seq
+        s = _SLOTS
+        return [
+            api.Frame(
+                time=float(snap[s["time"]]), step=int(snap[s["step"]]),
+                proxy_pose=_ro(snap[3:9]), part_pose=_ro(snap[9:15]),
+                energy=float(snap[15]), force=_ro(snap[16:19]), torque=_ro(snap[19:22]),
+                coupling_force=_ro(snap[22:25]), coupling_torque=_ro(snap[25:28]),
+                haptic_force=_ro(snap[28:31]), haptic_torque=_ro(snap[31:34]),
+                eval_us=float(snap[34]), step_us=float(snap[35]),
+                period=api.PeriodStats(float(snap[38]), float(snap[39]), float(snap[40]),
+                                       float(snap[41]), float(snap[42]), int(snap[43])),
+                modes=int(snap[36]), paused=bool(snap[37]),
+            )
+        ]
+
+    def _drain_events(self) -> None:
+        while True:
+            try:
+                event = self._events.get_nowait()
+            except queue.Empty:
+                return
+            if isinstance(event, tuple) and event and event[0] == "result":
+                self._result = event[1]
+            else:
+                self._pending.append(event)
+
+    def poll_events(self) -> list[Any]:
+        self._drain_events()
+        out, self._pending = self._pending, []
+        return out
+
+    def wait_ready(self, timeout: float = 600.0) -> bool:
+        """Block until the child's ReadyEvent (or an error); True when ready."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and self._proc.is_alive():
+            self._drain_events()
+            for e in self._pending:
+                if isinstance(e, api.ReadyEvent):
+                    return True
+                if isinstance(e, api.ErrorEvent) and e.fatal:
+                    return False
+            time.sleep(0.01)
+        return False
+
+    def stop(self, timeout: float = 5.0) -> None:
+        if self._proc.is_alive():
+            self._commands.put(api.Stop())
+        end = time.monotonic() + timeout
+        while self._proc.is_alive() and time.monotonic() < end:
+            self._drain_events()
+            time.sleep(0.01)
+        self._drain_events()
+        if self._proc.is_alive():
+            self._proc.terminate()
+        self._proc.join(1.0)
+        try:
+            self._shm.close()
+            self._shm.unlink()
+        except (FileNotFoundError, BufferError):
+            pass
+
+    def stop_and_collect(self) -> tuple[np.ndarray, float, str]:
+        """Stop; return (periods in seconds, median eval microseconds, field name)."""
+        self.stop()
+        if self._result is None:
+            errors = [e.message for e in self._pending if isinstance(e, api.ErrorEvent)]
+            raise RuntimeError("the engine process returned no result: " + "; ".join(errors))
+        return self._result
+
+
+def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, options: dict,
+                  keep_periods: bool) -> None:
+    """Entry point of the engine process."""
+    from multiprocessing import shared_memory
+
+    shm = shared_memory.SharedMemory(name=shm_name)
+    block = np.ndarray((_NSLOTS,), dtype=np.float64, buffer=shm.buf)
+    try:
+        from engine.api import open_scene
+
+        handle = open_scene(scene_path)
+        effects = handle.config.effects
+        if options.get("translation_only"):
+            effects = replace(effects, axes=("x", "y", "z"))
+        handle = replace(handle, config=replace(handle.config, effects=effects))
+        fake = bool(options.get("fake"))
+        sim, model = build_simulation(
+            handle, modes=options.get("modes"), backend=options.get("backend", "auto"),
+            prepare=not fake,
+        )
+        if fake:
+            from bench.loop import _AnalyticWell
+            from engine.coupling import CorrelatorField
+
+            sim.set_field(CorrelatorField(_AnalyticWell(), sim.physics.kappa))
+        field_name = _backend_name(sim.field)
+        eval_log: list[float] = []
+
+        def on_step(sim: Simulation, proxy: np.ndarray) -> None:
+            block[0] += 1.0  # odd: writing
+            block[1] = sim.time
+            block[2] = sim.steps
+            block[3:9] = proxy
+            block[9:15] = sim.part_pose()
+            s = sim.sample
+            block[15] = s.energy
+            block[16:19] = s.force
+            block[19:22] = s.torque
+            block[22:25] = sim.coupling_force
+            block[25:28] = sim.coupling_torque
+            block[28:31] = sim.haptic_force
+            block[31:34] = sim.haptic_torque
+            block[34] = s.microseconds
+            block[36] = getattr(sim.field, "modes", 0)
+            st = loop._stats
+            block[38:44] = (st.rate_hz, st.median_us, st.p1_us, st.p99_us, st.max_us, st.window)
+            block[0] += 1.0  # even: complete
+            if keep_periods and len(eval_log) < 1_000_000:
+                eval_log.append(s.microseconds)
+
+        from engine.devices import TrajectoryDevice
+
+        device = None
+        if options.get("bench_motion", True) and keep_periods:
+            from bench.loop import _proxy_motion
+
+            pose_at = _proxy_motion(sim)
+            ts = np.arange(0.0, 3600.0, 0.01)[:200000]
+            device = TrajectoryDevice(np.column_stack([ts, np.array([pose_at(t) for t in ts])]))
+        loop = EngineLoop(
+            sim, model=model, device=device, rate_hz=options.get("rate_hz"),
+            realtime=bool(options.get("realtime", True)), publish_every=1_000_000_000,
+            on_step=on_step, keep_periods=keep_periods,
+            switch_interval=options.get("switch_interval"),
+        )
+
+        def forward_commands() -> None:
+            while True:
+                cmd = commands.get()
+                loop.send(cmd)
+                if isinstance(cmd, api.Stop):
+                    return
+
+        def forward_events() -> None:
+            while loop.is_alive() or loop.events:
+                for e in loop.poll_events():
+                    if isinstance(e, (api.ReadyEvent, api.DescriptorsSwapped)):
+                        e = replace(e, descriptors=())
+                    if isinstance(e, api.LandscapeReady):
+                        continue
+                    events.put(e)
+                time.sleep(0.01)
+
+        threading.Thread(target=forward_commands, daemon=True).start()
+        events.put(api.ReadyEvent((), field_name))
+        loop.start()
+        fwd = threading.Thread(target=forward_events, daemon=True)
+        fwd.start()
+        while loop.is_alive():
+            loop._thread.join(0.1)  # type: ignore[union-attr]
+        fwd.join(1.0)
+        eval_us = float(np.median(eval_log)) if eval_log else float("nan")
+        events.put(("result", (np.asarray(loop.periods), eval_us, field_name)))
+    except Exception as exc:
+        events.put(api.ErrorEvent(_message(exc), type(exc).__name__, fatal=True))
+    finally:
+        block = None  # drop the view so the shared block can close
+        shm.close()

@@ -79,16 +79,20 @@ def test_period_stats_known_values():
 
 
 def test_loop_publishes_frames_at_rate_from_its_own_thread():
-    loop, corr, _ = make_loop(keep_periods=True)
+    # 250 Hz: this test checks the scheduling logic on a shared CI machine, where a 1 kHz
+    # loop is at the mercy of other processes; `skelasm bench loop` measures 1 kHz
+    loop, corr, _ = make_loop(keep_periods=True, rate_hz=250.0)
     loop.start()
-    time.sleep(0.6)
+    time.sleep(1.0)
     loop.send(api.Stop())
     loop.stop()
     assert not loop.is_alive()
     periods = np.array(loop.periods)
-    assert len(periods) > 300
-    # the median period is the target (the machine is shared: the tail is not asserted here)
-    assert np.median(periods) == pytest.approx(1e-3, rel=0.05)
+    assert len(periods) > 150
+    # the loop catches up after short overruns, so the average rate is the target even on a
+    # busy machine (the tail is the benchmark's business, not asserted here)
+    assert len(periods) / periods.sum() == pytest.approx(250.0, rel=0.15)
+    assert loop.overruns <= 2  # no gap longer than 5 periods needed re-anchoring
     assert corr.threads == {"skelasm-engine"}  # the field is evaluated in the engine thread only
     frames = loop.poll_frames()
     assert frames and frames[-1].step == loop.sim.steps
@@ -191,3 +195,28 @@ def test_errors_in_commands_become_events():
     loop.run(max_steps=2)
     errs = [e for e in loop.poll_events() if isinstance(e, api.ErrorEvent)]
     assert errs and not errs[0].fatal
+
+
+def test_process_engine_frames_through_shared_memory():
+    from pathlib import Path
+
+    from engine.loop import ProcessEngine
+
+    scene = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
+    engine = ProcessEngine(str(scene), options={"fake": True})
+    engine.start()
+    try:
+        assert engine.wait_ready(timeout=60)
+        engine.send(api.SetProxyPose((1.0, 0, 5.0, 0, 0, 0)))
+        frames = []
+
+        def moved():
+            frames.extend(engine.poll_frames())
+            return bool(frames) and frames[-1].part_pose[0] > 0.5
+
+        assert wait_for(moved, 10.0)  # the part followed the proxy in the other process
+        assert frames[-1].step > 0 and frames[-1].proxy_pose[0] == 1.0
+        assert len({f.step for f in frames}) == len(frames)  # only new frames are returned
+    finally:
+        engine.stop()
+    assert not engine.is_alive()

@@ -1,0 +1,252 @@
+"""`skelasm bench loop`: achieved engine rate and period distribution.
+
+Runs the engine loop in real time for ``--seconds`` on a scene (default the peg in hole,
+m' = K^3 modes, rotation on) and prints the achieved rate and the period distribution
+(median, 1st and 99th percentile, longest), optionally while something else competes for the
+interpreter:
+
+- ``--load python``: a thread doing pure-Python work (the worst case for the GIL: it never
+  releases it by itself; stands in for GUI code building meshes, painting, event handling);
+- ``--load numpy``: a thread doing large numpy operations (releases the GIL inside);
+- ``--gui``: the real application window rendering beside the loop (``app.gui``, imported
+  only then);
+- ``--process``: the loop in its own process (``engine.loop.ProcessEngine``) while the load
+  runs in this one;
+- ``--switch-interval S``: ``sys.setswitchinterval`` while the loop runs (Python's default
+  5 ms lets another thread hold the GIL for that long).
+
+Writes ``bench_loop.png`` (period histogram) unless ``--no-plot``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "assets" / "peg_in_hole" / "scene.toml"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seconds", type=float, default=10.0, help="measured seconds (>= 10 "
+                        "for the reported figures)")
+    parser.add_argument("--modes", type=int, default=16, help="K, modes per axis (m' = K^3)")
+    parser.add_argument("--scene", default=str(DEFAULT_SCENE), help="scene file")
+    parser.add_argument("--rate", type=float, default=1000.0, help="target rate in Hz")
+    parser.add_argument("--translation-only", action="store_true",
+                        help="lock rotation (landscape lookup instead of the modal sum)")
+    parser.add_argument("--backend", default="auto", help="per-pose evaluator")
+    parser.add_argument("--load", choices=("none", "python", "numpy"), default="none",
+                        help="a competing thread in this process")
+    parser.add_argument("--switch-interval", type=float, default=None,
+                        help="sys.setswitchinterval while the loop runs (seconds)")
+    parser.add_argument("--process", action="store_true", help="run the loop in its own process")
+    parser.add_argument("--fake", action="store_true",
+                        help="an analytic field instead of the correlator (measures the loop "
+                        "alone)")
+    parser.add_argument("--gui", action="store_true", help="run the GUI beside the loop")
+    parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
+
+
+def _python_load(stop: threading.Event, counter: list[int]) -> None:
+    while not stop.is_set():
+        total = 0
+        for i in range(2000):
+            total += i * i
+        counter[0] += 1
+
+
+def _numpy_load(stop: threading.Event, counter: list[int]) -> None:
+    a = np.random.default_rng(0).random((600, 600))
+    while not stop.is_set():
+        a = np.tanh(a @ a.T * 1e-3)
+        counter[0] += 1
+
+
+def run(args: argparse.Namespace) -> int:
+    from engine.loop import period_stats
+
+    stop = threading.Event()
+    counter = [0]
+    load = None
+    if args.load != "none":
+        target = _python_load if args.load == "python" else _numpy_load
+        load = threading.Thread(target=target, args=(stop, counter), name="bench-load",
+                                daemon=True)
+
+    if args.process:
+        periods, info = _run_process(args, load)
+    elif args.gui:
+        periods, info = _run_gui(args, load)
+    else:
+        periods, info = _run_thread(args, load)
+    stop.set()
+
+    periods = np.asarray(periods)
+    if len(periods) == 0:
+        print("no steps were measured", file=sys.stderr)
+        return 1
+    stats = period_stats(periods)
+    late = float(np.mean(periods > 1.2e-3 * 1000.0 / args.rate)) * 100
+    print(f"engine loop: {info['what']}, K = {args.modes} (m' = {args.modes ** 3}), "
+          f"{info['field']}")
+    print(f"mode: {'process' if args.process else 'thread'}, load: {args.load}, "
+          f"switch interval: {args.switch_interval or sys.getswitchinterval()} s"
+          + (", GUI running" if args.gui else ""))
+    print()
+    print("| steps | seconds | rate (Hz) | median (us) | p1 (us) | p99 (us) | max (us) "
+          "| > 1.2 periods | eval median (us) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"| {len(periods)} | {periods.sum():.2f} | {stats.rate_hz:.1f} | {stats.median_us:.1f} "
+          f"| {stats.p1_us:.1f} | {stats.p99_us:.1f} | {stats.max_us:.1f} | {late:.2f} % "
+          f"| {info.get('eval_us', float('nan')):.1f} |")
+    if load is not None:
+        print(f"\nload thread iterations: {counter[0]}")
+    for key in ("gui_fps", "gui_latency_ms"):
+        if key in info:
+            print(f"{key}: {info[key]}")
+    if args.plot:
+        _plot(periods, args, stats, Path(args.plot))
+        print(f"\nwrote {args.plot}")
+    goal = stats.rate_hz >= 0.99 * args.rate and stats.p99_us <= 1200.0 * 1000.0 / args.rate
+    print(f"goal (rate >= {0.99 * args.rate:.0f} Hz, p99 <= {1.2e6 / args.rate:.0f} us): "
+          f"{'met' if goal else 'NOT met'}")
+    return 0
+
+
+def _sim_and_model(args: argparse.Namespace):
+    from dataclasses import replace
+
+    from engine.api import open_scene
+    from engine.loop import build_simulation
+
+    handle = open_scene(args.scene)
+    effects = handle.config.effects
+    if args.translation_only:
+        effects = replace(effects, axes=("x", "y", "z"))
+    handle = replace(handle, config=replace(handle.config, effects=effects))
+    if args.fake:
+        from engine.coupling import CorrelatorField
+
+        sim, model = build_simulation(handle, prepare=False)
+        sim.set_field(CorrelatorField(_AnalyticWell(), sim.physics.kappa))
+        return handle, sim, model, "analytic field"
+    sim, model = build_simulation(handle, modes=args.modes, backend=args.backend, prepare=True)
+    c = getattr(sim.field, "correlator", None)
+    return handle, sim, model, getattr(c, "backend_name", type(sim.field).__name__)
+
+
+class _AnalyticWell:
+    """A quadratic well (energy, force, torque in closed form): the loop without the sum."""
+
+    rotation = True
+    modes = 0
+
+    def evaluate(self, R, t):
+        from engine.correlation import Evaluation
+
+        t = np.asarray(t, float)
+        return Evaluation(0.5 * float(t @ t), -t, -0.5 * (R - R.T)[[2, 0, 1], [1, 2, 0]], 0.0, 0)
+
+    def set_modes(self, k):
+        pass
+
+
+def _proxy_motion(sim):
+    """A slow circle of the proxy around the start pose, so the part keeps moving."""
+    start = np.array(sim.start_pose)
+    length = sim.physics.length
+
+    def pose_at(t: float) -> np.ndarray:
+        p = start.copy()
+        p[0] += 0.05 * length * np.sin(2 * np.pi * 0.5 * t)
+        p[1] += 0.05 * length * np.cos(2 * np.pi * 0.5 * t)
+        p[2] -= 0.2 * length * (0.5 - 0.5 * np.cos(2 * np.pi * 0.25 * t))
+        return p
+
+    return pose_at
+
+
+def _run_thread(args, load):
+    from engine.devices import TrajectoryDevice
+    from engine.loop import EngineLoop
+
+    handle, sim, model, field = _sim_and_model(args)
+    pose_at = _proxy_motion(sim)
+    ts = np.arange(0.0, args.seconds + 2.0, 0.01)
+    traj = TrajectoryDevice(np.column_stack([ts, np.array([pose_at(t) for t in ts])]))
+    loop = EngineLoop(sim, model=model, device=traj, rate_hz=args.rate, realtime=True,
+                      keep_periods=True, switch_interval=args.switch_interval)
+    if load is not None:
+        load.start()
+    warm = int(0.5 * args.rate)
+    loop.run(max_steps=warm + int(args.seconds * args.rate))
+    frames = loop.poll_frames()
+    eval_us = float(np.median([f.eval_us for f in frames])) if frames else float("nan")
+    return np.asarray(loop.periods)[warm:], {
+        "what": f"{handle.scene.name} ({Path(args.scene).name})",
+        "field": field,
+        "eval_us": eval_us,
+    }
+
+
+def _run_process(args, load):
+    from engine.loop import ProcessEngine
+
+    options = {
+        "modes": args.modes,
+        "backend": args.backend,
+        "translation_only": args.translation_only,
+        "fake": args.fake,
+        "rate_hz": args.rate,
+        "switch_interval": args.switch_interval,
+    }
+    engine = ProcessEngine(args.scene, options=options, keep_periods=True)
+    engine.start()
+    ready = engine.wait_ready(timeout=1800)
+    if load is not None:
+        load.start()
+    time.sleep(args.seconds + 0.5)
+    periods, eval_us, field = engine.stop_and_collect()
+    if not ready:
+        raise RuntimeError("the engine process did not get ready")
+    return periods[int(0.5 * args.rate):], {
+        "what": Path(args.scene).name,
+        "field": field,
+        "eval_us": eval_us,
+    }
+
+
+def _run_gui(args, load):
+    try:
+        from app.gui import bench_hooks  # type: ignore[attr-defined]
+    except ImportError as exc:
+        raise RuntimeError(
+            f"--gui needs the application's benchmark hooks (app.gui.bench_hooks): {exc}"
+        ) from exc
+    return bench_hooks.run_loop_benchmark(args, load)
+
+
+def _plot(periods: np.ndarray, args, stats, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    us = periods * 1e6
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.hist(np.clip(us, 0, 3000), bins=120, log=True, color="#3572a5")
+    for q, name in ((stats.median_us, "median"), (stats.p99_us, "p99")):
+        ax.axvline(q, color="k", lw=0.8, ls="--")
+        ax.text(q, ax.get_ylim()[1] * 0.5, f" {name} {q:.0f} us", fontsize=8)
+    ax.set_xlabel("period (us), clipped at 3000")
+    ax.set_ylabel("steps")
+    mode = "process" if args.process else "thread"
+    ax.set_title(f"engine loop at {args.rate:.0f} Hz, K={args.modes}, {mode}, load={args.load}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
