@@ -33,6 +33,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -422,7 +423,7 @@ def _load_step(path: Path, tolerance: float | None) -> list[Part]:
     # OpenCASCADE tessellates in its session unit, millimetres, whatever the file's unit
     mm_per_unit = metres * 1e3
 
-    def tessellate(tol_mm: float, angular: float) -> trimesh.Scene:
+    def tessellate(tol_mm: float, angular: float) -> Any:
         with _native_output() as captured:
             glb = cascadio.load(
                 data, file_type="step", tol_linear=tol_mm, tol_angular=angular,
@@ -455,13 +456,13 @@ def _load_step(path: Path, tolerance: float | None) -> list[Part]:
     parts: list[Part] = []
     seen: dict[str, int] = {}
     nodes = list(scene.graph.nodes_geometry) if hasattr(scene, "graph") else []
+    items: list[tuple[str, Any, Any]] = []
     if not nodes and hasattr(scene, "vertices"):
         items = [(path.stem, np.eye(4), scene)]
     else:
-        items = []
         for node in nodes:
             transform, geometry_name = scene.graph[node]
-            items.append((geometry_name, transform, scene.geometry[geometry_name]))
+            items.append((str(geometry_name), transform, scene.geometry[geometry_name]))
     items = [it for it in items if hasattr(it[2], "faces") and len(it[2].faces)]
     # file order: GLB scene graphs are unordered, the STEP's PRODUCT entities are not
     products = [m.group(1) for m in re.finditer(r"PRODUCT\s*\(\s*'([^']*)'", text)]
@@ -579,7 +580,7 @@ def _load_mesh(path: Path) -> Part:
     if path.stat().st_size == 0:
         raise PartError(f"{path}: the file is empty; export the part again")
     try:
-        loaded = trimesh.load(str(path), process=False)
+        loaded: Any = trimesh.load(str(path), process=False)
     except Exception as exc:  # noqa: BLE001 - trimesh raises many types for bad files
         raise PartError(
             f"{path}: cannot read this {path.suffix} file ({type(exc).__name__}: {exc}); "

@@ -29,7 +29,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -259,6 +259,14 @@ class _Checker:
                     f"unknown key {key!r} in {self.label}; valid keys: {', '.join(allowed)}",
                 )
 
+    @overload
+    def number(self, key: str, default: float, *, positive: bool = ...,
+               minimum: float | None = ...) -> float: ...
+
+    @overload
+    def number(self, key: str, default: None, *, positive: bool = ...,
+               minimum: float | None = ...) -> float | None: ...
+
     def number(self, key: str, default: float | None, *, positive: bool = False,
                minimum: float | None = None) -> float | None:
         if key not in self.values:
@@ -275,6 +283,12 @@ class _Checker:
                                  f"got {value!r}")
         return float(value)
 
+    @overload
+    def integer(self, key: str, default: int, *, minimum: int) -> int: ...
+
+    @overload
+    def integer(self, key: str, default: None, *, minimum: int) -> int | None: ...
+
     def integer(self, key: str, default: int | None, *, minimum: int) -> int | None:
         if key not in self.values:
             return default
@@ -284,7 +298,13 @@ class _Checker:
                                  f"{minimum}, got {value!r}")
         return int(value)
 
-    def vector(self, key: str, n: int, default: Any = None) -> np.ndarray | None:
+    @overload
+    def vector(self, key: str, n: int, default: np.ndarray) -> np.ndarray: ...
+
+    @overload
+    def vector(self, key: str, n: int, default: None = ...) -> np.ndarray | None: ...
+
+    def vector(self, key: str, n: int, default: np.ndarray | None = None) -> np.ndarray | None:
         if key not in self.values:
             return default
         value = self.values[key]
@@ -297,6 +317,12 @@ class _Checker:
                 else f"{n} numbers"
             raise self.fail(key, f"{key} in {self.label} must be {what}, got {value!r}")
         return np.array(value, dtype=np.float64)
+
+    @overload
+    def string(self, key: str, default: str) -> str: ...
+
+    @overload
+    def string(self, key: str, default: None) -> str | None: ...
 
     def string(self, key: str, default: str | None) -> str | None:
         if key not in self.values:
@@ -362,7 +388,7 @@ def _parse(p: Path, text: str, data: dict[str, Any]) -> Scene:
     if "assembled_pose" not in data:
         raise top.fail(None, "assembled_pose is missing; add `assembled_pose = [tx, ty, tz, rx, "
                              "ry, rz]` (part 2 in part 1's frame when assembled)")
-    assembled = top.vector("assembled_pose", 6)
+    assembled = top.vector("assembled_pose", 6, np.zeros(6))  # present: checked above
     axis = top.vector("insertion_axis", 3)
     if axis is not None:
         norm = float(np.linalg.norm(axis))
@@ -399,7 +425,7 @@ def _parse(p: Path, text: str, data: dict[str, Any]) -> Scene:
         raise _Checker(p, text, ("part", 2), raw_parts[2], "[[part]] #3").fail(
             None, f"{len(raw_parts)} [[part]] tables; a scene has two parts (fixed, then moving)"
         )
-    parts = []
+    parts: list[PartSpec] = []
     for i, table in enumerate(raw_parts):
         label = f"[[part]] #{i + 1}"
         pc = _Checker(p, text, ("part", i), table, label)

@@ -107,7 +107,7 @@ class Descriptor:
             p = p.with_name(p.name + ".npz")
         if p.parent and not p.parent.exists():
             raise OSError(f"{p.parent}: no such folder for the output file")
-        np.savez(p, **self.arrays())
+        np.savez(p, **self.arrays())  # type: ignore[arg-type]
         return p
 
     @classmethod
@@ -140,8 +140,13 @@ class Descriptor:
             raise InputError(f"{source}: descriptor format {version} is newer than this "
                              f"program's ({FORMAT_VERSION}); update skelasm")
         rho = arrays["rho"]
-        grid = Grid(tuple(float(x) for x in arrays["origin"]), float(arrays["spacing"]),
-                    tuple(int(n) for n in rho.shape))
+        if rho.ndim != 3 or np.asarray(arrays["origin"]).size != 3:
+            raise InputError(f"{source}: rho must be 3D and origin 3 numbers, got shapes "
+                             f"{rho.shape} and {np.asarray(arrays['origin']).shape}")
+        o = np.asarray(arrays["origin"], dtype=np.float64).reshape(3)
+        nx, ny, nz = (int(n) for n in rho.shape)
+        grid = Grid((float(o[0]), float(o[1]), float(o[2])), float(arrays["spacing"]),
+                    (nx, ny, nz))
         params = DescriptorParams(sigma=float(arrays["sigma"]), penalty=float(arrays["penalty"]),
                                   lambda_out=float(arrays["lambda_out"]))
         return cls(
