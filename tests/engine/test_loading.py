@@ -296,3 +296,14 @@ def test_part_arrays_are_read_only():
         part.vertices[0, 0] = 5.0
     assert part.diagonal == pytest.approx(math.sqrt(12))
     assert part.area == pytest.approx(24.0)
+
+
+def test_step_without_geometry(tmp_path):
+    empty = tmp_path / "nothing.step"
+    empty.write_text(
+        "ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION((''),'2;1');\n"
+        "FILE_NAME('','',(''),(''),'','','');\nFILE_SCHEMA(('AUTOMOTIVE_DESIGN'));\n"
+        "ENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n"
+    )
+    with pytest.raises(PartError, match="nothing.step: .*(re-export|export the part)"):
+        load_parts(empty)
