@@ -29,7 +29,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from engine.dynamics import BodyState, RigidBody, kinetic_energy, step
+from engine.dynamics import BodyState, RigidBody, cross3, kinetic_energy, rotvec_between, step
 from engine.pose import quaternion_to_matrix, rotation_vector, rotvec_to_quaternion
 from engine.simconfig import Effects, Physics
 
@@ -305,7 +305,8 @@ class Simulation:
         p = np.asarray(pose, float).reshape(6)
         self.proxy_pose = p.copy()
         self._proxy_t = p[:3].copy()
-        self._proxy_R = quaternion_to_matrix(rotvec_to_quaternion(p[3:]))
+        self._proxy_q = rotvec_to_quaternion(p[3:])
+        self._proxy_R = quaternion_to_matrix(self._proxy_q)
 
     def part_pose(self) -> np.ndarray:
         """(6,) current pose of the part relative to part 1."""
@@ -340,10 +341,10 @@ class Simulation:
         force = sample.force + self._gravity_force
         torque = sample.torque
         if self.coupled:
-            v_origin = state.velocity - np.cross(state.omega, R @ body.center)
-            fc, tc = coupling_wrench(
-                self.gains, origin, R, v_origin, state.omega, self._proxy_t, self._proxy_R
-            )
+            v_origin = state.velocity - cross3(state.omega, R @ body.center)
+            g = self.gains
+            fc = g.k_lin * (self._proxy_t - origin) - g.c_lin * v_origin
+            tc = g.k_rot * rotvec_between(self._proxy_q, state.quat) - g.c_rot * state.omega
             self.coupling_force, self.coupling_torque = fc, tc
             self.haptic_force, self.haptic_torque = haptic_reaction(fc, tc, self.limits)
             force = force + fc

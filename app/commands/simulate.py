@@ -141,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
         mode = "realtime" if args.realtime else "as fast as possible"
         print(f"{result['scene']}: {taken} steps ({sim.time:.3f} s simulated) in {wall:.2f} s "
               f"wall, {result['rate_hz']:.0f} steps/s ({mode})")
-        print(f"guidance {result['guidance']}, evaluator {result['backend']}, K = {result['modes']}")
+        print(f"guidance {result['guidance']}, evaluator {result['backend']}, "
+              f"K = {result['modes']}")
         print("final pose  t = (" + ", ".join(f"{v:.4g}" for v in f[:3]) + "), r = ("
               + ", ".join(f"{v:.4g}" for v in f[3:]) + ")")
         print(f"to assembled: {result['distance_to_assembled']:.4g} {handle.scene.units}, "
