@@ -805,3 +805,49 @@ class NumbaKernel:
             self.prepare(correlator)
         func = self._parallel if self.parallel else self._serial
         return func(rot, t, *self._args)
+
+
+def correlator_for_scene(
+    scene: Any,
+    *,
+    modes: int | None = None,
+    backend: str = "auto",
+    rotation: bool = True,
+    kappa: float = 1.0,
+    progress: Any = None,
+    cancel: Any = None,
+) -> Correlator:
+    """A :class:`Correlator` for a scene's two parts (descriptors from the store, cached).
+
+    Parameters
+    ----------
+    scene : engine.scene.Scene or path
+        The scene (or its TOML file); its first part is fixed, the second moves.
+    modes : int, optional
+        Modes per axis (default: the scene's ``[correlation] modes``).
+    backend, rotation, kappa
+        As :class:`Correlator`.
+    progress, cancel
+        Passed on to the descriptor computation.
+    """
+    from engine.scene import Scene, load_scene
+    from engine.store import descriptors_for_scene
+
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    if len(scene.parts) < 2:
+        raise ValueError(f"{scene.path}: the scene needs two parts to correlate")
+    kwargs: dict[str, Any] = {}
+    if progress is not None:
+        kwargs["progress"] = progress
+    if cancel is not None:
+        kwargs["cancel"] = cancel
+    descriptors = descriptors_for_scene(scene, **kwargs)
+    return Correlator(
+        descriptors[0],
+        descriptors[1],
+        modes=int(modes if modes is not None else scene.modes),
+        rotation=rotation,
+        backend=backend,
+        kappa=kappa,
+    )
