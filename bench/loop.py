@@ -8,6 +8,8 @@ interpreter:
 - ``--load python``: a thread doing pure-Python work (the worst case for the GIL: it never
   releases it by itself; stands in for GUI code building meshes, painting, event handling);
 - ``--load numpy``: a thread doing large numpy operations (releases the GIL inside);
+- ``--load vtk``: a thread rendering an off-screen pyvista scene and reading it back (does
+  VTK hold the GIL while it renders?);
 - ``--gui``: the real application window rendering beside the loop (``app.gui``, imported
   only then);
 - ``--process``: the loop in its own process (``engine.loop.ProcessEngine``) while the load
@@ -40,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--translation-only", action="store_true",
                         help="lock rotation (landscape lookup instead of the modal sum)")
     parser.add_argument("--backend", default="auto", help="per-pose evaluator")
-    parser.add_argument("--load", choices=("none", "python", "numpy"), default="none",
+    parser.add_argument("--load", choices=("none", "python", "numpy", "vtk"), default="none",
                         help="a competing thread in this process")
     parser.add_argument("--switch-interval", type=float, default=None,
                         help="sys.setswitchinterval while the loop runs (seconds)")
@@ -67,6 +69,18 @@ def _numpy_load(stop: threading.Event, counter: list[int]) -> None:
         counter[0] += 1
 
 
+def _vtk_load(stop: threading.Event, counter: list[int]) -> None:
+    import pyvista as pv
+
+    plotter = pv.Plotter(off_screen=True, window_size=(800, 600))
+    plotter.add_mesh(pv.Sphere(theta_resolution=120, phi_resolution=120))
+    while not stop.is_set():
+        plotter.camera.azimuth += 2.0
+        plotter.screenshot(return_img=True)  # a full render and read-back
+        counter[0] += 1
+    plotter.close()
+
+
 def run(args: argparse.Namespace) -> int:
     from engine.loop import period_stats
 
@@ -74,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     counter = [0]
     load = None
     if args.load != "none":
-        target = _python_load if args.load == "python" else _numpy_load
+        target = {"python": _python_load, "numpy": _numpy_load, "vtk": _vtk_load}[args.load]
         load = threading.Thread(target=target, args=(stop, counter), name="bench-load",
                                 daemon=True)
 

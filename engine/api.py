@@ -470,6 +470,7 @@ def start_engine(
     backend: str = "auto",
     frame_queue: int = 64,
     process: bool = False,
+    switch_interval: float | None = 5e-4,
 ) -> EngineHandle:
     """Start the engine thread on a scene; returns at once.
 
@@ -493,6 +494,8 @@ def start_engine(
         Per-pose evaluator passed to the correlator ("auto", "numba", "numpy", "opencl").
     frame_queue : int
         Frames kept for the GUI; older ones are dropped.
+    switch_interval : float or None
+        ``sys.setswitchinterval`` while the engine thread runs (None: leave Python's 5 ms).
     process : bool
         Run the loop in its own process (``engine.loop.ProcessEngine``: frames through
         shared memory, only the newest kept; commands through a queue), out of reach of the
@@ -527,6 +530,9 @@ def start_engine(
         realtime=realtime,
         frame_queue=frame_queue,
         prepare=True,
+        # another thread may hold the GIL this long before the loop gets it back (Python's
+        # default is 5 ms); measured in docs/readme/simulation.md
+        switch_interval=switch_interval,
     )
     if notice is not None:
         loop.events.append(notice)

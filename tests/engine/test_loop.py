@@ -220,3 +220,27 @@ def test_process_engine_frames_through_shared_memory():
     finally:
         engine.stop()
     assert not engine.is_alive()
+
+
+def test_api_end_to_end_on_a_scene_without_guidance():
+    from dataclasses import replace
+    from pathlib import Path
+
+    scene = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
+    handle = api.open_scene(scene)
+    assert handle.parts[1].vertices.shape[1] == 3
+    np.testing.assert_allclose(handle.world_pose(handle.start_pose), handle.scene.parts[1].pose)
+    cfg = handle.config
+    handle = replace(handle, config=replace(cfg, effects=replace(cfg.effects, guidance="none")))
+    engine = api.start_engine(handle)
+    try:
+        assert wait_for(lambda: any(isinstance(e, api.ReadyEvent) for e in list(
+            engine._loop.events)), 10.0)
+        engine.send(api.SetProxyPose((0.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
+        assert wait_for(lambda: (f := engine.latest_frame()) is not None
+                        and f.part_pose[2] < 0.5, 10.0)
+        assert engine.running
+    finally:
+        engine.stop()
+    assert not engine.running
+    assert any(isinstance(e, api.StoppedEvent) for e in engine.poll_events())
