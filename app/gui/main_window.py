@@ -87,7 +87,7 @@ class MainWindow(QtWidgets.QMainWindow):
         Run the engine on the wall clock (True) or as fast as it can.
     """
 
-    TICK_MS = 15
+    TICK_MS = 10
     READOUT_PERIOD = 0.1  # seconds between text updates
     VIEW_PERIOD = 0.2  # seconds between landscape re-cuts / slice plane moves
 
@@ -111,6 +111,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self._fps_frames = 0
         self.fps = 0.0
         self.descriptor_seconds = None
+        self.guidance_ready = False  # a correlator is in use: landscapes can be asked for
+        self.guidance_error: str | None = None
 
         self.setWindowTitle("skelasm")
         self.setAcceptDrops(True)
@@ -312,7 +314,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def save_screenshot(self, path: str | Path, widget: QtWidgets.QWidget | None = None) -> Path:
         """Render now and save a picture of the window (or of one widget) as PNG."""
         self.viewport.request_render()
-        self.viewport.render_if_dirty()
+        self.viewport.render_if_dirty(force=True)
         QtWidgets.QApplication.processEvents()
         pixmap = (widget or self).grab()
         path = Path(path)
@@ -336,6 +338,8 @@ class MainWindow(QtWidgets.QMainWindow):
     def _scene_opened(self, handle) -> None:
         self.latest_frame = None
         self._landscape_pending = False
+        self.guidance_ready = False
+        self.guidance_error = None
         self._force_scale = self._torque_scale = 0.0
         self.chart.clear()
         views = self.session.part_views()
@@ -352,7 +356,7 @@ class MainWindow(QtWidgets.QMainWindow):
         desc = getattr(scene, "descriptor", None)
         sigma = float(getattr(desc, "sigma", 0.5) or 0.5)
         penalty = float(getattr(desc, "penalty", 3.0) or 3.0)
-        modes = int(getattr(getattr(scene, "correlation", None), "modes", 16) or 16)
+        modes = int(getattr(scene, "modes", 16) or 16)
         self.params.load_config(handle.config, modes, sigma, penalty)
         if self.session.engine is None:
             self.statusBar().showMessage(
@@ -482,17 +486,21 @@ class MainWindow(QtWidgets.QMainWindow):
         self.status_engine.setText(f"engine {f.period.rate_hz:,.0f} Hz · {f.eval_us:.0f} µs/eval")
 
     def _maybe_request_landscape(self, pose: np.ndarray) -> None:
-        if self._landscape_pending or not self.landscape_view.needs_landscape(pose):
+        if not self.guidance_ready or self._landscape_pending:
+            return
+        if not self.landscape_view.needs_landscape(pose):
             return
         self._landscape_pending = True
         self.session.send(api.RequestLandscape(tuple(float(x) for x in pose[3:])))
 
     def _handle_event(self, event) -> None:
         if isinstance(event, api.ReadyEvent):
+            self.guidance_ready = bool(event.descriptors)
             self.readouts.set("backend", event.backend or "-")
             self.slice_view.set_descriptors(event.descriptors)
             self.statusBar().showMessage(event.message or "engine ready", 4000)
         elif isinstance(event, api.DescriptorsSwapped):
+            self.guidance_ready = bool(event.descriptors)
             self.slice_view.set_descriptors(event.descriptors)
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")
@@ -513,6 +521,8 @@ class MainWindow(QtWidgets.QMainWindow):
             if self.latest_frame is not None:
                 self.landscape_view.set_pose(np.asarray(self.latest_frame.part_pose))
         elif isinstance(event, api.ErrorEvent):
+            if not self.guidance_ready and not event.fatal and "andscape" not in event.message:
+                self.guidance_error = event.message  # preparing the correlator failed
             if "andscape" in event.message:
                 self._landscape_pending = False
             if event.fatal:

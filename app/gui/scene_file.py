@@ -66,6 +66,7 @@ def write_scene(handle, path: Path, *, moving_relative_pose: np.ndarray | None =
         spec["correlation"] = {**spec.get("correlation", {}), "modes": int(modes)}
     spec.setdefault("name", getattr(handle.scene, "name", path.stem))
     text = tomli_w.dumps(spec)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".toml.part")
     tmp.write_text(text)
     os.replace(tmp, path)  # never leave a half-written scene behind

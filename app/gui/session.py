@@ -139,25 +139,32 @@ class Session(QtCore.QObject):
         Without a current scene the part is shown alone as the fixed part.
         """
         import tomli_w
+        import tomllib
 
         parts = []
-        spec = {"name": f"untitled ({part_path.name})", "units": "mm"}
+        spec = {"name": f"untitled ({part_path.name})", "units": "mm",
+                "assembled_pose": [0.0] * 6}
         if self.handle is not None:
             scene = self.handle.scene
+            source = Path(self.handle.path)
+            if source.exists():
+                # keep the current scene's settings (descriptor, coupling, effects, ...)
+                old = tomllib.loads(source.read_text())
+                spec.update({k: v for k, v in old.items() if k not in ("part", "name")})
+            spec["units"] = str(getattr(scene, "units", spec.get("units", "mm")))
             first = scene.parts[0]
-            spec["units"] = getattr(scene, "units", "mm")
             parts.append({
                 "name": first.name,
-                "file": str(Path(self.handle.path).parent / first.file),
+                "file": str((source.parent / first.file).resolve()),
                 "pose": [float(x) for x in first.pose],
             })
             # start above the fixed part, clear of it
             v = self.handle.parts[0].vertices
             height = float(np.ptp(v[:, 2])) if len(v) else 1.0
-            pose = list(first.pose)
-            pose[2] = float(first.pose[2]) + float(v[:, 2].max()) + 0.75 * height
+            pose = [float(x) for x in first.pose]
+            pose[2] += float(v[:, 2].max()) + 0.75 * height
             parts.append({"name": part_path.stem, "file": str(part_path.resolve()),
-                          "pose": [float(x) for x in pose]})
+                          "pose": pose})
         else:
             parts.append({"name": part_path.stem, "file": str(part_path.resolve()),
                           "pose": [0.0] * 6})

@@ -1,0 +1,205 @@
+"""Display and settings set-up for the GUI tests (pytest-qt).
+
+pyvistaqt needs an OpenGL window: Qt's ``offscreen`` platform cannot give it one (VTK
+reports "Render window is not current"), so the tests run on a real X display. Without
+``DISPLAY`` this file starts a private Xvfb server for the session (``Xvfb -displayfd``
+picks a free display number) and stops it at the end. If neither a display nor Xvfb is
+there, it probes Qt's offscreen platform once in a subprocess; when that cannot render
+either, every GUI test is skipped with the reason.
+
+Settings: QSettings is pointed at a temporary directory before any window exists, so tests
+never read or write the user's recent files and layout.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_XVFB: subprocess.Popen | None = None
+_SETTINGS_DIR = tempfile.mkdtemp(prefix="skelasm-gui-settings-")
+_CACHE_DIR = tempfile.mkdtemp(prefix="skelasm-gui-cache-")
+
+
+def _start_xvfb() -> str | None:
+    """Start Xvfb on a free display; return ':N' or None."""
+    global _XVFB
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        return None
+    r, w = os.pipe()
+    proc = subprocess.Popen(
+        [exe, "-displayfd", str(w), "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
+        pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    os.close(w)
+    with os.fdopen(r) as f:
+        number = f.readline().strip()
+    if not number or proc.poll() is not None:
+        proc.kill()
+        return None
+    _XVFB = proc
+    return f":{number}"
+
+
+_PROBE = """
+import pyvista as pv
+from PySide6 import QtWidgets
+from pyvistaqt import QtInteractor
+app = QtWidgets.QApplication([])
+p = QtInteractor(None, auto_update=False)
+p.add_mesh(pv.Sphere())
+p.show(); app.processEvents(); p.render()
+img = p.screenshot(return_img=True)
+assert img.std() > 0
+"""
+
+
+def _display_problem() -> str | None:
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    display = _start_xvfb()
+    if display is not None:
+        os.environ["DISPLAY"] = display
+        return None
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen")
+    probe = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
+                           timeout=120)
+    if probe.returncode == 0:
+        os.environ["QT_QPA_PLATFORM"] = "offscreen"
+        return None
+    return ("no display for the GUI tests: DISPLAY is unset, Xvfb is not installed "
+            "(apt-get install xvfb) and Qt's offscreen platform cannot give VTK an OpenGL "
+            "window")
+
+
+try:
+    import PySide6  # noqa: F401
+    import pyvistaqt  # noqa: F401
+
+    DISPLAY_PROBLEM = _display_problem()
+except ImportError as exc:  # the [gui] extra is not installed
+    DISPLAY_PROBLEM = f"the GUI packages are not installed: {exc}"
+
+# Descriptors of the tests' scenes go to a private cache: each session computes them once.
+os.environ.setdefault("SKELASM_CACHE", _CACHE_DIR)
+os.environ["XDG_CONFIG_HOME"] = _SETTINGS_DIR
+
+
+def pytest_collection_modifyitems(config, items):
+    here = Path(__file__).parent
+    for item in items:
+        if Path(str(item.fspath)).is_relative_to(here):
+            item.add_marker(pytest.mark.gui)
+            if DISPLAY_PROBLEM:
+                item.add_marker(pytest.mark.skip(reason=DISPLAY_PROBLEM))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _XVFB is not None:
+        _XVFB.terminate()
+        try:
+            _XVFB.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            _XVFB.kill()
+    shutil.rmtree(_SETTINGS_DIR, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def qapp_args():
+    return ["skelasm-tests"]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _settings_location(qapp):
+    from PySide6 import QtCore
+
+    from app.gui.main_window import APPLICATION, ORGANISATION
+
+    qapp.setOrganizationName(ORGANISATION)
+    qapp.setApplicationName(APPLICATION)
+    for fmt in (QtCore.QSettings.NativeFormat, QtCore.QSettings.IniFormat):
+        QtCore.QSettings.setPath(fmt, QtCore.QSettings.UserScope, _SETTINGS_DIR)
+    yield
+
+
+@pytest.fixture
+def settings(tmp_path):
+    """A QSettings in a test's own directory."""
+    from PySide6 import QtCore
+
+    return QtCore.QSettings(str(tmp_path / "settings.ini"), QtCore.QSettings.IniFormat)
+
+
+EXAMPLE_SCENE = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
+
+
+def _box(lo, hi):
+    import trimesh
+
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.
+                                translation_matrix((lo + hi) / 2))
+
+
+@pytest.fixture(scope="session")
+def small_scene(tmp_path_factory) -> Path:
+    """A small scene (a block above a plate) on a coarse grid, so the real engine prepares
+    its descriptors in seconds."""
+    d = tmp_path_factory.mktemp("small_scene")
+    _box((-10, -10, -3), (10, 10, 0)).export(d / "plate.stl")
+    _box((-4, -4, 0), (4, 4, 8)).export(d / "block.stl")
+    (d / "scene.toml").write_text(
+        'name = "Small test scene"\nunits = "mm"\nassembled_pose = [0, 0, 3, 0, 0, 0]\n\n'
+        "[descriptor]\nsigma = 0.5\npenalty = 3.0\ngrid = 12\npadding = 3\n\n"
+        "[correlation]\nmodes = 8\n\n"
+        '[[part]]\nname = "plate"\nfile = "plate.stl"\npose = [0, 0, 0, 0, 0, 0]\n'
+        "fixed = true\n\n"
+        '[[part]]\nname = "block"\nfile = "block.stl"\npose = [0, 0, 8, 0, 0, 0]\n'
+    )
+    return d / "scene.toml"
+
+
+def _wait_until(qtbot, predicate, timeout_ms: int, what: str) -> None:
+    try:
+        # bool(): waitUntil takes a callback returning None as an assertion that passed
+        qtbot.waitUntil(lambda: bool(predicate()), timeout=timeout_ms)
+    except Exception as exc:  # pytestqt's TimeoutError
+        raise AssertionError(f"timed out after {timeout_ms} ms waiting for {what}") from exc
+
+
+@pytest.fixture
+def wait_until(qtbot):
+    """``wait_until(predicate, timeout_ms, what)``: qtbot.waitUntil whose failure says what
+    did not happen."""
+    return lambda predicate, timeout_ms, what: _wait_until(qtbot, predicate, timeout_ms, what)
+
+
+@pytest.fixture
+def make_window(qtbot, settings):
+    """Factory: a shown MainWindow on a scene, waiting for its first engine frame."""
+    windows = []
+
+    def make(scene: Path, *, first_frame: bool = True):
+        from app.gui.main_window import MainWindow
+
+        win = MainWindow(settings=settings)
+        qtbot.addWidget(win)
+        win.show()
+        qtbot.waitExposed(win)
+        win.open_path(scene, wait=True)
+        windows.append(win)
+        if first_frame:
+            _wait_until(qtbot, lambda: win.latest_frame is not None, 15000, "a first frame")
+        return win
+
+    yield make
+    for win in windows:
+        win.close()

@@ -1,0 +1,157 @@
+"""Live parameters, descriptor slices and energy landscapes with the real engine, on a
+small scene whose descriptors take seconds."""
+
+from __future__ import annotations
+
+import re
+import time
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+from app.gui import colormap
+from app.gui.session import real_engine_available
+from app.gui.slice_view import slice_values
+from engine import api
+
+pytestmark = pytest.mark.skipif(
+    not real_engine_available(),
+    reason="engine.loop / engine.scene not installed: the GUI tests need the real engine",
+)
+
+
+@pytest.fixture
+def ready_window(make_window, small_scene, wait_until):
+    win = make_window(small_scene)
+    wait_until(lambda: win.guidance_ready or win.guidance_error, 120000,
+               "the engine's descriptors and correlator")
+    assert win.guidance_error is None, win.guidance_error
+    return win
+
+
+def _eval_samples(qtbot, win, n=30):
+    out = []
+    for _ in range(n):
+        qtbot.wait(15)
+        out.append(win.latest_frame.eval_us)
+    return np.asarray(out)
+
+
+def test_modes_change_the_evaluation_cost_readout(ready_window, qtbot, wait_until):
+    win = ready_window
+    readout = win.readouts.labels["eval"]
+    win.params.modes.setValue(4)
+    wait_until(lambda: win.latest_frame.modes == 4, 5000, "K = 4 to reach the engine")
+    cheap = np.median(_eval_samples(qtbot, win))
+    wait_until(lambda: "(K = 4)" in win.readouts.text("modes"), 2000, "the m' readout")
+    cheap_text = readout.text()
+    win.params.modes.setValue(14)
+    wait_until(lambda: win.latest_frame.modes > 4, 5000, "more modes to reach the engine")
+    k = win.latest_frame.modes
+    dear = np.median(_eval_samples(qtbot, win))
+    wait_until(lambda: f"(K = {k})" in win.readouts.text("modes"), 2000, "the m' readout")
+    # (k/4)^3 times the modes: the sum is O(m'), so the cost grows by far more than 2
+    assert dear > 2.0 * cheap, (cheap, dear)
+    wait_until(lambda: readout.text() != cheap_text, 2000, "the cost readout to change")
+    shown = float(re.match(r"([\d.,]+) µs", readout.text()).group(1).replace(",", ""))
+    assert shown > 2.0 * cheap
+    assert f"{k ** 3:,}" in win.readouts.text("modes")
+
+
+def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
+        ready_window, qtbot, wait_until):
+    win = ready_window
+    panel = win.params
+    old = win.slice_view._descriptors
+    assert old, "the slice view got the descriptors with ReadyEvent"
+    # 1. start a recompute and cancel it at once: the old descriptors stay in use
+    panel.sigma.setValue(0.8)
+    panel.flush()
+    assert panel.cancel.isEnabled()
+    panel.cancel.click()
+    assert panel.progress.format() == "cancelled" and not panel.cancel.isEnabled()
+    n = win.frames_received
+    qtbot.wait(3000)
+    assert win.slice_view._descriptors is old
+    assert win.descriptor_seconds is None  # no DescriptorsSwapped came
+    assert win.frames_received > n  # the engine kept stepping meanwhile
+    # 2. start one and let it finish: the bar advances, the GUI keeps ticking
+    values = []
+    panel.progress.valueChanged.connect(values.append)
+    ticks = []
+    timer = QtCore.QTimer()
+    timer.timeout.connect(lambda: ticks.append(time.perf_counter()))
+    timer.start(20)
+    panel.sigma.setValue(1.2)
+    panel.flush()
+    wait_until(lambda: win.descriptor_seconds is not None, 60000, "the new descriptors")
+    timer.stop()
+    assert any(0 < v < 1000 for v in values), values  # seen part-way
+    assert max(values) > min(values)
+    assert win.slice_view._descriptors is not old
+    new_rho = win.slice_view._descriptors[0].rho
+    assert new_rho.shape == old[0].rho.shape and not np.allclose(new_rho, old[0].rho)
+    assert not panel.cancel.isEnabled()
+    # the event loop never stalled for long while the recompute ran
+    assert np.max(np.diff(ticks)) < 0.5
+
+
+def test_slice_view_shows_the_descriptor_and_follows_the_plane(ready_window, qtbot):
+    win = ready_window
+    view = win.slice_view
+    view.part.setCurrentIndex(0)
+    view.axis.setCurrentIndex(2)  # z
+    view.component.setCurrentText("imaginary")
+    rgb = view.canvas.field_rgb()
+    assert rgb is not None and rgb.std() > 5
+    # the picture is the descriptor's slice through the colour map, pixel for pixel
+    d = view._descriptors[0]
+    k = view.offset.value()
+    values = slice_values(d.rho, 2, k, "imaginary")
+    lo, hi = colormap.symmetric_range(values)
+    expect = colormap.apply(values.T[::-1], lo, hi, colormap.table("diverging"))
+    assert np.array_equal(rgb, expect)
+    # the outline of the plate is drawn on it
+    assert len(view.canvas._segments) > 0
+    # dragging the plane changes the picture and moves the quad in the 3D view
+    corners_seen = []
+    view.plane_changed.connect(lambda c: corners_seen.append(c))
+    view.offset.setValue(max(k - 3, 0))
+    assert not np.array_equal(view.canvas.field_rgb(), rgb)
+    assert corners_seen and corners_seen[-1] is not None
+    assert np.allclose(corners_seen[-1][:, 2], view.plane()[2])
+    # a drag on the image moves the plane too
+    before = view.offset.value()
+    view.canvas.dragged.emit(0.5)
+    assert view.offset.value() != before
+    # real part and magnitude give other pictures
+    view.component.setCurrentText("magnitude")
+    assert not np.array_equal(view.canvas.field_rgb(), rgb)
+
+
+def test_landscape_view_shows_a_section_that_follows_the_pose(ready_window, wait_until):
+    win = ready_window
+    view = win.landscape_view
+    wait_until(lambda: view.landscape is not None, 60000, "a landscape from the engine")
+    view.plane.setCurrentText("xz")  # normal y: moving the part sideways changes the cut
+    wait_until(lambda: view.canvas.field_rgb() is not None, 2000, "the landscape picture")
+    first = view.canvas.field_rgb()
+    assert first.std() > 1
+    energy, u, v = view.section()
+    # the star marks the section's minimum, the cross the part
+    star = [m for m in view.canvas._markers if m.shape == "star"][0]
+    iu, iv = np.unravel_index(np.argmin(energy), energy.shape)
+    assert (star.u, star.v) == (pytest.approx(u[iu]), pytest.approx(v[iv]))
+    y0 = float(win.latest_frame.part_pose[1])
+    h = view.landscape.spacing
+    target = np.asarray(win.latest_frame.part_pose).copy()
+    target[1] += 4 * h
+    win.session.send(api.SetProxyPose(tuple(target)))
+    wait_until(lambda: float(win.latest_frame.part_pose[1]) > y0 + 2 * h, 10000,
+               "the part to move sideways")
+    wait_until(lambda: not np.array_equal(view.canvas.field_rgb(), first), 5000,
+               "the section to change")
+    cross = [m for m in view.canvas._markers if m.shape == "cross"][0]
+    assert cross.u == pytest.approx(float(win.latest_frame.part_pose[0]), abs=0.5)
+    assert cross.v == pytest.approx(float(win.latest_frame.part_pose[2]), abs=0.5)

@@ -1,0 +1,181 @@
+"""The main window against the real engine (``engine.api``), under Xvfb or a real display."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from app.gui.app import DEFAULT_SCENE as EXAMPLE_SCENE
+from engine import api
+from engine import pose as posemath
+
+pytestmark = pytest.mark.skipif(
+    not __import__("app.gui.session", fromlist=["x"]).real_engine_available(),
+    reason="engine.loop / engine.scene not installed: the GUI tests need the real engine",
+)
+
+
+def _mouse(widget, kind, pos, buttons, modifiers=QtCore.Qt.NoModifier, button=None):
+    p = QtCore.QPointF(pos)
+    g = QtCore.QPointF(widget.mapToGlobal(pos))
+    event = QtGui.QMouseEvent(kind, p, g, button if button is not None else QtCore.Qt.NoButton,
+                              buttons, modifiers)
+    QtWidgets.QApplication.sendEvent(widget, event)
+
+
+def drag(widget, start: QtCore.QPoint, end: QtCore.QPoint, steps: int = 10,
+         modifiers=QtCore.Qt.NoModifier) -> None:
+    """A left-button drag as the user does it: press, several moves, release."""
+    left = QtCore.Qt.LeftButton
+    _mouse(widget, QtCore.QEvent.MouseButtonPress, start, left, modifiers, left)
+    for k in range(1, steps + 1):
+        p = start + (end - start) * (k / steps)
+        _mouse(widget, QtCore.QEvent.MouseMove, p, left, modifiers)
+        QtWidgets.QApplication.processEvents()
+    _mouse(widget, QtCore.QEvent.MouseButtonRelease, end, QtCore.Qt.NoButton, modifiers, left)
+
+
+def test_window_opens_on_the_example_scene(make_window, settings):
+    win = make_window(EXAMPLE_SCENE)
+    assert "Peg in hole" in win.windowTitle()
+    assert "preview" not in win.windowTitle()  # the real engine, not the stand-in
+    assert win.session.engine is not None and win.session.engine.running
+    actors = win.viewport._actors
+    assert {"moving", "ghost", "fixed_block", "force", "torque"} <= set(actors)
+    # the 3D view shows the parts: its pixels are far from one flat background colour
+    img = win.viewport.plotter.screenshot(return_img=True)
+    assert img.std() > 10
+    # a scene that opened is remembered
+    assert win.recent_files()[0] == str(EXAMPLE_SCENE.resolve())
+    assert win.recent_menu.actions()[0].toolTip() == str(EXAMPLE_SCENE.resolve())
+
+
+def test_mouse_drag_moves_the_proxy_and_the_part_follows(make_window, wait_until):
+    win = make_window(EXAMPLE_SCENE)
+    vp = win.viewport
+    start_proxy = np.asarray(win.latest_frame.proxy_pose).copy()
+    start_part = np.asarray(win.latest_frame.part_pose).copy()
+    grab = vp.moving_part_screen_position()
+    assert vp.pick_moving(QtCore.QPointF(grab)), "the moving part is not under its centre"
+    basis = vp._camera_basis()  # right, up, back in world coordinates
+    drag(vp.widget, grab, grab + QtCore.QPoint(80, 0))
+    assert not vp.dragging
+    # the engine got the new proxy: it moved to the screen's right, not up or towards us
+    wait_until(lambda: np.linalg.norm(win.latest_frame.proxy_pose[:3] - start_proxy[:3]) > 1,
+               5000, "the engine's proxy to move")
+    r1 = win.session.part1_rotation()
+    moved = r1 @ (np.asarray(win.latest_frame.proxy_pose[:3]) - start_proxy[:3])
+    along = basis.T @ moved
+    assert along[0] > 0.9 * np.linalg.norm(moved)
+    # and the part follows the proxy through the coupling (over the peg's free space)
+    wait_until(
+        lambda: np.linalg.norm(win.latest_frame.part_pose[:3] - start_part[:3])
+        > 0.8 * np.linalg.norm(moved), 10000, "the part to follow the proxy")
+    assert np.dot(win.latest_frame.part_pose[:3] - start_part[:3], r1.T @ basis[:, 0]) > 0
+    # a drag away from the part turns the camera and leaves the proxy alone
+    proxy = np.asarray(win.latest_frame.proxy_pose).copy()
+    corner = QtCore.QPoint(10, vp.widget.height() - 10)
+    assert not vp.pick_moving(QtCore.QPointF(corner))
+    drag(vp.widget, corner, corner + QtCore.QPoint(40, -40))
+    QtWidgets.QApplication.processEvents()
+    assert np.allclose(win.latest_frame.proxy_pose, proxy)
+
+
+def test_ctrl_drag_rotates_and_shift_drag_moves_in_depth(make_window, wait_until):
+    win = make_window(EXAMPLE_SCENE)
+    vp = win.viewport
+    grab = vp.moving_part_screen_position()
+    seen = []
+    vp.proxy_dragged.connect(lambda pose: seen.append(np.asarray(pose)))
+    start = vp.proxy_pose
+    drag(vp.widget, grab, grab + QtCore.QPoint(60, 0), modifiers=QtCore.Qt.ControlModifier)
+    turned = seen[-1]
+    angle = np.linalg.norm(posemath.rotation_vector(
+        posemath.rotation_matrix(turned[3:]) @ posemath.rotation_matrix(start[3:]).T))
+    assert angle > np.radians(5)
+    # about the camera's up axis (a horizontal arcball drag)
+    up = vp._camera_basis()[:, 1]
+    rv = posemath.rotation_vector(posemath.rotation_matrix(turned[3:])
+                                  @ posemath.rotation_matrix(start[3:]).T)
+    assert abs(np.dot(rv / np.linalg.norm(rv), up)) > 0.95
+    seen.clear()
+    wait_until(lambda: not vp.dragging, 1000, "the drag to end")
+    grab = vp.moving_part_screen_position()
+    before = vp.proxy_pose
+    drag(vp.widget, grab, grab + QtCore.QPoint(0, -50), modifiers=QtCore.Qt.ShiftModifier)
+    delta = seen[-1][:3] - before[:3]
+    back = vp._camera_basis()[:, 2]
+    assert np.dot(delta, back) > 0.95 * np.linalg.norm(delta) > 0
+
+
+def test_opening_a_corrupt_file_shows_an_error_and_the_session_goes_on(
+        make_window, tmp_path, wait_until):
+    win = make_window(EXAMPLE_SCENE)
+    handle = win.session.handle
+    bad_part = tmp_path / "broken.stl"
+    bad_part.write_bytes(b"solid broken\n facet normal 0 0 1\n  outer loop\n garbage\n")
+    bad_scene = tmp_path / "broken.toml"
+    bad_scene.write_text('name = "x"\n[[part]]\nname = 3\nfile = \n')
+    for bad in (bad_part, bad_scene, tmp_path / "missing.step", tmp_path / "notes.txt"):
+        (tmp_path / "notes.txt").write_text("not a part")
+        win.last_error = None
+        win.open_path(bad)  # in the background, as from the menu
+        wait_until(lambda: win.last_error is not None, 15000, f"an error for {bad.name}")
+        assert bad.name in win.last_error
+        assert win.error_dialog is not None and win.error_dialog.isVisible()
+        assert win.statusBar().currentMessage()
+        win.error_dialog.close()
+        # nothing lost: the same scene, its engine still running and publishing
+        assert win.session.handle is handle and win.session.engine.running
+        n = win.frames_received
+        wait_until(lambda n=n: win.frames_received > n + 5, 5000, "frames after the error")
+
+
+def test_part_file_becomes_the_moving_part(make_window, tmp_path, wait_until):
+    import trimesh
+
+    win = make_window(EXAMPLE_SCENE)
+    trimesh.creation.box(extents=(4, 4, 10)).export(tmp_path / "post.stl")
+    win.open_path(tmp_path / "post.stl")
+    wait_until(lambda: win.session.handle.parts[1].name == "post", 20000, "the new part")
+    assert win.session.handle.parts[0].name == "block"
+    assert len(win.session.handle.parts[1].faces) == 12
+    wait_until(lambda: win.latest_frame is not None, 10000, "frames of the new scene")
+
+
+def test_layout_and_recent_files_are_remembered(make_window, settings, qtbot):
+    from app.gui.main_window import MainWindow
+
+    win = make_window(EXAMPLE_SCENE, first_frame=False)
+    win.dock_landscape.hide()
+    win.resize(1200, 800)
+    win.close()
+    again = MainWindow(settings=settings)
+    qtbot.addWidget(again)
+    again.show()
+    try:
+        assert not again.dock_landscape.isVisible() and again.dock_slice.isVisible()
+        assert again.size() == QtCore.QSize(1200, 800)
+        assert again.recent_files() == [str(EXAMPLE_SCENE.resolve())]
+    finally:
+        again.close()
+
+
+def test_save_scene_writes_the_current_pose(make_window, tmp_path, wait_until):
+    from engine.scene import load_scene
+
+    win = make_window(EXAMPLE_SCENE)
+    target = np.asarray(win.latest_frame.part_pose) + [3.0, 0, 0, 0, 0, 0]
+    win.session.send(api.SetProxyPose(tuple(target)))
+    wait_until(lambda: abs(win.latest_frame.part_pose[0] - target[0]) < 0.3, 10000,
+               "the part to reach the new proxy")
+    win.params.modes.setValue(12)
+    out = win.save_scene(tmp_path / "sub" / "saved")
+    assert out.suffix == ".toml"
+    scene = load_scene(out)
+    assert [p.name for p in scene.parts] == ["block", "peg"]
+    saved_rel = posemath.relative_pose(scene.parts[0].pose, scene.parts[1].pose)
+    assert np.allclose(saved_rel, win.latest_frame.part_pose, atol=0.3)
+    assert scene.modes == 12
+    assert scene.parts[1].file.exists()  # paths rewritten relative to the new place
