@@ -42,7 +42,13 @@ from typing import Any
 import numpy as np
 
 from engine.landscape import Landscape
-from engine.spectrum import Spectrum, compute_spectrum, fast_size, kept_indices
+from engine.spectrum import (
+    Spectrum,
+    compute_spectrum,
+    fast_size,
+    kept_indices,
+    refined_table,
+)
 
 PER_POSE_BACKENDS = ("numpy", "numba", "opencl")
 BACKEND_CHOICES = ("auto",) + PER_POSE_BACKENDS
@@ -82,6 +88,11 @@ def _check_descriptor(obj: Any, name: str) -> None:
         raise TypeError(f"{name} must have .rho and .grid (a store.Descriptor)")
 
 
+def _reach_radius(modes: int, scale: float) -> int:
+    """Lattice radius the rotated kept cube can reach: ``scale sqrt(3) (K // 2 + 1)``, +1."""
+    return int(math.ceil(scale * math.sqrt(3.0) * (modes // 2 + 1))) + 1
+
+
 def required_fft_size(shape1: tuple[int, ...], shape2: tuple[int, ...]) -> int:
     """Smallest FFT size for which no periodic image interferes at any pose.
 
@@ -118,6 +129,13 @@ class Correlator:
     fft_size : int, optional
         Override the padded size ``N`` (must be at least :func:`required_fft_size` to be
         free of periodic images; smaller values are accepted for tests and experiments).
+    refine : int
+        For ``K <= fine_modes`` the rotated spectrum is interpolated on a lattice ``refine``
+        times finer still, tabulated exactly (no interpolation) over the ball the kept
+        modes can reach (:func:`engine.spectrum.refined_table`): the trilinear error falls
+        as ``refine^-2`` for a table of a few tens of MB. 1 switches this off.
+    fine_modes : int
+        Largest ``K`` the refined table serves; larger ``K`` use the ``q`` lattice.
     use_cache : bool
         Use the on-disk spectrum cache.
 
@@ -142,6 +160,8 @@ class Correlator:
         kappa: float = 1.0,
         oversample: float = 2.0,
         fft_size: int | None = None,
+        refine: int = 2,
+        fine_modes: int = 32,
         use_cache: bool = True,
     ) -> None:
         _check_descriptor(fixed, "fixed")
@@ -188,6 +208,17 @@ class Correlator:
         self.stats["spectra"] += 2
         if self.rotation:
             self.stats["moment_spectra"] += 3
+        self.refine = max(1, int(refine))
+        self.fine_modes = max(1, min(int(fine_modes), size)) if self.refine > 1 else 0
+        self._fine_table: np.ndarray | None = None
+        if self.fine_modes:
+            self._fine_scale = float(self.oversample_factor * self.refine)
+            self._fine_radius = _reach_radius(self.fine_modes, self._fine_scale)
+            self._fine_table = refined_table(
+                moving.rho, g2, size * self.oversample_factor, self.refine, self._fine_radius,
+                moments=self.rotation, use_cache=use_cache,
+            )
+            self.stats["spectra"] += 1
         self.centre_fixed = np.asarray(g1.center, dtype=np.float64)
         self.centre_moving = np.asarray(g2.center, dtype=np.float64)
         self.half_fixed = 0.5 * h * (np.asarray(g1.shape, dtype=np.float64) - 1)
@@ -224,8 +255,13 @@ class Correlator:
             if hasattr(kernel, "set_modes"):
                 kernel.set_modes(self)
 
-    def moving_table(self) -> tuple[np.ndarray, int]:
-        """Interleaved sub-lattice of part 2's spectra that the kept modes can reach.
+    def uses_fine_table(self, modes: int | None = None) -> bool:
+        """Whether ``modes`` per axis read the refined table (else the ``q`` lattice)."""
+        k = self.modes if modes is None else modes
+        return self._fine_table is not None and k <= self.fine_modes
+
+    def moving_table(self) -> tuple[np.ndarray, int, float]:
+        """Interleaved lattice of part 2's spectra that the kept modes can reach.
 
         Returns
         -------
@@ -235,28 +271,104 @@ class Correlator:
             ``u + radius``.
         radius : int
             Offset of index 0.
+        scale : float
+            Lattice steps per unit of ``k``: the rotated frequency ``-R^T w`` lies at
+            ``u = -scale R^T k``.
         """
         if self._table is None:
-            q = self.oversample_factor
-            m = self.spectrum_moving.size
-            reach = q * math.sqrt(3.0) * (self.modes // 2 + 1)
-            radius = int(math.ceil(reach)) + 1
-            side = 2 * radius + 2
-            if side >= m:
-                idx = np.mod(np.arange(side) - radius, m)
+            if self.uses_fine_table():
+                scale = self._fine_scale
+                radius = _reach_radius(self.modes, scale)
+                lo = self._fine_radius - radius
+                hi = lo + 2 * radius + 2
+                table = self._fine_table[lo:hi, lo:hi, lo:hi]
             else:
-                idx = np.mod(np.arange(-radius, -radius + side), m)
-            sel = np.ix_(idx, idx, idx)
-            parts = [self.spectrum_moving.values[sel]]
-            if self.rotation:
-                parts += [self.spectrum_moving.moments[a][sel] for a in range(3)]
-            stacked = np.stack(parts, axis=-1)  # (B, B, B, P) complex64
-            table = np.empty(stacked.shape[:3] + (2 * len(parts),), dtype=np.float32)
-            table[..., 0::2] = stacked.real
-            table[..., 1::2] = stacked.imag
+                scale = float(self.oversample_factor)
+                m = self.spectrum_moving.size
+                radius = _reach_radius(self.modes, scale)
+                idx = np.mod(np.arange(-radius, radius + 2), m)
+                sel = np.ix_(idx, idx, idx)
+                parts = [self.spectrum_moving.values[sel]]
+                if self.rotation:
+                    parts += [self.spectrum_moving.moments[a][sel] for a in range(3)]
+                stacked = np.stack(parts, axis=-1)  # (B, B, B, P) complex64
+                table = np.empty(stacked.shape[:3] + (2 * len(parts),), dtype=np.float32)
+                table[..., 0::2] = stacked.real
+                table[..., 1::2] = stacked.imag
             self._table = np.ascontiguousarray(table)
             self._table_radius = radius
-        return self._table, self._table_radius
+            self._table_scale = scale
+        return self._table, self._table_radius, self._table_scale
+
+    def _interpolate_rows(
+        self, rk: np.ndarray, modes: int, moments: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Part 2's spectra at ``-R^T w`` by trilinear interpolation (the reference).
+
+        Parameters
+        ----------
+        rk : (n, 3) float64
+            Rows ``R^T k`` (``k`` integer frequency indices).
+        modes : int
+            The K these rows belong to (picks the refined table or the ``q`` lattice, as
+            the compiled backends do).
+        moments : bool
+            Also interpolate the three moment spectra.
+
+        Returns
+        -------
+        values : (n,) complex128
+        moment_values : (3, n) complex128 or None
+        """
+        if self.uses_fine_table(modes):
+            scale = self._fine_scale
+            table = self._fine_table.view(np.complex64)  # (B, B, B, P)
+            side = table.shape[0]
+            flat = table.reshape(-1, table.shape[-1])
+            offset = self._fine_radius
+            wrap = None
+        else:
+            scale = float(self.oversample_factor)
+            side = self.spectrum_moving.size
+            offset = 0
+            wrap = side
+            flat = None
+        u = -scale * rk + offset
+        base = np.floor(u)
+        frac = u - base
+        base = base.astype(np.int64)
+        n = len(rk)
+        g = np.zeros(n, dtype=np.complex128)
+        mm = np.zeros((3, n), dtype=np.complex128) if moments else None
+        values = self.spectrum_moving.values.ravel()
+        moment_flat = (
+            self.spectrum_moving.moments.reshape(3, -1)
+            if (moments and flat is None) else None
+        )
+        for dx in (0, 1):
+            wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
+            ix = base[:, 0] + dx
+            for dy in (0, 1):
+                wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
+                iy = base[:, 1] + dy
+                for dz in (0, 1):
+                    wz = frac[:, 2] if dz else 1.0 - frac[:, 2]
+                    iz = base[:, 2] + dz
+                    if wrap is not None:
+                        idx = (np.mod(ix, wrap) * wrap + np.mod(iy, wrap)) * wrap + np.mod(iz, wrap)
+                    else:
+                        idx = (ix * side + iy) * side + iz
+                    weight = wx * wy * wz
+                    if flat is None:
+                        g += weight * values[idx]
+                        if mm is not None:
+                            mm += weight * moment_flat[:, idx]
+                    else:
+                        rows = flat[idx]  # (n, P)
+                        g += weight * rows[:, 0]
+                        if mm is not None:
+                            mm += weight * rows[:, 1:4].T
+        return g, mm
 
     # ------------------------------------------------------------------ geometry
     def boxes_overlap(self, rotation: np.ndarray, translation: np.ndarray) -> bool:
@@ -341,7 +453,6 @@ class Correlator:
         ``f = sum c G``, ``S_k = sum c G k``, ``S_m = sum Im(c m) x (R^T k)``.
         """
         n = self.size
-        q = self.oversample_factor
         kept = self._kept.astype(np.float64)
         shift = self._shift(rot, t)
         phase = [np.exp(2j * np.pi * kept * shift[a] / (n * self.spacing)) for a in range(3)]
@@ -353,35 +464,12 @@ class Correlator:
         ).ravel()
         kx, ky, kz = np.meshgrid(kept, kept, kept, indexing="ij")
         kvec = np.stack([kx.ravel(), ky.ravel(), kz.ravel()], axis=1)  # (m', 3)
-        spec = self.spectrum_moving
-        m_size = spec.size
-        values = spec.values.ravel()
-        moments = spec.moments.reshape(3, -1) if self.rotation else None
         total = np.zeros(7)
         for lo in range(0, len(kvec), _NUMPY_CHUNK):
             kc = kvec[lo : lo + _NUMPY_CHUNK]
             cc = coeff[lo : lo + _NUMPY_CHUNK]
             rk = kc @ rot  # (n, 3): rows are R^T k
-            u = -q * rk  # lattice index of -R^T w on part 2's spectrum
-            base = np.floor(u)
-            frac = u - base
-            base = base.astype(np.int64)
-            g = np.zeros(len(kc), dtype=np.complex128)
-            mm = np.zeros((3, len(kc)), dtype=np.complex128) if self.rotation else None
-            for dx in (0, 1):
-                wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
-                ix = np.mod(base[:, 0] + dx, m_size)
-                for dy in (0, 1):
-                    wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
-                    iy = np.mod(base[:, 1] + dy, m_size)
-                    for dz in (0, 1):
-                        wz = frac[:, 2] if dz else 1.0 - frac[:, 2]
-                        iz = np.mod(base[:, 2] + dz, m_size)
-                        flat = (ix * m_size + iy) * m_size + iz
-                        weight = wx * wy * wz
-                        g += weight * values[flat]
-                        if mm is not None:
-                            mm += weight * moments[:, flat]
+            g, mm = self._interpolate_rows(rk, self.modes, self.rotation)
             cg = cc * g
             total[0] += cg.real.sum()
             total[1:4] += cg.imag @ kc
@@ -461,31 +549,13 @@ class Correlator:
 
     def _interpolate_moving(self, rot: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """(K, K, K) complex64: part 2's centred spectrum at ``-R^T w`` for the kept cube."""
-        q = self.oversample_factor
-        spec = self.spectrum_moving
-        m_size = spec.size
-        values = spec.values.ravel()
         kf = kept.astype(np.float64)
         out = np.empty((len(kept),) * 3, dtype=np.complex64)
         ky, kz = np.meshgrid(kf, kf, indexing="ij")
         for i, kx in enumerate(kf):
             kvec = np.stack([np.full(ky.size, kx), ky.ravel(), kz.ravel()], axis=1)
-            u = -q * (kvec @ rot)
-            base = np.floor(u)
-            frac = u - base
-            base = base.astype(np.int64)
-            acc = np.zeros(len(kvec), dtype=np.complex128)
-            for dx in (0, 1):
-                wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
-                ix = np.mod(base[:, 0] + dx, m_size)
-                for dy in (0, 1):
-                    wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
-                    iy = np.mod(base[:, 1] + dy, m_size)
-                    for dz in (0, 1):
-                        wz = frac[:, 2] if dz else 1.0 - frac[:, 2]
-                        iz = np.mod(base[:, 2] + dz, m_size)
-                        acc += wx * wy * wz * values[(ix * m_size + iy) * m_size + iz]
-            out[i] = acc.reshape(ky.shape)
+            g, _ = self._interpolate_rows(kvec @ rot, len(kept), False)
+            out[i] = g.reshape(ky.shape)
         return out
 
     # ------------------------------------------------------------------ backends
@@ -779,7 +849,7 @@ class NumbaKernel:
 
     def prepare(self, correlator: Correlator) -> None:
         """Bind the arrays of the current truncation (call after set_modes)."""
-        table, radius = correlator.moving_table()
+        table, radius, scale = correlator.moving_table()
         self._partial = np.zeros((correlator.modes, 7))
         self._args = (
             correlator._fixed_kept,
@@ -792,7 +862,7 @@ class NumbaKernel:
             correlator.half_moving,
             correlator.spacing,
             correlator.size * correlator.spacing,
-            float(correlator.oversample_factor),
+            float(scale),
             correlator.kappa,
             correlator.rotation,
             self._partial,

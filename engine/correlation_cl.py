@@ -177,7 +177,7 @@ class OpenCLKernel:
         cl = self._cl
         ctx = self.backend.context
         mf = cl.mem_flags
-        table, radius = correlator.moving_table()
+        table, radius, scale = correlator.moving_table()
         fixed = np.ascontiguousarray(correlator._fixed_kept.ravel())
         kept = correlator._kept.astype(np.float32)
         nk = len(kept)
@@ -202,7 +202,7 @@ class OpenCLKernel:
         k.set_arg(3, np.int32(nk))
         k.set_arg(4, np.int32(table.shape[0]))
         k.set_arg(5, np.int32(radius))
-        k.set_arg(6, np.float32(correlator.oversample_factor))
+        k.set_arg(6, np.float32(scale))
         k.set_arg(8, b["partials"])
         k.set_arg(9, b["counter"])
         k.set_arg(10, b["out"])

@@ -255,19 +255,35 @@ def test_tiny_and_huge_scales(scale):
 def test_all_mode_counts_finite_and_converging(fast, full):
     rot = rotation_matrix(np.array([0.4, -0.3, 0.8]))
     t = np.array([0.3, 0.2, -0.4])
-    reference = full.evaluate(rot, t)
+    exact = -closed_form(BLOBS1, BLOBS2, rot, t)[0].real
     errors = []
     for k in list(range(2, 33, 2)) + [full.size]:
         fast.set_modes(k)
         ev = fast.evaluate(rot, t)
         assert np.isfinite(ev.energy) and np.all(np.isfinite(ev.force))
         assert np.all(np.isfinite(ev.torque))
-        errors.append(abs(ev.energy - reference.energy))
+        errors.append(abs(ev.energy - exact))
     fast.set_modes(16)
-    assert errors[-1] < 1e-5 * abs(reference.energy)
-    # the Gaussians are band-limited in practice: by K = 32 the truncation error is gone
-    assert errors[15] < 1e-4 * abs(reference.energy)
+    # full modes: only the interpolation error of the q lattice is left
+    assert errors[-1] < 0.01 * abs(exact)
+    assert abs(fast.evaluate(rot, t).energy - full.evaluate(rot, t).energy) > 0
+    # K = 32 reads the refined table: truncation gone, interpolation error ~refine^-2 smaller
+    assert errors[15] < 0.5 * errors[-1]
     assert errors[0] > errors[7] > errors[15]
+
+
+def test_refined_table_reduces_interpolation_error(fields):
+    r1, r2 = fields
+    rot = rotation_matrix(np.array([0.4, -0.3, 0.8]))
+    t = np.array([0.3, 0.2, -0.4])
+    exact = -closed_form(BLOBS1, BLOBS2, rot, t)[0].real
+    errors = {}
+    for refine in (1, 2, 3):
+        corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=32,
+                          backend="numba", refine=refine, use_cache=False)
+        errors[refine] = abs(corr.evaluate(rot, t).energy - exact)
+    assert errors[2] < 0.4 * errors[1]
+    assert errors[3] < 0.6 * errors[2]
 
 
 def test_energy_smooth_along_a_path(fast):
@@ -296,7 +312,7 @@ def test_set_modes_only_truncates(fields, monkeypatch):
     corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8, backend="numpy",
                       use_cache=False)
     after_init = calls["fft"]
-    assert after_init == 5  # part 1, part 2 and its three moments
+    assert after_init == 5 + 8 * 4  # part 1, part 2, 3 moments; refined table: 8 x 4
     spectra = corr.stats["spectra"]
     for k in (4, 12, 20, 8):
         corr.set_modes(k)

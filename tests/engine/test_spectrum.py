@@ -91,3 +91,30 @@ def test_kept_indices():
     np.testing.assert_array_equal(np.sort(np.mod(kept_indices(16, 16), 16)), np.arange(16))
     with pytest.raises(ValueError):
         kept_indices(17, 16)
+
+
+def test_refined_table_equals_direct_sums_at_fractional_frequencies():
+    from engine.spectrum import refined_table
+
+    rng = np.random.default_rng(4)
+    grid = Grid((0.1, 0.7, -0.4), 0.3, (5, 4, 6))
+    rho = (rng.normal(size=grid.shape) + 1j * rng.normal(size=grid.shape)).astype(np.complex64)
+    size, refine, radius = 8, 3, 7
+    table = refined_table(rho, grid, size, refine, radius, moments=True, use_cache=False)
+    assert table.shape == (2 * radius + 2,) * 3 + (8,)
+    values = table.view(np.complex64)  # (B, B, B, 4)
+    points = grid.points().reshape(-1, 3)
+    centre = grid.center
+    h = grid.spacing
+    coarse = compute_spectrum(rho, grid, size, use_cache=False)
+    for j in [(0, 0, 0), (1, -2, 3), (-7, 5, 8), (4, 4, -1), (3, 0, 0)]:
+        w = np.asarray(j) / (refine * size * h)
+        phase = np.exp(-2j * np.pi * (points - centre) @ w)
+        expected = h**3 * np.sum(rho.ravel() * phase)
+        pos = tuple(np.asarray(j) + radius)
+        assert values[pos + (0,)] == pytest.approx(expected, rel=1e-4, abs=1e-5)
+        moment = h**3 * np.sum((points[:, 1] - centre[1]) * rho.ravel() * phase)
+        assert values[pos + (2,)] == pytest.approx(moment, rel=1e-4, abs=1e-5)
+        if all(x % refine == 0 for x in j):  # on the coarse lattice: the plain FFT values
+            k = tuple(np.mod(np.asarray(j) // refine, size))
+            assert values[pos + (0,)] == pytest.approx(coarse.values[k], rel=1e-5, abs=1e-6)
