@@ -7,7 +7,7 @@ import importlib
 import sys
 
 #: Subcommand name -> module in app.commands providing add_parser(subparsers) and run(args).
-COMMANDS = ("precompute", "evaluate", "landscape", "simulate", "bench", "gui")
+COMMANDS = ("precompute", "evaluate", "landscape", "simulate", "bench", "report", "gui")
 
 
 class UserError(Exception):
