@@ -267,9 +267,10 @@ def test_all_mode_counts_finite_and_converging(fast, full):
     # full modes: only the interpolation error of the q lattice is left
     assert errors[-1] < 0.01 * abs(exact)
     assert abs(fast.evaluate(rot, t).energy - full.evaluate(rot, t).energy) > 0
-    # K = 32 reads the refined table: truncation gone, interpolation error ~refine^-2 smaller
-    assert errors[15] < 0.5 * errors[-1]
-    assert errors[0] > errors[7] > errors[15]
+    # K = 24 reads the refined table: truncation almost gone, interpolation error
+    # ~refine^-2 smaller than on the q lattice
+    assert errors[11] < 0.5 * errors[-1]
+    assert errors[0] > errors[7] > errors[11]
 
 
 def test_refined_table_reduces_interpolation_error(fields):
@@ -280,7 +281,7 @@ def test_refined_table_reduces_interpolation_error(fields):
     errors = {}
     for refine in (1, 2, 3):
         corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=32,
-                          backend="numba", refine=refine, use_cache=False)
+                          backend="numba", refine=refine, fine_modes=32, use_cache=False)
         errors[refine] = abs(corr.evaluate(rot, t).energy - exact)
     assert errors[2] < 0.4 * errors[1]
     assert errors[3] < 0.6 * errors[2]
