@@ -38,6 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", type=int, default=300, help="poses timed per row")
     parser.add_argument("--error-poses", type=int, default=8,
                         help="poses at which errors against the full-mode result are measured")
+    parser.add_argument("--refine", type=int, default=2,
+                        help="refined-table factor of the Correlator (1: plain q lattice)")
+    parser.add_argument("--fine-modes", type=int, default=24,
+                        help="largest K served by the refined table")
     parser.add_argument("-o", "--output", default="bench_correlation.png", help="plot (PNG)")
     parser.add_argument("--seed", type=int, default=0)
 
@@ -135,7 +139,6 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
     """
     from engine.spectrum import kept_indices
 
-    spec = corr.spectrum_moving
     grid = corr.moving_grid
     h = grid.spacing
     kept = kept_indices(modes, corr.size)
@@ -144,7 +147,6 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
     w = np.stack([kx.ravel(), ky.ravel(), kz.ravel()], 1) / (corr.size * h)  # (m', 3)
     rw = w @ rotation  # rows: R^T w
     offsets = [h * (np.arange(n) - 0.5 * (n - 1)) for n in grid.shape]
-    rho = corr_rho = None  # noqa: F841 - placeholder names for clarity below
     rho = _moving_rho(corr)
     exact = np.empty(len(w), dtype=np.complex128)
     # separable over the sample axes: exp(2 pi i rw.x) = prod_a exp(2 pi i rw_a x_a)
@@ -164,7 +166,6 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
     f_exact = np.sum(a * exact)
     f_approx = np.sum(a * approx)
     score = float(abs(f_approx - f_exact) / max(abs(f_exact), 1e-300))
-    del spec
     return spectral, score
 
 
@@ -197,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
     interp_rows = []
     for name, d1, d2, fitted, spread in pairs:
         start = time.perf_counter()
-        corr = Correlator(d1, d2, modes=16, backend="numpy")
+        corr = Correlator(d1, d2, modes=16, backend="numpy", refine=args.refine,
+                          fine_modes=args.fine_modes)
         corr._moving_rho = np.asarray(d2.rho, dtype=np.complex128)
         setup = time.perf_counter() - start
         backends = args.backends or _present_backends(corr)
@@ -242,11 +244,12 @@ def run(args: argparse.Namespace) -> int:
                       f"{shift:.3g} ({shift / corr.spacing:.2f} cells)")
         for angle in (0.05, 0.5, math.pi):
             rot = rotation_matrix(np.array([1.0, 2.0, -1.5]) / np.linalg.norm([1, 2, -1.5]) * angle)
-            for k in (16, 32):
+            for k in (16, 24, 32):
                 spectral, score = interpolation_error(corr, rot, k)
-                interp_rows.append((name, angle, k, spectral, score))
-        corr.set_modes(16)
-        corr.use_backend("numba") if "numba" in backends else None
+                lattice = (f"refined x{corr.refine}" if corr.uses_fine_table(k)
+                           else f"q = {corr.oversample_factor}")
+                interp_rows.append((name, angle, k, lattice, spectral, score))
+        print(f"  picked by auto here: {_auto_pick(d1, d2, args)}")
 
     print("\n| pair | backend | m' | median us | p99 us | energy err | abs F err | F dir err (deg) "
           "| min shift (cells) |")
@@ -256,13 +259,21 @@ def run(args: argparse.Namespace) -> int:
               f"| {angle:.2f} | {cells:.2f} |")
     print("\nInterpolation error of the rotated spectrum (trilinear, against the exact "
           "non-uniform Fourier sum of the sampled field):\n")
-    print("| pair | rotation (rad) | K | spectrum rel. RMS (weighted by abs rho1^) | score rel. err |")
-    print("|---|---:|---:|---:|---:|")
-    for name, angle, k, spectral, score in interp_rows:
-        print(f"| {name} | {angle:.3g} | {k} | {spectral:.2e} | {score:.2e} |")
+    print("| pair | rotation (rad) | K | lattice | spectrum rel. RMS (weighted by abs rho1^) "
+          "| score rel. err |")
+    print("|---|---:|---:|---|---:|---:|")
+    for name, angle, k, lattice, spectral, score in interp_rows:
+        print(f"| {name} | {angle:.3g} | {k} | {lattice} | {spectral:.2e} | {score:.2e} |")
     _plot(curves, args.output)
     print(f"\nwrote {args.output}")
     return 0
+
+
+def _auto_pick(d1, d2, args) -> str:
+    from engine.correlation import Correlator
+
+    return Correlator(d1, d2, modes=16, backend="auto", refine=args.refine,
+                      fine_modes=args.fine_modes).backend_name
 
 
 def _present_backends(corr) -> list[str]:
