@@ -70,4 +70,12 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
 
         QtCore.QTimer.singleShot(int(quit_after * 1000), finish)
     app.exec()
+    # free the window (Qt, VTK, the engine thread) while the interpreter is whole: left to
+    # shutdown, a half-torn-down VTK object crashed it ("none_dealloc") now and then
+    window.close()
+    window.deleteLater()
+    app.processEvents()
+    import gc
+
+    gc.collect()
     return status["code"]

@@ -18,7 +18,8 @@ import numpy as np
 
 def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 wait_ready: float = 180.0, drag_radius: float | None = None,
-                engine_kwargs: dict | None = None) -> dict:
+                engine_kwargs: dict | None = None, keep_periods: bool = False,
+                handle_transform=None) -> dict:
     """Run the window for ``seconds`` while the proxy is dragged; return measurements.
 
     Parameters
@@ -32,7 +33,13 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
     drag_radius : float, optional
         Radius of the proxy's circle, scene units (default: a tenth of the moving part).
     engine_kwargs : dict, optional
-        Passed to ``engine.api.start_engine`` (``rate_hz``, ``modes``, ``backend``).
+        Passed to ``engine.api.start_engine`` (``rate_hz``, ``modes``, ``backend``,
+        ``switch_interval``, ``process``).
+    keep_periods : bool
+        Also return ``periods``: every engine loop period (seconds) of the measured time
+        (thread engine only).
+    handle_transform : callable, optional
+        SceneHandle -> SceneHandle before the engine starts (e.g. rotation locked).
 
     Returns
     -------
@@ -57,7 +64,8 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
     with tempfile.TemporaryDirectory(prefix="skelasm-bench-gui-") as tmp:
         settings = QtCore.QSettings(str(Path(tmp) / "settings.ini"),
                                     QtCore.QSettings.IniFormat)
-        win = MainWindow(settings=settings, engine_kwargs=engine_kwargs)
+        win = MainWindow(settings=settings, engine_kwargs=engine_kwargs,
+                         handle_transform=handle_transform)
         win.show()
         try:
             win.open_path(scene, wait=True)
@@ -97,6 +105,10 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                     evals.append(f.eval_us)
                     p99.append(f.period.p99_us)
 
+            loop = getattr(win.session.engine, "_loop", None)
+            if keep_periods and loop is not None and hasattr(loop, "periods"):
+                del loop.periods[:]
+                loop.keep_periods = True
             driver = QtCore.QTimer()
             driver.timeout.connect(drag_step)
             driver.start(16)
@@ -113,8 +125,15 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
             def pct(q):
                 return float(np.percentile(lat, q)) if lat.size else float("nan")
 
+            periods = None
+            if keep_periods and loop is not None and hasattr(loop, "periods"):
+                loop.keep_periods = False
+                periods = np.asarray(loop.periods, float)
             return {
+                "periods": periods,
                 "scene": str(scene),
+                "scene_name": str(getattr(handle.scene, "name", scene)),
+                "backend": win.readouts.text("backend"),
                 "engine": win.session.engine_name,
                 "guidance_ready": bool(ready),
                 "guidance_error": win.guidance_error,
@@ -132,7 +151,58 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
             }
         finally:
             win.close()
+            win.deleteLater()
             QtWidgets.QApplication.processEvents()
+            # free Qt and VTK objects now, not during interpreter shutdown
+            import gc
+
+            gc.collect()
+
+
+def run_loop_benchmark(args, load=None):
+    """``skelasm bench loop --gui``: the engine loop with the application window running.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        bench/loop.py's options (``scene``, ``seconds``, ``rate``, ``modes``, ``backend``,
+        ``switch_interval``, ``translation_only``).
+    load : threading.Thread, optional
+        Extra competing load, started when the measurement starts.
+
+    Returns
+    -------
+    periods : (n,) float64
+        Engine loop periods in seconds over the measured time.
+    info : dict
+        ``what``, ``field``, ``eval_us``, ``gui_fps``, ``gui_latency_ms`` (p50/p99/max) and
+        ``guidance_ready``.
+    """
+    from dataclasses import replace
+
+    kwargs = {"rate_hz": args.rate, "modes": args.modes, "backend": args.backend}
+    if getattr(args, "switch_interval", None) is not None:
+        kwargs["switch_interval"] = args.switch_interval
+    transform = None
+    if getattr(args, "translation_only", False):
+        def transform(handle):
+            effects = replace(handle.config.effects, axes=("x", "y", "z"))
+            return replace(handle, config=replace(handle.config, effects=effects))
+    if load is not None:
+        load.start()
+    r = run_gui_for(args.seconds, args.scene, engine_kwargs=kwargs, keep_periods=True,
+                    handle_transform=transform)
+    periods = r["periods"] if r["periods"] is not None else np.zeros(0)
+    info = {
+        "what": f"{r['scene_name']} ({Path(r['scene']).name}), GUI {r['engine']}",
+        "field": r["backend"] if r["guidance_ready"] else
+        f"no correlator ({r['guidance_error'] or 'not ready'})",
+        "eval_us": r["eval_us"],
+        "gui_fps": round(r["fps"], 1),
+        "gui_latency_ms": {k: round(r[f"latency_ms_{k}"], 1) for k in ("p50", "p99", "max")},
+        "guidance_ready": r["guidance_ready"],
+    }
+    return periods, info
 
 
 def main() -> None:  # python -m app.gui.bench_hooks [SECONDS] [SCENE]
@@ -141,7 +211,9 @@ def main() -> None:  # python -m app.gui.bench_hooks [SECONDS] [SCENE]
 
     seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 10.0
     scene = sys.argv[2] if len(sys.argv) > 2 else None
-    print(json.dumps(run_gui_for(seconds, scene), indent=2))
+    result = run_gui_for(seconds, scene)
+    result.pop("periods")
+    print(json.dumps(result, indent=2))
 
 
 if __name__ == "__main__":

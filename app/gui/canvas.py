@@ -33,7 +33,7 @@ class FieldCanvas(QtWidgets.QWidget):
 
     BAR_WIDTH = 14
     BAR_GAP = 8
-    LABEL_WIDTH = 64
+    LABEL_WIDTH = 76
 
     def __init__(self, parent=None):
         super().__init__(parent)
@@ -191,7 +191,7 @@ class FieldCanvas(QtWidgets.QWidget):
         for value, y in ticks:
             p.drawText(QtCore.QPointF(x + self.BAR_WIDTH + 4, y), f"{value:.3g}")
         if self._bar_label:
-            p.drawText(QtCore.QPointF(x + self.BAR_WIDTH + 4, top + h / 2), self._bar_label)
+            p.drawText(QtCore.QPointF(x + self.BAR_WIDTH + 4, top + h / 4), self._bar_label)
 
     # ------------------------------------------------------------------ mouse
     def wheelEvent(self, event) -> None:  # noqa: N802

@@ -40,6 +40,10 @@ class LandscapeView(QtWidgets.QWidget):
         self.plane.addItems(PLANES)
         self.plane.setCurrentText("xz")
         self.info = QtWidgets.QLabel("waiting for the engine")
+        self.info.setWordWrap(True)
+        # long numbers must not widen the dock
+        self.info.setSizePolicy(QtWidgets.QSizePolicy.Ignored,
+                                QtWidgets.QSizePolicy.Preferred)
         row.addWidget(QtWidgets.QLabel("section"))
         row.addWidget(self.plane)
         row.addWidget(self.info, 1)

@@ -92,10 +92,11 @@ class MainWindow(QtWidgets.QMainWindow):
     VIEW_PERIOD = 0.2  # seconds between landscape re-cuts / slice plane moves
 
     def __init__(self, *, settings: QtCore.QSettings | None = None, realtime: bool = True,
-                 engine_kwargs=None):
+                 engine_kwargs=None, handle_transform=None):
         super().__init__()
         self.settings = settings or QtCore.QSettings(ORGANISATION, APPLICATION)
-        self.session = Session(self, realtime=realtime, engine_kwargs=engine_kwargs)
+        self.session = Session(self, realtime=realtime, engine_kwargs=engine_kwargs,
+                               handle_transform=handle_transform)
         self.session.opened.connect(self._scene_opened)
         self.session.open_failed.connect(self._open_failed)
         self.last_error: str | None = None
@@ -229,8 +230,18 @@ class MainWindow(QtWidgets.QMainWindow):
         if state is not None:
             self.restoreState(state)
         else:
-            self.resizeDocks([self.dock_slice, self.dock_readouts], [470, 380],
-                             QtCore.Qt.Horizontal)
+            # dock sizes only take once the window is laid out
+            QtCore.QTimer.singleShot(0, self._default_dock_sizes)
+
+    def _default_dock_sizes(self) -> None:
+        w = self.width()
+        self.resizeDocks([self.dock_slice, self.dock_readouts],
+                         [int(0.27 * w), int(0.25 * w)], QtCore.Qt.Horizontal)
+        h = self.height()
+        self.resizeDocks([self.dock_slice, self.dock_landscape], [h // 2, h // 2],
+                         QtCore.Qt.Vertical)
+        self.resizeDocks([self.dock_readouts, self.dock_params], [int(0.42 * h), int(0.58 * h)],
+                         QtCore.Qt.Vertical)
 
     def save_layout(self) -> None:
         self.settings.setValue("window/geometry", self.saveGeometry())
@@ -422,8 +433,13 @@ class MainWindow(QtWidgets.QMainWindow):
             self._handle_event(event)
         if frames:
             self.frames_received += len(frames)
+            # wall-clock time base: the chart shows the last seconds the user lived through,
+            # however fast the simulation runs; frames within a batch keep their spacing
+            now = time.perf_counter()
+            newest = frames[-1].time
             for f in frames:
-                self.chart.add(f.time, f.energy, float(np.linalg.norm(f.force)))
+                self.chart.add(now - (newest - f.time), f.energy,
+                               float(np.linalg.norm(f.force)))
             self._show_frame(frames[-1])
         self.viewport.render_if_dirty()
         self._count_fps()
@@ -470,8 +486,6 @@ class MainWindow(QtWidgets.QMainWindow):
             if self.dock_landscape.isVisible():
                 self.landscape_view.set_pose(np.asarray(frame.part_pose))
                 self._maybe_request_landscape(np.asarray(frame.part_pose))
-        if frame.recompute is not None:
-            self.params.set_progress(frame.recompute)
 
     def _update_readouts(self, f: api.Frame, fn: float, tn: float) -> None:
         r = self.readouts
@@ -496,6 +510,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _handle_event(self, event) -> None:
         if isinstance(event, api.ReadyEvent):
             self.guidance_ready = bool(event.descriptors)
+            self.params.set_progress(None, "ready")
             self.readouts.set("backend", event.backend or "-")
             self.slice_view.set_descriptors(event.descriptors)
             self.statusBar().showMessage(event.message or "engine ready", 4000)
@@ -512,6 +527,10 @@ class MainWindow(QtWidgets.QMainWindow):
                     self.params.set_progress(None, "cancelled")
                 else:
                     self.params.set_progress(event.fraction)
+            elif event.task == "correlator":  # the first preparation after opening
+                if event.fraction < 1.0:
+                    self.params.set_progress(event.fraction, "preparing descriptors %p%",
+                                             cancellable=False)
             else:
                 self.statusBar().showMessage(
                     f"{event.task}: {event.fraction:.0%} {event.message}", 2000)

@@ -33,6 +33,8 @@ class ParamsPanel(QtWidgets.QWidget):
         super().__init__(parent)
         self._effects = Effects()
         self._coupling = CouplingParams()
+        # gravity in scene units per s^2 (mm until a scene says otherwise)
+        self._gravity_vector: tuple[float, float, float] = (0.0, 0.0, -9810.0)
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
 
@@ -118,7 +120,6 @@ class ParamsPanel(QtWidgets.QWidget):
         self.reset.clicked.connect(lambda: self.command.emit(api.Reset()))
         lay.addLayout(buttons)
         lay.addStretch(1)
-        self._gravity_vector: tuple[float, float, float] | None = None
 
     # ------------------------------------------------------------------ from the scene
     def load_config(self, config, modes: int, sigma: float, penalty: float) -> None:
@@ -136,6 +137,9 @@ class ParamsPanel(QtWidgets.QWidget):
         self.kappa.setEnabled(kappa is not None)
         if kappa is not None:
             self.kappa.setValueSilently(kappa)
+        from engine.simconfig import UNIT_METRES
+
+        self._gravity_vector = (0.0, 0.0, -9.81 / UNIT_METRES.get(config.units, 1.0))
         self.set_effects(config.effects, emit=False)
         self.set_progress(None)
 
@@ -156,7 +160,8 @@ class ParamsPanel(QtWidgets.QWidget):
             self.command.emit(api.SetEffects(effects))
 
     # ------------------------------------------------------------------ progress
-    def set_progress(self, fraction: float | None, text: str = "") -> None:
+    def set_progress(self, fraction: float | None, text: str = "", *,
+                     cancellable: bool = True) -> None:
         """Show a running recompute (0..1) or, with None, an idle bar."""
         if fraction is None:
             self.progress.setValue(0)
@@ -212,7 +217,7 @@ class ParamsPanel(QtWidgets.QWidget):
             axes = tuple(kept)
         gravity = None
         if self.gravity.isChecked():
-            gravity = self._gravity_vector or (0.0, 0.0, -9810.0)
+            gravity = self._gravity_vector
         effects = Effects(guidance=self.guidance.currentText(), axes=axes,
                           damping=self.damping.isChecked(), gravity=gravity)
         self._effects = effects

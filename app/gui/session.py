@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.util
 import tempfile
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,8 +71,12 @@ class Session(QtCore.QObject):
     open_failed = QtCore.Signal(str, str)
     _loaded = QtCore.Signal(object, object, str)  # handle or None, exception or None, path
 
-    def __init__(self, parent=None, *, realtime: bool = True, engine_kwargs=None):
+    def __init__(self, parent=None, *, realtime: bool = True, engine_kwargs=None,
+                 handle_transform=None):
         super().__init__(parent)
+        #: optional callable SceneHandle -> SceneHandle applied before the engine starts
+        #: (benchmarks lock rotation this way)
+        self.handle_transform = handle_transform
         self.backend = engine_backend()
         self.realtime = realtime
         self.engine_kwargs = dict(engine_kwargs or {})
@@ -179,6 +184,8 @@ class Session(QtCore.QObject):
         if error is not None:
             self.open_failed.emit(path, _message(error))
             return
+        if self.handle_transform is not None:
+            handle = self.handle_transform(handle)
         old = self.engine
         self.engine = None
         if old is not None:
@@ -231,6 +238,12 @@ class Session(QtCore.QObject):
         if self.engine is not None:
             self.engine.stop()
             self.engine = None
+            # let the engine's workers (descriptors, landscapes) leave compiled code before
+            # the interpreter may shut down under them
+            deadline = time.perf_counter() + 3.0
+            for t in threading.enumerate():
+                if t.name.startswith("skelasm-") and t is not threading.current_thread():
+                    t.join(max(0.0, deadline - time.perf_counter()))
         self._tmp.cleanup()
 
 

@@ -95,6 +95,14 @@ class Viewport(QtCore.QObject):
         self.arrow_scale = 1.0
         self._drag = None  # dict while a drag is in progress
         self._picker = vtk.vtkPropPicker()
+        # force and torque arrows live in an overlay layer sharing the camera, so they stay
+        # visible where they start: inside the part
+        self._overlay = vtk.vtkRenderer()
+        self._overlay.SetLayer(1)
+        self._overlay.InteractiveOff()
+        self._overlay.SetActiveCamera(self.plotter.renderer.GetActiveCamera())
+        self.plotter.ren_win.SetNumberOfLayers(2)
+        self.plotter.ren_win.AddRenderer(self._overlay)
         self.plotter.installEventFilter(self)
         self._slice_plane_actor = None
         self._arrow_matrices: dict[str, np.ndarray] = {}
@@ -141,12 +149,20 @@ class Viewport(QtCore.QObject):
                 _set_matrix(actor, world)
                 self._actors[f"fixed_{part.name}"] = actor
         self._size = float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(hi - lo)) else 1.0
-        self.arrow_scale = 0.25 * self._size
+        self.arrow_scale = 0.3 * self._size
+        self._overlay.RemoveAllViewProps()
+        self._overlay.SetActiveCamera(self.plotter.renderer.GetActiveCamera())
         for key, colour in (("force", "#d62728"), ("torque", "#9467bd")):
             arrow = pv.Arrow(start=(0, 0, 0), direction=(1, 0, 0), scale=1.0,
-                             tip_length=0.3, tip_radius=0.08, shaft_radius=0.03)
-            a = self.plotter.add_mesh(arrow, color=colour, name=key, pickable=False)
+                             tip_length=0.25, tip_radius=0.07, shaft_radius=0.025)
+            mapper = vtk.vtkPolyDataMapper()
+            mapper.SetInputData(arrow)
+            a = vtk.vtkActor()
+            a.SetMapper(mapper)
+            a.GetProperty().SetColor(pv.Color(colour).float_rgb)
+            a.PickableOff()
             a.SetVisibility(False)
+            self._overlay.AddActor(a)
             self._actors[key] = a
         self.plotter.add_axes()
         self.plotter.reset_camera()

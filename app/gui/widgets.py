@@ -116,6 +116,8 @@ class Readouts(QtWidgets.QWidget):
             label = QtWidgets.QLabel("-")
             label.setTextInteractionFlags(QtCore.Qt.TextSelectableByMouse)
             label.setObjectName(f"readout_{key}")
+            label.setWordWrap(True)
+            label.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Preferred)
             lay.addRow(title, label)
             self.labels[key] = label
 

@@ -1,0 +1,87 @@
+"""Screenshots of the running application for the documentation.
+
+``python -m app.gui.screenshots OUTDIR [SCENE]`` (under ``xvfb-run -a`` without a screen)
+opens the window on a scene, waits for the engine's descriptors and a landscape, pulls the
+part towards its fit with the proxy, and saves the whole window and each view as PNG.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: float = 600.0,
+         slice_part: int = 0) -> list[Path]:
+    from PySide6 import QtCore
+
+    from app.gui.app import DEFAULT_SCENE, make_application
+    from app.gui.main_window import MainWindow
+    from engine import api
+
+    app = make_application()
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    scene = Path(scene) if scene else DEFAULT_SCENE
+    tmp = tempfile.TemporaryDirectory()
+    settings = QtCore.QSettings(str(Path(tmp.name) / "s.ini"), QtCore.QSettings.IniFormat)
+    win = MainWindow(settings=settings)
+    win.resize(1600, 980)
+    win.show()
+
+    def spin(seconds: float, until=None) -> bool:
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            app.processEvents(QtCore.QEventLoop.AllEvents, 20)
+            if until is not None and until():
+                return True
+            time.sleep(0.003)
+        return bool(until and until())
+
+    win.open_path(scene, wait=True)
+    if win.session.handle is None:
+        raise RuntimeError(win.last_error or f"could not open {scene}")
+    spin(30, lambda: win.latest_frame is not None)
+    if not spin(wait_ready, lambda: win.guidance_ready or win.guidance_error):
+        print("warning: the engine was not ready; views will be empty", file=sys.stderr)
+    handle = win.session.handle
+    start = np.asarray(handle.start_pose, float)
+    goal = np.asarray(handle.assembled_pose, float)
+    # bring the part half-way to its fit, a little off to the side, so forces show
+    size = float(np.ptp(handle.parts[-1].vertices, axis=0).max())
+    for f in np.linspace(0.0, 0.6, 30):
+        pose = start + f * (goal - start)
+        pose[0] += 0.06 * size * f
+        win.session.send(api.SetProxyPose(tuple(pose)))
+        spin(0.05)
+    spin(3.0)
+    view = win.slice_view
+    view.part.setCurrentIndex(slice_part)
+    view.axis.setCurrentIndex(1)
+    view.component.setCurrentText("imaginary")
+    win.landscape_view.plane.setCurrentText("xz")
+    spin(20, lambda: win.landscape_view.landscape is not None)
+    spin(1.0)
+    shots = {
+        "window.png": None,
+        "view_3d.png": win.viewport.widget,
+        "descriptor_slice.png": win.dock_slice,
+        "energy_landscape.png": win.dock_landscape,
+        "readouts.png": win.dock_readouts,
+        "parameters.png": win.dock_params,
+    }
+    written = [win.save_screenshot(outdir / name, widget) for name, widget in shots.items()]
+    win.close()
+    tmp.cleanup()
+    return written
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2:
+        sys.exit("usage: python -m app.gui.screenshots OUTDIR [SCENE]")
+    for p in take(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else None):
+        print(p)
