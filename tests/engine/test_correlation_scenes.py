@@ -1,7 +1,9 @@
 """The example pairs: fitted pose at the energy minimum, collisions cost, separation ~ 0.
 
 Needs the example scenes' descriptors (minutes on two cores the first time, cached after),
-so these tests are marked slow.
+so these tests are marked slow. "Moderate m'" is K = 24 here: at K = 16 the peg tilted by
+0.4 rad in its zero-clearance hole still scores about 1% better than the seated peg (the
+low-pass blurs the hole at that resolution); from K = 24 on the seated pose wins.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ def pair(request):
     if not path.exists():
         pytest.skip(f"{path} is missing")
     scene = load_scene(path)
-    return scene, correlator_for_scene(scene, modes=16, backend="numba")
+    return scene, correlator_for_scene(scene, modes=24, backend="numba")
 
 
 def test_fitted_pose_is_the_global_minimum(pair):
