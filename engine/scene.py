@@ -91,6 +91,7 @@ class PartSpec:
     Attributes
     ----------
     name : str
+        Default: ``body`` if given, else the file's stem.
     file : Path
         Resolved (absolute) path of the part file.
     pose : (6,) float64
@@ -437,7 +438,8 @@ def _parse(p: Path, text: str, data: dict[str, Any]) -> Scene:
         resolved = Path(file) if Path(file).is_absolute() else (p.parent / file)
         if not resolved.is_file():
             raise pc.fail("file", f"part file {file!r} not found (looked for {resolved})")
-        pname = pc.string("name", Path(file).stem)
+        body = pc.string("body", None)
+        pname = pc.string("name", body if body is not None else Path(file).stem)
         if any(q.name == pname for q in parts):
             raise pc.fail("name", f"two parts named {pname!r}; give them different names")
         fixed = pc.boolean("fixed", i == 0)
@@ -445,7 +447,6 @@ def _parse(p: Path, text: str, data: dict[str, Any]) -> Scene:
             raise pc.fail("fixed", "the first [[part]] is the fixed one and the second moves; "
                                    "swap the tables instead of setting fixed")
         tolerance = pc.number("tolerance", None, positive=True)
-        body = pc.string("body", None)
         pose = pc.vector("pose", 6, np.zeros(6))
         extras = {k: v for k, v in table.items() if k in PART_EXTRA_KEYS}
         parts.append(PartSpec(name=pname, file=resolved.resolve(), pose=pose, fixed=fixed,

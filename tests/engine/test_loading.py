@@ -307,3 +307,25 @@ def test_step_without_geometry(tmp_path):
     )
     with pytest.raises(PartError, match="nothing.step: .*(re-export|export the part)"):
         load_parts(empty)
+
+
+def test_far_from_origin_float32_soup_is_welded():
+    """An STL-like float32 soup 1e4 mm from the origin still welds closed."""
+    v, f = box_mesh(10.0)
+    soup = (v[f].reshape(-1, 3) + 1e4).astype(np.float32).astype(np.float64)
+    v2, f2, warnings = check_mesh(soup, np.arange(36).reshape(12, 3), source="far")
+    assert len(v2) == 8 and warnings == ()
+    assert part_from_mesh(v2, f2).volume == pytest.approx(1000.0, rel=1e-5)
+
+
+def test_obj_with_two_objects_is_one_part(tmp_path):
+    v, f = box_mesh(1.0)
+    lines = ["o first"] + [f"v {x} {y} {z}" for x, y, z in v]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
+    lines += ["o second"] + [f"v {x + 5} {y} {z}" for x, y, z in v]
+    lines += [f"f {a + 9} {b + 9} {c + 9}" for a, b, c in f]
+    path = tmp_path / "two.obj"
+    path.write_text("\n".join(lines) + "\n")
+    part = load_part(path)
+    assert part.triangles == 24 and part.volume == pytest.approx(2.0)
+    np.testing.assert_allclose(part.bounds, [(-0.5, -0.5, -0.5), (5.5, 0.5, 0.5)])

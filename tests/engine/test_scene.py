@@ -259,3 +259,27 @@ def test_scene_parts_take_the_scene_unit(tmp_path):
     assert slide.unit == "mm"
     np.testing.assert_allclose(slide.bounds, [(-10e3, -30e3, -8e3), (10e3, 0, 5e3)], atol=0.1)
     assert any("converted from m" in w for w in slide.warnings)
+
+
+def test_scene_part_body_selects_a_solid(tmp_path):
+    data = ROOT / "tests" / "data" / "two_bodies.step"
+    path = write(tmp_path, f"""\
+        assembled_pose = [0, 0, 0, 0, 0, 0]
+        [[part]]
+        file = "{data.as_posix()}"
+        body = "block"
+        [[part]]
+        name = "pin"
+        file = "{data.as_posix()}"
+        body = "peg"
+        tolerance = 0.01
+        """)
+    scene = load_scene(path)
+    block, pin = load_scene_parts(scene)
+    assert block.name == "block"  # the body's name by default
+    assert pin.name == "pin"
+    np.testing.assert_allclose(pin.bounds[:, 2], [-15, 15], atol=1e-6)
+    assert block.volume > 10 * pin.volume
+    coarse = load_scene_parts(load_scene(write(tmp_path, path.read_text().replace(
+        "tolerance = 0.01", "tolerance = 0.2"), "coarse.toml")))[1]
+    assert pin.triangles > coarse.triangles
