@@ -57,6 +57,10 @@ TWO_PI = 2.0 * math.pi
 #: Modes per chunk in the numpy reference (bounds its temporaries to a few tens of MB).
 _NUMPY_CHUNK = 1 << 16
 
+#: Largest per-pose table (bytes) the compiled backends get; beyond it (K near the full
+#: lattice) evaluation runs on the numpy reference, which reads the spectra in place.
+MAX_TABLE_BYTES = 256 << 20
+
 
 @dataclass(frozen=True)
 class Evaluation:
@@ -147,7 +151,9 @@ class Correlator:
     stats : dict
         Counters of the work done: ``spectra`` (FFT spectra computed or loaded),
         ``moment_spectra`` (moment spectra computed or loaded), ``evaluations``,
-        ``torque_sums`` (evaluations that summed the torque), ``truncations``.
+        ``torque_sums`` (evaluations that summed the torque), ``truncations``,
+        ``reference_fallbacks`` (evaluations run on numpy because the compiled backends'
+        table for K would exceed :data:`MAX_TABLE_BYTES`).
     backend_name : str
         The per-pose backend in use and why.
     """
@@ -200,6 +206,7 @@ class Correlator:
             "evaluations": 0,
             "torque_sums": 0,
             "truncations": 0,
+            "reference_fallbacks": 0,
         }
         self.spectrum_fixed: Spectrum = compute_spectrum(
             fixed.rho, g1, size, moments=False, use_cache=use_cache
@@ -257,6 +264,14 @@ class Correlator:
         for kernel in self._kernels.values():
             if hasattr(kernel, "set_modes"):
                 kernel.set_modes(self)
+
+    def _table_too_large(self) -> bool:
+        """Whether the compiled backends' table for the current K would exceed the cap."""
+        if self.uses_fine_table():
+            return False
+        side = 2 * _reach_radius(self.modes, float(self.oversample_factor)) + 2
+        channels = 8 if self.rotation else 2
+        return side**3 * channels * 4 > MAX_TABLE_BYTES
 
     def uses_fine_table(self, modes: int | None = None) -> bool:
         """Whether ``modes`` per axis read the refined table (else the ``q`` lattice)."""
@@ -408,7 +423,9 @@ class Correlator:
         self.stats["evaluations"] += 1
         if self.rotation:
             self.stats["torque_sums"] += 1
-        if self._backend == "numpy":
+        if self._backend == "numpy" or self._table_too_large():
+            if self._backend != "numpy":
+                self.stats["reference_fallbacks"] += 1
             if self.boxes_overlap(rot, t):
                 sums = self._sums_numpy(rot, t)
             else:

@@ -410,3 +410,18 @@ def test_fft_size_covers_any_rotation():
     n = required_fft_size((21, 21, 21), (17, 19, 17))
     half_diag = 0.5 * np.linalg.norm([16, 18, 16])
     assert n % 2 == 0 and n >= 20 + 2 * half_diag + 3
+
+
+def test_full_modes_on_compiled_backend_fall_back_to_reference(fields, monkeypatch):
+    import engine.correlation as correlation
+
+    r1, r2 = fields
+    corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8, backend="numba",
+                      use_cache=False)
+    monkeypatch.setattr(correlation, "MAX_TABLE_BYTES", 1 << 20)
+    corr.set_modes(corr.size)
+    rot = rotation_matrix(np.array([0.2, 0.1, 0.3]))
+    got = corr.evaluate(rot, np.zeros(3))
+    assert corr.stats["reference_fallbacks"] == 1
+    corr.use_backend("numpy")
+    assert got.energy == corr.evaluate(rot, np.zeros(3)).energy
