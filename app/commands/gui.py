@@ -23,6 +23,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "default 5) and quit")
     parser.add_argument("--quit-after", metavar="SECONDS", type=float, default=None,
                         help="quit after this many seconds")
+    parser.add_argument("--engine-process", action="store_true",
+                        help="run the engine in its own process, out of reach of the window's "
+                        "GIL (steadier engine rate while the window renders)")
     parser.set_defaults(run=run)
 
 
@@ -36,4 +39,5 @@ def run(args: argparse.Namespace) -> int:
             f"the GUI needs PySide6, pyvista and pyvistaqt ({exc}); "
             "install them with: pip install 'skelasm[gui]'"
         ) from exc
-    return run_gui(args.scene, screenshot=args.screenshot, quit_after=args.quit_after)
+    return run_gui(args.scene, screenshot=args.screenshot, quit_after=args.quit_after,
+                   engine_process=args.engine_process)

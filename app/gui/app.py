@@ -36,7 +36,7 @@ def check_display() -> str | None:
 
 
 def run(scene: str | None = None, *, screenshot: str | None = None,
-        quit_after: float | None = None) -> int:
+        quit_after: float | None = None, engine_process: bool = False) -> int:
     """Open the window on ``scene`` (default: the peg-in-hole example) and run the event loop.
 
     With ``quit_after`` seconds, the window saves ``screenshot`` (if given) and quits then;
@@ -50,7 +50,7 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
     app = make_application()
     from app.gui.main_window import MainWindow
 
-    window = MainWindow()
+    window = MainWindow(engine_kwargs={"process": True} if engine_process else None)
     window.show()
     path = Path(scene) if scene else DEFAULT_SCENE
     window.open_path(path, wait=True)

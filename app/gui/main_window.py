@@ -99,6 +99,10 @@ class MainWindow(QtWidgets.QMainWindow):
                                handle_transform=handle_transform)
         self.session.opened.connect(self._scene_opened)
         self.session.open_failed.connect(self._open_failed)
+        self.session.descriptors_loaded.connect(self._descriptors_loaded)
+        self.session.landscape_computed.connect(
+            lambda land: self._handle_event(api.LandscapeReady(land)))
+        self.session.local_error.connect(self._local_error)
         self.last_error: str | None = None
         self.error_dialog: QtWidgets.QMessageBox | None = None
         self.latest_frame: api.Frame | None = None
@@ -377,6 +381,16 @@ class MainWindow(QtWidgets.QMainWindow):
         if not Path(handle.path).name.startswith("generated_"):
             self._remember(str(handle.path))
 
+    def _descriptors_loaded(self, descriptors) -> None:
+        self.slice_view.set_descriptors(descriptors)
+        self._landscape_pending = False
+        self.landscape_view.set_landscape(None)
+
+    def _local_error(self, message: str) -> None:
+        self._landscape_pending = False
+        self.last_error = message
+        self.statusBar().showMessage(message, 15000)
+
     def _open_failed(self, path: str, message: str) -> None:
         self.show_error(f"Could not open {Path(path).name}:\n\n{message}")
 
@@ -505,17 +519,31 @@ class MainWindow(QtWidgets.QMainWindow):
         if not self.landscape_view.needs_landscape(pose):
             return
         self._landscape_pending = True
-        self.session.send(api.RequestLandscape(tuple(float(x) for x in pose[3:])))
+        rotvec = tuple(float(x) for x in pose[3:])
+        if self.session.process:
+            self.session.compute_landscape(rotvec)
+            self._landscape_pending = getattr(self.session, "_local_correlator", None) \
+                is not None
+        else:
+            self.session.send(api.RequestLandscape(rotvec))
 
     def _handle_event(self, event) -> None:
         if isinstance(event, api.ReadyEvent):
             self.guidance_ready = bool(event.descriptors)
             self.params.set_progress(None, "ready")
+            if self.session.process and self.session.handle is not None:
+                # the engine process keeps its descriptors: load them here for the views
+                self.guidance_ready = self.session.handle.config.effects.guidance != "none"
+                if self.guidance_ready:
+                    self.session.load_descriptors(self.params.sigma.value(),
+                                                  self.params.penalty.value())
             self.readouts.set("backend", event.backend or "-")
             self.slice_view.set_descriptors(event.descriptors)
             self.statusBar().showMessage(event.message or "engine ready", 4000)
         elif isinstance(event, api.DescriptorsSwapped):
-            self.guidance_ready = bool(event.descriptors)
+            self.guidance_ready = bool(event.descriptors) or self.session.process
+            if self.session.process:
+                self.session.load_descriptors(event.sigma or None, event.penalty or None)
             self.slice_view.set_descriptors(event.descriptors)
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")

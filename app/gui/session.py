@@ -69,6 +69,11 @@ class Session(QtCore.QObject):
 
     opened = QtCore.Signal(object)
     open_failed = QtCore.Signal(str, str)
+    #: process engine only: descriptors loaded here for the slice view (tuple), and
+    #: landscapes computed here (Landscape) -- the engine process sends neither back
+    descriptors_loaded = QtCore.Signal(object)
+    landscape_computed = QtCore.Signal(object)
+    local_error = QtCore.Signal(str)
     _loaded = QtCore.Signal(object, object, str)  # handle or None, exception or None, path
 
     def __init__(self, parent=None, *, realtime: bool = True, engine_kwargs=None,
@@ -89,7 +94,73 @@ class Session(QtCore.QObject):
 
     @property
     def engine_name(self) -> str:
-        return "engine" if self.backend is api else "preview engine (engine.loop not installed)"
+        if self.backend is not api:
+            return "preview engine (engine.loop not installed)"
+        return "engine process" if self.process else "engine"
+
+    @property
+    def process(self) -> bool:
+        """True when the engine runs in its own process (``start_engine(process=True)``)."""
+        return bool(self.engine_kwargs.get("process"))
+
+    # ------------------------------------------------------------------ process engine
+    def load_descriptors(self, sigma: float | None = None, penalty: float | None = None) -> None:
+        """Load (usually from the cache the engine just filled) the scene's descriptors in a
+        worker thread, and build a correlator here for landscapes; ``descriptors_loaded``
+        follows. For the process engine, whose ReadyEvent carries no descriptors."""
+        handle = self.handle
+        if handle is None:
+            return
+        modes = int(self.engine_kwargs.get("modes") or getattr(handle.scene, "modes", 16))
+        self._local_generation = getattr(self, "_local_generation", 0) + 1
+        generation = self._local_generation
+
+        def work() -> None:
+            try:
+                from dataclasses import replace
+
+                from engine.correlation import Correlator
+                from engine.store import descriptors_for_scene
+
+                scene = handle.scene
+                changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
+                           if v is not None}
+                if changes:
+                    scene = replace(scene, descriptor=replace(scene.descriptor, **changes))
+                descs = descriptors_for_scene(scene, parts=handle.parts)
+                d1, d2 = descs[0], descs[1]
+                if handle.config.effects.guidance == "collision":
+                    from engine.collision import collision_descriptor
+
+                    d1 = collision_descriptor(d1, handle.parts[0])
+                    d2 = collision_descriptor(d2, handle.parts[1])
+                self._local_correlator = Correlator(d1, d2, modes=modes, rotation=True,
+                                                    backend="numpy", kappa=1.0)
+            except Exception as exc:  # noqa: BLE001 -- reported, the session goes on
+                self.local_error.emit(f"could not load descriptors for the views: "
+                                      f"{_message(exc)}")
+                return
+            if generation == self._local_generation:
+                self.descriptors_loaded.emit((d1, d2))
+
+        threading.Thread(target=work, name="gui-descriptors", daemon=True).start()
+
+    def compute_landscape(self, rotvec) -> None:
+        """Landscape at ``rotvec`` from the local correlator, in a worker thread."""
+        correlator = getattr(self, "_local_correlator", None)
+        if correlator is None:
+            return
+        from engine.pose import rotation_matrix
+
+        rot = rotation_matrix(np.asarray(rotvec, float))
+
+        def work() -> None:
+            try:
+                self.landscape_computed.emit(correlator.landscape(rot))
+            except Exception as exc:  # noqa: BLE001
+                self.local_error.emit(f"landscape failed: {_message(exc)}")
+
+        threading.Thread(target=work, name="gui-landscape", daemon=True).start()
 
     # ------------------------------------------------------------------ opening
     def open(self, path: str | Path) -> None:

@@ -187,10 +187,10 @@ def make_window(qtbot, settings):
     """Factory: a shown MainWindow on a scene, waiting for its first engine frame."""
     windows = []
 
-    def make(scene: Path, *, first_frame: bool = True):
+    def make(scene: Path, *, first_frame: bool = True, **kwargs):
         from app.gui.main_window import MainWindow
 
-        win = MainWindow(settings=settings)
+        win = MainWindow(settings=settings, **kwargs)
         qtbot.addWidget(win)
         win.show()
         qtbot.waitExposed(win)

@@ -155,3 +155,22 @@ def test_landscape_view_shows_a_section_that_follows_the_pose(ready_window, wait
     cross = [m for m in view.canvas._markers if m.shape == "cross"][0]
     assert cross.u == pytest.approx(float(win.latest_frame.part_pose[0]), abs=0.5)
     assert cross.v == pytest.approx(float(win.latest_frame.part_pose[2]), abs=0.5)
+
+
+def test_engine_in_its_own_process_drives_the_same_views(make_window, small_scene,
+                                                          wait_until):
+    win = make_window(small_scene, engine_kwargs={"process": True})
+    assert win.session.engine_name == "engine process"
+    wait_until(lambda: win.guidance_ready or win.guidance_error, 120000, "the engine process")
+    # the process sends no descriptors back: the window loads them for the views itself
+    wait_until(lambda: len(win.slice_view._descriptors) == 2, 60000, "descriptors here")
+    assert win.slice_view.canvas.field_rgb().std() > 5
+    wait_until(lambda: win.landscape_view.landscape is not None, 60000, "a local landscape")
+    # the mouse path still moves the part in the other process
+    start = np.asarray(win.latest_frame.part_pose).copy()
+    target = start.copy()
+    target[0] += 3.0
+    win._proxy_dragged(win.session.world(target))
+    wait_until(lambda: win.latest_frame.part_pose[0] > start[0] + 1.5, 10000,
+               "the part in the engine process to follow")
+    assert win.latest_frame.eval_us > 0
