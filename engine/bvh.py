@@ -13,7 +13,8 @@ the same layout:
   node (1), total area (1), two unused, then the first moment
   ``S[a, b] = sum_i N_i[a] (g_i - c)[b]`` (9, row-major; ``g_i`` the triangle centroids),
   which lets a lumped cluster be integrated to second order (see engine.descriptor),
-  seven unused.
+  then the area-normalised second moment of the cluster about ``c``
+  ``Q = (1/A) sum_i integral (q - c)(q - c)^T dA`` as xx, yy, zz, xy, xz, yz (6), one unused.
 - ``node_index`` ``(n, 4)`` int32: left child, right child (``-1`` for a leaf), first
   triangle, number of triangles. Children always have larger indices than their parent.
 
@@ -184,6 +185,30 @@ def _node_geometry(tri, index):  # pragma: no cover - compiled
                     for b in range(3):
                         g = tri[k, b] + (tri[k, 3 + b] + tri[k, 6 + b]) / 3.0
                         moment[a, b] += tri[k, 9 + a] * (g - centre[b])
+            second = np.zeros((3, 3))
+            if area_sum > 0.0:
+                for k in range(start, start + count):
+                    area = np.sqrt(tri[k, 9] ** 2 + tri[k, 10] ** 2 + tri[k, 11] ** 2)
+                    g = np.empty(3)
+                    for b in range(3):
+                        g[b] = tri[k, b] + (tri[k, 3 + b] + tri[k, 6 + b]) / 3.0
+                    for corner in range(3):
+                        dv = np.empty(3)
+                        for b in range(3):
+                            v = tri[k, b]
+                            if corner == 1:
+                                v += tri[k, 3 + b]
+                            elif corner == 2:
+                                v += tri[k, 6 + b]
+                            dv[b] = v - g[b]
+                        # Covariance of a triangle: (1/12) sum over corners of d d^T.
+                        for a in range(3):
+                            for b in range(3):
+                                second[a, b] += area * dv[a] * dv[b] / 12.0
+                    for a in range(3):
+                        for b in range(3):
+                            second[a, b] += area * (g[a] - centre[a]) * (g[b] - centre[b])
+                second /= area_sum
             radius = 0.0
             for k in range(start, start + count):
                 for corner in range(3):
@@ -214,6 +239,18 @@ def _node_geometry(tri, index):  # pragma: no cover - compiled
             # The box gives another bound; keep the smaller.
             far = np.maximum(np.abs(hi - centre), np.abs(lo - centre))
             radius = min(radius, np.sqrt(np.sum(far**2)))
+            second = np.zeros((3, 3))
+            if area_sum > 0.0:
+                for child in (left, right):
+                    wgt = node[child, 13] / area_sum
+                    q = node[child, 25:31]
+                    qc = np.array(
+                        [[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]]
+                    )
+                    off = node[child, 6:9] - centre
+                    for a in range(3):
+                        for b in range(3):
+                            second[a, b] += wgt * (qc[a, b] + off[a] * off[b])
             moment = np.zeros((3, 3))
             for child in (left, right):
                 for a in range(3):
@@ -230,6 +267,12 @@ def _node_geometry(tri, index):  # pragma: no cover - compiled
         for a in range(3):
             for b in range(3):
                 node[nd, 16 + 3 * a + b] = moment[a, b]
+        node[nd, 25] = second[0, 0]
+        node[nd, 26] = second[1, 1]
+        node[nd, 27] = second[2, 2]
+        node[nd, 28] = second[0, 1]
+        node[nd, 29] = second[0, 2]
+        node[nd, 30] = second[1, 2]
     return node
 
 

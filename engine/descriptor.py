@@ -78,16 +78,21 @@ EPS_FLOOR = 1e-3
 THETA = 0.25
 #: Largest cluster radius / distance (and / sigma |xi|) for a lumped cluster.
 THETA_NODE = 0.25
+#: The Gaussian size test uses min(sigma, SIGMA_RESOLUTION): a wide Gaussian still gets
+#: pieces no coarser than at the default sigma (the 1/r^2-like kernel needs them anyway).
+SIGMA_RESOLUTION = 0.5
 #: Barnes-Hut opening ratio for the winding number.
 THETA_WINDING = 0.5
 #: Pieces and clusters beyond (1 + GAUSS_CUTOFF * sigma) |xi| are skipped.
 GAUSS_CUTOFF = 6.0
 #: Distances within TIE (grid cells) count as equal when picking the nearest triangle.
 TIE = 1e-4
-#: Deepest subdivision of one triangle.
-MAX_LEVEL = 40
-#: Explicit stack sizes (pieces: 3 per level + 1; nodes: tree depth + 1).
-PIECE_STACK = 128
+#: Most distinct face normals summed into the boundary normal at an edge or corner.
+MAX_NORMALS = 8
+#: Deepest subdivision of one triangle (bisections; a piece's area is 2^-level of it).
+MAX_LEVEL = 90
+#: Explicit stack sizes (pieces: one per level + 1; nodes: tree depth + 1).
+PIECE_STACK = 96
 NODE_STACK = 64
 
 _log = logging.getLogger(__name__)
@@ -139,27 +144,21 @@ class DescriptorParams:
 
 
 @numba.njit(cache=True, inline="always")
-def _seg_dist2(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
+def _seg_closest(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
     ux = bx - ax
     uy = by - ay
     uz = bz - az
-    wx = px - ax
-    wy = py - ay
-    wz = pz - az
     uu = ux * ux + uy * uy + uz * uz
     t = 0.0
     if uu > 0.0:
-        t = (wx * ux + wy * uy + wz * uz) / uu
+        t = ((px - ax) * ux + (py - ay) * uy + (pz - az) * uz) / uu
         t = min(max(t, 0.0), 1.0)
-    dx = wx - t * ux
-    dy = wy - t * uy
-    dz = wz - t * uz
-    return dx * dx + dy * dy + dz * dz
+    return ax + t * ux, ay + t * uy, az + t * uz
 
 
 @numba.njit(cache=True)
-def _tri_dist2(px, py, pz, tri, k):  # pragma: no cover - compiled
-    """Squared distance from p to triangle k (Ericson's closest point, degenerate-safe)."""
+def _tri_closest(px, py, pz, tri, k):  # pragma: no cover - compiled
+    """Closest point of triangle k to p (Ericson's regions; degenerate-safe)."""
     ax = tri[k, 0]
     ay = tri[k, 1]
     az = tri[k, 2]
@@ -176,13 +175,25 @@ def _tri_dist2(px, py, pz, tri, k):  # pragma: no cover - compiled
     ac2 = acx * acx + acy * acy + acz * acz
     n2 = nx * nx + ny * ny + nz * nz
     if 4.0 * n2 <= 1e-12 * ab2 * ac2:
-        d = _seg_dist2(px, py, pz, ax, ay, az, ax + abx, ay + aby, az + abz)
-        d = min(d, _seg_dist2(px, py, pz, ax, ay, az, ax + acx, ay + acy, az + acz))
-        d = min(
-            d,
-            _seg_dist2(px, py, pz, ax + abx, ay + aby, az + abz, ax + acx, ay + acy, az + acz),
-        )
-        return d
+        # Degenerate (zero-area) triangle: the nearest of its three edges.
+        bx = ax + abx
+        by = ay + aby
+        bz = az + abz
+        cx = ax + acx
+        cy = ay + acy
+        cz = az + acz
+        qx, qy, qz = _seg_closest(px, py, pz, ax, ay, az, bx, by, bz)
+        best = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
+        sx, sy, sz = _seg_closest(px, py, pz, ax, ay, az, cx, cy, cz)
+        d = (px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2
+        if d < best:
+            best = d
+            qx, qy, qz = sx, sy, sz
+        sx, sy, sz = _seg_closest(px, py, pz, bx, by, bz, cx, cy, cz)
+        d = (px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2
+        if d < best:
+            qx, qy, qz = sx, sy, sz
+        return qx, qy, qz
     apx = px - ax
     apy = py - ay
     apz = pz - az
@@ -237,10 +248,14 @@ def _tri_dist2(px, py, pz, tri, k):  # pragma: no cover - compiled
             qx = ax + v * abx + w * acx
             qy = ay + v * aby + w * acy
             qz = az + v * abz + w * acz
-    dx = px - qx
-    dy = py - qy
-    dz = pz - qz
-    return dx * dx + dy * dy + dz * dz
+    return qx, qy, qz
+
+
+@numba.njit(cache=True)
+def _tri_dist2(px, py, pz, tri, k):  # pragma: no cover - compiled
+    """Squared distance from p to triangle k."""
+    qx, qy, qz = _tri_closest(px, py, pz, tri, k)
+    return (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
 
 
 @numba.njit(cache=True)
@@ -333,6 +348,70 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover 
 
 
 @numba.njit(cache=True)
+def _boundary_normal(px, py, pz, tri, node, nidx, use_tree, best, stack):  # pragma: no cover
+    """Sum of the distinct unit normals of the triangles within TIE of the nearest distance.
+
+    At a face this is the face normal; on an edge or a corner it points between the faces
+    that meet there, whichever way they are triangulated (equal normals count once).
+    """
+    normals = np.zeros((MAX_NORMALS, 3))
+    count = 0
+    lim = best + TIE
+    sp = 0
+    stack[0] = 0
+    sp = 1
+    k_lo = 0
+    k_hi = tri.shape[0]
+    while sp > 0:
+        sp -= 1
+        nd = stack[sp]
+        if use_tree:
+            bd = 0.0
+            for d in range(3):
+                v = (px, py, pz)[d]
+                if v < node[nd, d]:
+                    bd += (node[nd, d] - v) ** 2
+                elif v > node[nd, 3 + d]:
+                    bd += (v - node[nd, 3 + d]) ** 2
+            if bd > lim * lim:
+                continue
+            if nidx[nd, 0] >= 0:
+                stack[sp] = nidx[nd, 0]
+                stack[sp + 1] = nidx[nd, 1]
+                sp += 2
+                continue
+            k_lo = nidx[nd, 2]
+            k_hi = k_lo + nidx[nd, 3]
+        for k in range(k_lo, k_hi):
+            nx = tri[k, 9]
+            ny = tri[k, 10]
+            nz = tri[k, 11]
+            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if nn <= 0.0 or math.sqrt(_tri_dist2(px, py, pz, tri, k)) > lim:
+                continue
+            nx /= nn
+            ny /= nn
+            nz /= nn
+            seen = False
+            for j in range(count):
+                if nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2] > 1.0 - 1e-4:
+                    seen = True
+            if not seen and count < MAX_NORMALS:
+                normals[count, 0] = nx
+                normals[count, 1] = ny
+                normals[count, 2] = nz
+                count += 1
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for j in range(count):
+        sx += normals[j, 0]
+        sy += normals[j, 1]
+        sz += normals[j, 2]
+    return sx, sy, sz
+
+
+@numba.njit(cache=True)
 def _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, stack):  # pragma: no cover
     """Winding number of the surface about p."""
     total = 0.0
@@ -363,8 +442,29 @@ def _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, stack):  # pragma: 
 
 
 @numba.njit(cache=True, inline="always")
-def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2):  # pragma: no cover
-    """(re, im) of zeta^-2 g dA_perp for area vector N at c; g without its constant."""
+def _curvature(x, axi, inv2s2, quq):  # pragma: no cover - compiled
+    """Factor ``1 + (g''/g) u.Q.u / (2 |xi|^2)`` for the Gaussian's curvature over a piece.
+
+    ``Q`` is the piece's (or cluster's) area-normalised second moment about its centroid
+    and ``u`` the direction to it. The Gaussian varies on the scale ``sigma |xi|``, the
+    smallest one around, so its curvature is the leading error of the centroid rule.
+    Clamped to [0.5, 1.5]: in the Gaussian's far tail pieces may be coarse (see _tail) and
+    the expansion no longer holds, but there the term is negligible anyway.
+    """
+    inv_s2 = 2.0 * inv2s2
+    f = 1.0 + 0.5 * (x * x * inv_s2 * inv_s2 - inv_s2) * quq / (axi * axi)
+    return min(max(f, 0.5), 1.5)
+
+
+@numba.njit(cache=True, inline="always")
+def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2, trq, quq):  # pragma: no cover
+    """(re, im) of zeta^-2 g dA_perp for area vector N lumped at centroid c.
+
+    ``trq`` and ``quq`` are the trace and radial component of the piece's second moment:
+    eta is taken at its mean over the piece, ``|c - p| + (tr Q - u.Q.u) / (2 |c - p|)``
+    (a curved or tilted piece lies farther on average than its centroid), and the
+    Gaussian gets its curvature factor. g is without its constant.
+    """
     dx = cx - px
     dy = cy - py
     dz = cz - pz
@@ -372,8 +472,11 @@ def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2):  # pragma: n
     if eta2 <= 0.0:
         return 0.0, 0.0
     eta = math.sqrt(eta2)
+    nu = (nx * dx + ny * dy + nz * dz) / eta
+    eta = eta + (trq - quq) / (2.0 * eta)
+    eta2 = eta * eta
     x = eta * inv_axi - 1.0
-    f = math.exp(-x * x * inv2s2) * (nx * dx + ny * dy + nz * dz) / eta
+    f = math.exp(-x * x * inv2s2) * nu * _curvature(x, 1.0 / inv_axi, inv2s2, quq)
     den = xi * xi + eta2
     f = f / (den * den)
     return f * (xi * xi - eta2), f * (-2.0 * xi * eta)
@@ -383,12 +486,11 @@ def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2):  # pragma: n
 def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover - compiled
     """(re, im) of a lumped cluster, to second order in its size.
 
-    The centroid term ``w(eta) N.u`` plus the first-order correction ``sum_ab J_ab S_ab``
-    with ``J`` the Jacobian of ``V(q) = w(eta) (q - p)/eta`` at the centroid and ``S`` the
-    cluster's first moment (engine.bvh), which removes the O(r/d) error of clusters whose
-    normals differ (edges, corners, thin walls):
-    ``J_ab = (w' - w/eta) u_a u_b + (w/eta) delta_ab``,
-    ``w'/w = -2i/zeta - x/(sigma^2 |xi|)``.
+    The centroid term ``w(eta) N.u`` (eta at its mean, the Gaussian's curvature, as in
+    _term) plus the first-order correction ``sum_ab J_ab S_ab`` with ``J`` the Jacobian of
+    ``V(q) = w(eta) (q - p)/eta`` and ``S`` the cluster's first moment (engine.bvh), which
+    removes the O(r/d) error of clusters whose normals differ (edges, corners, thin walls):
+    ``J_ab = (w' - w/eta) u_a u_b + (w/eta) delta_ab``, ``w'/w = -2i/zeta - x/(sigma^2 |xi|)``.
     """
     dx = node[nd, 6] - px
     dy = node[nd, 7] - py
@@ -400,8 +502,17 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
     ux = dx / eta
     uy = dy / eta
     uz = dz / eta
+    quq = (
+        node[nd, 25] * ux * ux
+        + node[nd, 26] * uy * uy
+        + node[nd, 27] * uz * uz
+        + 2.0 * (node[nd, 28] * ux * uy + node[nd, 29] * ux * uz + node[nd, 30] * uy * uz)
+    )
+    trq = node[nd, 25] + node[nd, 26] + node[nd, 27]
+    eta = eta + (trq - quq) / (2.0 * eta)
+    eta2 = eta * eta
     x = eta * inv_axi - 1.0
-    g = math.exp(-x * x * inv2s2)
+    g = math.exp(-x * x * inv2s2) * _curvature(x, 1.0 / inv_axi, inv2s2, quq)
     den = xi * xi + eta2
     g = g / (den * den)
     wr = g * (xi * xi - eta2)
@@ -418,12 +529,25 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
     return wr * fr - wi * fi, wr * fi + wi * fr
 
 
+@numba.njit(cache=True, inline="always")
+def _tail(dc, r, axi, inv_axi, inv2s2, inv_sigma):  # pragma: no cover - compiled
+    """How much coarser than at the Gaussian's peak a piece may be where g is smaller.
+
+    The centroid rule's error over a piece scales like g * max(1, x/sigma)^2 * (r/(sigma
+    |xi|))^2 (g and its curvature); keeping it at the peak's level lets the size grow by
+    exp(x^2/(4 sigma^2)) / max(1, x/sigma), x taken at the piece's nearest possible point.
+    """
+    x = max(dc - r - axi, 0.0) * inv_axi
+    return math.exp(0.5 * x * x * inv2s2) / max(1.0, x * inv_sigma)
+
+
 @numba.njit(cache=True)
 def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, eps, stack):
     """(re, im) of one triangle's contribution with per-point adaptive subdivision.
 
-    Pieces are kept as (u, v, s): corner at barycentric (u, v), edge vectors s*e1 and
-    s*e2 (s < 0 for the inverted middle child).
+    A piece is split in two at the midpoint of its longest edge, so slivers are cut
+    along their length only. Pieces are kept as the barycentric (u, v) of their three
+    corners in the triangle plus their level (area = 2^-level of the triangle's).
     """  # pragma: no cover - compiled
     ax = tri[k, 0]
     ay = tri[k, 1]
@@ -437,53 +561,99 @@ def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, ep
     nx = tri[k, 9]
     ny = tri[k, 10]
     nz = tri[k, 11]
-    r0 = tri[k, 12]
     if nx == 0.0 and ny == 0.0 and nz == 0.0:
         return 0.0, 0.0
     re = 0.0
     im = 0.0
-    min_s = 2.0 ** (-MAX_LEVEL)
-    sp = 0
+    axi = 1.0 / inv_axi
+    inv_sigma = math.sqrt(2.0 * inv2s2)
+    corner = np.empty((3, 3))
     stack[0, 0] = 0.0
     stack[0, 1] = 0.0
     stack[0, 2] = 1.0
+    stack[0, 3] = 0.0
+    stack[0, 4] = 0.0
+    stack[0, 5] = 1.0
+    stack[0, 6] = 0.0
     sp = 1
     while sp > 0:
         sp -= 1
-        u = stack[sp, 0]
-        v = stack[sp, 1]
-        s = stack[sp, 2]
-        a = abs(s)
-        cu = u + s / 3.0
-        cv = v + s / 3.0
-        cx = ax + cu * e1x + cv * e2x
-        cy = ay + cu * e1y + cv * e2y
-        cz = az + cu * e1z + cv * e2z
-        r = r0 * a
+        for j in range(3):
+            u = stack[sp, 2 * j]
+            v = stack[sp, 2 * j + 1]
+            corner[j, 0] = ax + u * e1x + v * e2x
+            corner[j, 1] = ay + u * e1y + v * e2y
+            corner[j, 2] = az + u * e1z + v * e2z
+        level = stack[sp, 6]
+        cx = (corner[0, 0] + corner[1, 0] + corner[2, 0]) / 3.0
+        cy = (corner[0, 1] + corner[1, 1] + corner[2, 1]) / 3.0
+        cz = (corner[0, 2] + corner[1, 2] + corner[2, 2]) / 3.0
+        r2 = 0.0
+        for j in range(3):
+            r2 = max(r2, (corner[j, 0] - cx) ** 2 + (corner[j, 1] - cy) ** 2
+                     + (corner[j, 2] - cz) ** 2)  # fmt: skip
+        r = math.sqrt(r2)
         dx = cx - px
         dy = cy - py
         dz = cz - pz
         dc = math.sqrt(dx * dx + dy * dy + dz * dz)
         if dc - r > cut:
             continue
-        if (r > theta * max(dc, eps) or r > gauss_size) and a > min_s and sp + 4 <= PIECE_STACK:
-            h = 0.5 * s
-            stack[sp, 0] = u
-            stack[sp, 1] = v
-            stack[sp, 2] = h
-            stack[sp + 1, 0] = u + h
-            stack[sp + 1, 1] = v
-            stack[sp + 1, 2] = h
-            stack[sp + 2, 0] = u
-            stack[sp + 2, 1] = v + h
-            stack[sp + 2, 2] = h
-            stack[sp + 3, 0] = u + h
-            stack[sp + 3, 1] = v + h
-            stack[sp + 3, 2] = -h
-            sp += 4
+        if (
+            (r > theta * max(dc, eps) or r > gauss_size * _tail(dc, r, axi, inv_axi, inv2s2, inv_sigma))
+            and level < MAX_LEVEL
+            and sp + 2 <= PIECE_STACK
+        ):
+            # Longest edge (i, j), opposite corner o.
+            best = -1.0
+            i0 = 0
+            for j in range(3):
+                jn = (j + 1) % 3
+                l2 = ((corner[j, 0] - corner[jn, 0]) ** 2 + (corner[j, 1] - corner[jn, 1]) ** 2
+                      + (corner[j, 2] - corner[jn, 2]) ** 2)  # fmt: skip
+                if l2 > best:
+                    best = l2
+                    i0 = j
+            i1 = (i0 + 1) % 3
+            o = (i0 + 2) % 3
+            ui = stack[sp, 2 * i0]
+            vi = stack[sp, 2 * i0 + 1]
+            uj = stack[sp, 2 * i1]
+            vj = stack[sp, 2 * i1 + 1]
+            uo = stack[sp, 2 * o]
+            vo = stack[sp, 2 * o + 1]
+            um = 0.5 * (ui + uj)
+            vm = 0.5 * (vi + vj)
+            child = level + 1.0
+            stack[sp, 0] = ui
+            stack[sp, 1] = vi
+            stack[sp, 2] = um
+            stack[sp, 3] = vm
+            stack[sp, 4] = uo
+            stack[sp, 5] = vo
+            stack[sp, 6] = child
+            stack[sp + 1, 0] = um
+            stack[sp + 1, 1] = vm
+            stack[sp + 1, 2] = uj
+            stack[sp + 1, 3] = vj
+            stack[sp + 1, 4] = uo
+            stack[sp + 1, 5] = vo
+            stack[sp + 1, 6] = child
+            sp += 2
             continue
-        a2 = a * a
-        tr, ti = _term(px, py, pz, cx, cy, cz, nx * a2, ny * a2, nz * a2, xi, inv_axi, inv2s2)
+        frac = 2.0 ** (-level)
+        # Second moment of the piece about its centroid: (1/12) sum over corners of d d^T.
+        quq = 0.0
+        trq = 0.0
+        for j in range(3):
+            ddx = corner[j, 0] - cx
+            ddy = corner[j, 1] - cy
+            ddz = corner[j, 2] - cz
+            ud = (ddx * dx + ddy * dy + ddz * dz) / max(dc, 1e-30)
+            quq += ud * ud
+            trq += ddx * ddx + ddy * ddy + ddz * ddz
+        tr, ti = _term(px, py, pz, cx, cy, cz, nx * frac, ny * frac, nz * frac, xi, inv_axi,
+                       inv2s2, trq / 12.0, quq / 12.0)  # fmt: skip
         re += tr
         im += ti
     return re, im
@@ -497,8 +667,9 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node
     inv_axi = 1.0 / axi
     inv2s2 = 1.0 / (2.0 * sigma * sigma)
     cut = (1.0 + cut_k * sigma) * axi
-    gauss_piece = theta * sigma * axi
-    gauss_node = theta_node * sigma * axi
+    sig_res = min(sigma, SIGMA_RESOLUTION)
+    gauss_piece = theta * sig_res * axi
+    gauss_node = theta_node * sig_res * axi
     re = 0.0
     im = 0.0
     if not use_tree:
@@ -524,7 +695,10 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node
         dc = math.sqrt(dx * dx + dy * dy + dz * dz)
         if dc - r > cut:
             continue
-        if not (r > theta_node * max(dc, eps) or r > gauss_node):
+        if not (
+            r > theta_node * max(dc, eps)
+            or r > gauss_node * _tail(dc, r, axi, inv_axi, inv2s2, 1.0 / sigma)
+        ):
             tr, ti = _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2)
             re += tr
             im += ti
@@ -552,7 +726,7 @@ def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, t
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
     for i in numba.prange(n):
         nstack = np.empty(NODE_STACK, dtype=np.int64)
-        pstack = np.empty((PIECE_STACK, 3))
+        pstack = np.empty((PIECE_STACK, 7))
         px = points[i, 0]
         py = points[i, 1]
         pz = points[i, 2]
@@ -565,31 +739,31 @@ def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, t
             continue
         inside = w > 0.5
         dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, nstack)
-        nn = 0.0
-        off = 0.0
+        push = False
         if dist < eps:
-            nx = tri[kn, 9]
-            ny = tri[kn, 10]
-            nz = tri[kn, 11]
+            nx, ny, nz = _boundary_normal(px, py, pz, tri, node, nidx, use_tree, dist, nstack)
             nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if nn > 0.0:
+            if nn > 1e-3:
                 # Within a hair of the boundary the winding number is about 0.5 and its
                 # rounding would pick the side: take it from the height above the nearest
-                # triangle's plane instead, the boundary itself counting as inside.
-                off = ((px - tri[kn, 0]) * nx + (py - tri[kn, 1]) * ny + (pz - tri[kn, 2]) * nz)
-                off = off / nn
-                inside = off < 0.5 * eps
+                # point along the boundary normal instead, the boundary counting as inside.
+                nx /= nn
+                ny /= nn
+                nz /= nn
+                qx, qy, qz = _tri_closest(px, py, pz, tri, kn)
+                off = (px - qx) * nx + (py - qy) * ny + (pz - qz) * nz
+                inside = off < TIE
+                push = True
         out[i, 2] = -dist if inside else dist
         if mode == 1:
             continue
         sgn = -1.0 if inside else 1.0
-        if nn > 0.0:
-            # Move p along the normal to height eps on its side, keeping its tangential
-            # position: the value there is the one-sided limit on a face.
-            step = sgn * eps - off
-            px = px + step * nx / nn
-            py = py + step * ny / nn
-            pz = pz + step * nz / nn
+        if push:
+            # Evaluate at height eps above the nearest point, on p's side: on a face this is
+            # the one-sided limit of the smooth formula.
+            px = qx + sgn * eps * nx
+            py = qy + sgn * eps * ny
+            pz = qz + sgn * eps * nz
         xi = sgn * max(dist, eps)
         re, im = _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node,
                           eps, cut_k, nstack, pstack)  # fmt: skip

@@ -30,21 +30,20 @@ typedef float acc_t;
 #define TS 16   /* floats per triangle */
 #define NS 32   /* floats per node */
 
-inline float seg_dist2(float3 p, float3 a, float3 b)
+inline float3 seg_closest(float3 p, float3 a, float3 b)
 {
     float3 u = b - a;
-    float3 w = p - a;
     float uu = dot(u, u);
     float t = 0.0f;
     if (uu > 0.0f) {
-        t = dot(w, u) / uu;
+        t = dot(p - a, u) / uu;
         t = fmin(fmax(t, 0.0f), 1.0f);
     }
-    float3 d = w - t * u;
-    return dot(d, d);
+    return a + t * u;
 }
 
-float tri_dist2(float3 p, __global const float *t)
+/* Closest point of a triangle to p (Ericson's regions; degenerate-safe). */
+float3 tri_closest(float3 p, __global const float *t)
 {
     float3 a = (float3)(t[0], t[1], t[2]);
     float3 ab = (float3)(t[3], t[4], t[5]);
@@ -54,10 +53,17 @@ float tri_dist2(float3 p, __global const float *t)
     float ac2 = dot(ac, ac);
     float n2 = dot(n, n);
     if (4.0f * n2 <= 1e-12f * ab2 * ac2) {
-        float d = seg_dist2(p, a, a + ab);
-        d = fmin(d, seg_dist2(p, a, a + ac));
-        d = fmin(d, seg_dist2(p, a + ab, a + ac));
-        return d;
+        float3 b = a + ab;
+        float3 c = a + ac;
+        float3 q = seg_closest(p, a, b);
+        float best = dot(p - q, p - q);
+        float3 s = seg_closest(p, a, c);
+        float d = dot(p - s, p - s);
+        if (d < best) { best = d; q = s; }
+        s = seg_closest(p, b, c);
+        d = dot(p - s, p - s);
+        if (d < best) { q = s; }
+        return q;
     }
     float3 ap = p - a;
     float d1 = dot(ab, ap);
@@ -89,7 +95,12 @@ float tri_dist2(float3 p, __global const float *t)
             q = a + (vb * denom) * ab + (vc * denom) * ac;
         }
     }
-    float3 d = p - q;
+    return q;
+}
+
+inline float tri_dist2(float3 p, __global const float *t)
+{
+    float3 d = p - tri_closest(p, t);
     return dot(d, d);
 }
 
@@ -164,6 +175,52 @@ void nearest(float3 p, __global const float *tri, int m, __global const float *n
     *out_k = best_k;
 }
 
+/* Sum of the distinct unit normals of the triangles within TIE of the nearest distance. */
+float3 boundary_normal(float3 p, __global const float *tri, int m, __global const float *node,
+                       __global const int *nidx, int use_tree, float best)
+{
+    float3 normals[MAX_NORMALS];
+    int count = 0;
+    float lim = best + TIE;
+    int stack[NODE_STACK];
+    int sp = 0;
+    stack[sp++] = 0;
+    int k_lo = 0;
+    int k_hi = m;
+    while (sp > 0) {
+        int nd = stack[--sp];
+        if (use_tree) {
+            __global const float *nb = node + NS * nd;
+            float3 lo = (float3)(nb[0], nb[1], nb[2]);
+            float3 hi = (float3)(nb[3], nb[4], nb[5]);
+            float3 e = fmax(lo - p, (float3)(0.0f)) + fmax(p - hi, (float3)(0.0f));
+            if (dot(e, e) > lim * lim) continue;
+            if (nidx[4 * nd] >= 0) {
+                stack[sp] = nidx[4 * nd];
+                stack[sp + 1] = nidx[4 * nd + 1];
+                sp += 2;
+                continue;
+            }
+            k_lo = nidx[4 * nd + 2];
+            k_hi = k_lo + nidx[4 * nd + 3];
+        }
+        for (int k = k_lo; k < k_hi; ++k) {
+            __global const float *t = tri + TS * k;
+            float3 n = (float3)(t[9], t[10], t[11]);
+            float nn = length(n);
+            if (nn <= 0.0f || sqrt(tri_dist2(p, t)) > lim) continue;
+            n /= nn;
+            int seen = 0;
+            for (int j = 0; j < count; ++j)
+                if (dot(n, normals[j]) > 1.0f - 1e-4f) seen = 1;
+            if (!seen && count < MAX_NORMALS) normals[count++] = n;
+        }
+    }
+    float3 sum = (float3)(0.0f);
+    for (int j = 0; j < count; ++j) sum += normals[j];
+    return sum;
+}
+
 float winding(float3 p, __global const float *tri, int m, __global const float *node,
               __global const int *nidx, int use_tree, float theta_w)
 {
@@ -195,21 +252,34 @@ float winding(float3 p, __global const float *tri, int m, __global const float *
     return (float)total / (4.0f * M_PI_F);
 }
 
-/* zeta^-2 g dA_perp for area vector n at c (g without its constant). */
-inline float2 term(float3 p, float3 c, float3 n, float xi, float inv_axi, float inv2s2)
+/* Curvature factor of the Gaussian over a piece (engine.descriptor._curvature). */
+inline float curvature(float x, float axi, float inv2s2, float quq)
+{
+    float inv_s2 = 2.0f * inv2s2;
+    float f = 1.0f + 0.5f * (x * x * inv_s2 * inv_s2 - inv_s2) * quq / (axi * axi);
+    return fmin(fmax(f, 0.5f), 1.5f);
+}
+
+/* zeta^-2 g dA_perp for area vector n lumped at c, eta at its mean over the piece
+   (engine.descriptor._term); g without its constant. */
+inline float2 term(float3 p, float3 c, float3 n, float xi, float inv_axi, float inv2s2,
+                   float trq, float quq)
 {
     float3 d = c - p;
     float eta2 = dot(d, d);
     if (eta2 <= 0.0f) return (float2)(0.0f, 0.0f);
     float eta = sqrt(eta2);
+    float nu = dot(n, d) / eta;
+    eta = eta + (trq - quq) / (2.0f * eta);
+    eta2 = eta * eta;
     float x = eta * inv_axi - 1.0f;
-    float f = exp(-x * x * inv2s2) * dot(n, d) / eta;
+    float f = exp(-x * x * inv2s2) * nu * curvature(x, 1.0f / inv_axi, inv2s2, quq);
     float den = xi * xi + eta2;
     f = f / (den * den);
     return (float2)(f * (xi * xi - eta2), f * (-2.0f * xi * eta));
 }
 
-/* A lumped cluster to second order (see engine.descriptor._node_term). */
+/* A lumped cluster to second order (engine.descriptor._node_term). */
 float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, float inv2s2)
 {
     float3 d = (float3)(nb[6], nb[7], nb[8]) - p;
@@ -217,8 +287,13 @@ float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, fl
     if (eta2 <= 0.0f) return (float2)(0.0f, 0.0f);
     float eta = sqrt(eta2);
     float3 u = d / eta;
+    float quq = nb[25] * u.x * u.x + nb[26] * u.y * u.y + nb[27] * u.z * u.z
+              + 2.0f * (nb[28] * u.x * u.y + nb[29] * u.x * u.z + nb[30] * u.y * u.z);
+    float trq = nb[25] + nb[26] + nb[27];
+    eta = eta + (trq - quq) / (2.0f * eta);
+    eta2 = eta * eta;
     float x = eta * inv_axi - 1.0f;
-    float g = exp(-x * x * inv2s2);
+    float g = exp(-x * x * inv2s2) * curvature(x, 1.0f / inv_axi, inv2s2, quq);
     float den = xi * xi + eta2;
     g = g / (den * den);
     float wr = g * (xi * xi - eta2);
@@ -233,7 +308,15 @@ float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, fl
     return (float2)(wr * fr - wi * fi, wr * fi + wi * fr);
 }
 
-/* One triangle with per-point adaptive subdivision; pieces as (u, v, s). */
+/* How much coarser than at the Gaussian's peak a piece may be (engine.descriptor._tail). */
+inline float tail(float dc, float r, float axi, float inv_axi, float inv2s2, float inv_sigma)
+{
+    float x = fmax(dc - r - axi, 0.0f) * inv_axi;
+    return exp(0.5f * x * x * inv2s2) / fmax(1.0f, x * inv_sigma);
+}
+
+/* One triangle with per-point adaptive subdivision: longest-edge bisection, pieces kept as
+   the barycentric (u, v) of their corners and their level (area 2^-level). */
 void tri_rho(float3 p, __global const float *t, float xi, float inv_axi, float inv2s2,
              float cut, float theta, float gauss_size, float eps, acc_t *re, acc_t *im)
 {
@@ -241,39 +324,56 @@ void tri_rho(float3 p, __global const float *t, float xi, float inv_axi, float i
     float3 e1 = (float3)(t[3], t[4], t[5]);
     float3 e2 = (float3)(t[6], t[7], t[8]);
     float3 n = (float3)(t[9], t[10], t[11]);
-    float r0 = t[12];
     if (n.x == 0.0f && n.y == 0.0f && n.z == 0.0f) return;
-    const float min_s = ldexp(1.0f, -MAX_LEVEL);
-    float stack[3 * PIECE_STACK];
-    int sp = 0;
-    stack[0] = 0.0f;
-    stack[1] = 0.0f;
-    stack[2] = 1.0f;
-    sp = 1;
+    const float axi = 1.0f / inv_axi;
+    const float inv_sigma = sqrt(2.0f * inv2s2);
+    float stack[7 * PIECE_STACK];
+    stack[0] = 0.0f; stack[1] = 0.0f;
+    stack[2] = 1.0f; stack[3] = 0.0f;
+    stack[4] = 0.0f; stack[5] = 1.0f;
+    stack[6] = 0.0f;
+    int sp = 1;
     while (sp > 0) {
         --sp;
-        float u = stack[3 * sp];
-        float v = stack[3 * sp + 1];
-        float s = stack[3 * sp + 2];
-        float as = fabs(s);
-        float cu = u + s / 3.0f;
-        float cv = v + s / 3.0f;
-        float3 c = a + cu * e1 + cv * e2;
-        float r = r0 * as;
+        float *e = stack + 7 * sp;
+        float3 c0 = a + e[0] * e1 + e[1] * e2;
+        float3 c1 = a + e[2] * e1 + e[3] * e2;
+        float3 c2 = a + e[4] * e1 + e[5] * e2;
+        float level = e[6];
+        float3 c = (c0 + c1 + c2) / 3.0f;
+        float r2 = fmax(fmax(dot(c0 - c, c0 - c), dot(c1 - c, c1 - c)), dot(c2 - c, c2 - c));
+        float r = sqrt(r2);
         float dc = length(c - p);
         if (dc - r > cut) continue;
-        if ((r > theta * fmax(dc, eps) || r > gauss_size) && as > min_s && sp + 4 <= PIECE_STACK) {
-            float h = 0.5f * s;
-            int b = 3 * sp;
-            stack[b] = u;          stack[b + 1] = v;          stack[b + 2] = h;
-            stack[b + 3] = u + h;  stack[b + 4] = v;          stack[b + 5] = h;
-            stack[b + 6] = u;      stack[b + 7] = v + h;      stack[b + 8] = h;
-            stack[b + 9] = u + h;  stack[b + 10] = v + h;     stack[b + 11] = -h;
-            sp += 4;
+        if ((r > theta * fmax(dc, eps)
+             || r > gauss_size * tail(dc, r, axi, inv_axi, inv2s2, inv_sigma)) && level < MAX_LEVEL
+            && sp + 2 <= PIECE_STACK) {
+            float l0 = dot(c0 - c1, c0 - c1);
+            float l1 = dot(c1 - c2, c1 - c2);
+            float l2 = dot(c2 - c0, c2 - c0);
+            int i0 = 0;
+            float best = l0;
+            if (l1 > best) { best = l1; i0 = 1; }
+            if (l2 > best) { i0 = 2; }
+            int i1 = (i0 + 1) % 3;
+            int o = (i0 + 2) % 3;
+            float ui = e[2 * i0], vi = e[2 * i0 + 1];
+            float uj = e[2 * i1], vj = e[2 * i1 + 1];
+            float uo = e[2 * o], vo = e[2 * o + 1];
+            float um = 0.5f * (ui + uj), vm = 0.5f * (vi + vj);
+            float child = level + 1.0f;
+            e[0] = ui; e[1] = vi; e[2] = um; e[3] = vm; e[4] = uo; e[5] = vo; e[6] = child;
+            e[7] = um; e[8] = vm; e[9] = uj; e[10] = vj; e[11] = uo; e[12] = vo; e[13] = child;
+            sp += 2;
             continue;
         }
-        float a2 = as * as;
-        float2 tv = term(p, c, n * a2, xi, inv_axi, inv2s2);
+        float frac = exp2(-level);
+        float3 u = (c - p) / fmax(dc, 1e-30f);
+        float3 d0 = c0 - c, d1 = c1 - c, d2 = c2 - c;
+        float ud0 = dot(d0, u), ud1 = dot(d1, u), ud2 = dot(d2, u);
+        float quq = (ud0 * ud0 + ud1 * ud1 + ud2 * ud2) / 12.0f;
+        float trq = (dot(d0, d0) + dot(d1, d1) + dot(d2, d2)) / 12.0f;
+        float2 tv = term(p, c, n * frac, xi, inv_axi, inv2s2, trq, quq);
         *re += tv.x;
         *im += tv.y;
     }
@@ -285,7 +385,7 @@ __kernel void skeletal(__global const float *pts, int npts,
                        int use_tree, int mode,
                        float sigma, float lam_in, float lam_out,
                        float theta, float theta_node, float theta_w, float eps, float cut_k,
-                       __global float *out)
+                       float sigma_res, __global float *out)
 {
     int i = get_global_id(0);
     if (i >= npts) return;
@@ -300,29 +400,31 @@ __kernel void skeletal(__global const float *pts, int npts,
     float dist;
     int kn;
     nearest(p, tri, m, node, nidx, use_tree, &dist, &kn);
+    int push = 0;
     float3 nrm = (float3)(0.0f);
-    float nn = 0.0f;
-    float off = 0.0f;
+    float3 q = p;
     if (dist < eps) {
-        __global const float *t = tri + TS * kn;
-        nrm = (float3)(t[9], t[10], t[11]);
-        nn = length(nrm);
-        if (nn > 0.0f) {
-            off = dot(p - (float3)(t[0], t[1], t[2]), nrm) / nn;
-            inside = off < 0.5f * eps;
+        nrm = boundary_normal(p, tri, m, node, nidx, use_tree, dist);
+        float nn = length(nrm);
+        if (nn > 1e-3f) {
+            nrm /= nn;
+            q = tri_closest(p, tri + TS * kn);
+            inside = dot(p - q, nrm) < TIE;
+            push = 1;
         }
     }
     out[4 * i + 2] = inside ? -dist : dist;
     if (mode == 1) return;
     float sgn = inside ? -1.0f : 1.0f;
-    if (nn > 0.0f) p += (sgn * eps - off) * (nrm / nn);
+    if (push) p = q + (sgn * eps) * nrm;
     float xi = sgn * fmax(dist, eps);
     float axi = fabs(xi);
     float inv_axi = 1.0f / axi;
     float inv2s2 = 1.0f / (2.0f * sigma * sigma);
     float cut = (1.0f + cut_k * sigma) * axi;
-    float gauss_piece = theta * sigma * axi;
-    float gauss_node = theta_node * sigma * axi;
+    float sig_res = fmin(sigma, sigma_res);
+    float gauss_piece = theta * sig_res * axi;
+    float gauss_node = theta_node * sig_res * axi;
     acc_t re = 0, im = 0;
     if (!use_tree) {
         for (int k = 0; k < m; ++k)
@@ -337,7 +439,8 @@ __kernel void skeletal(__global const float *pts, int npts,
             float r = nb[12];
             float dc = length((float3)(nb[6], nb[7], nb[8]) - p);
             if (dc - r > cut) continue;
-            if (!(r > theta_node * fmax(dc, eps) || r > gauss_node)) {
+            if (!(r > theta_node * fmax(dc, eps)
+                  || r > gauss_node * tail(dc, r, axi, inv_axi, inv2s2, 1.0f / sigma))) {
                 float2 tv = node_term(p, nb, xi, inv_axi, inv2s2);
                 re += tv.x;
                 im += tv.y;
@@ -382,6 +485,7 @@ def build_program(context: Any) -> Any:
                 f"-DNODE_STACK={_d.NODE_STACK}",
                 f"-DMAX_LEVEL={_d.MAX_LEVEL}",
                 f"-DTIE={_d.TIE!r}f",
+                f"-DMAX_NORMALS={_d.MAX_NORMALS}",
             ]
             if _has_fp64(dev):
                 options.append("-DUSE_DOUBLE")
@@ -470,6 +574,7 @@ class OpenCLDescriptor:
             np.float32(_d.THETA_WINDING),
             np.float32(_d.EPS_FLOOR),
             np.float32(_d.GAUSS_CUTOFF),
+            np.float32(_d.SIGMA_RESOLUTION),
         ]
         kernel = self.kernel
 

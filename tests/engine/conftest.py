@@ -1,0 +1,43 @@
+"""Fixtures shared by the engine tests: compute backends that work here."""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+
+from engine.backend import available_backends, get_backend
+
+
+@functools.lru_cache(maxsize=1)
+def _opencl_problem() -> str | None:
+    """None when the descriptor kernel compiles on the OpenCL backend, else why not."""
+    if "opencl" not in available_backends():
+        return "no OpenCL device"
+    from engine.backend import BackendError
+    from engine.descriptor_cl import build_program
+
+    try:
+        build_program(get_backend("opencl").context)
+    except BackendError as exc:
+        return str(exc)
+    return None
+
+
+@pytest.fixture(params=["numpy", "opencl"])
+def descriptor_backend(request):
+    """Each compute backend usable for the descriptor (OpenCL skipped when absent/broken)."""
+    if request.param == "opencl":
+        problem = _opencl_problem()
+        if problem:
+            pytest.skip(problem)
+    return get_backend(request.param)
+
+
+@pytest.fixture
+def opencl_backend():
+    """The OpenCL backend, or skip."""
+    problem = _opencl_problem()
+    if problem:
+        pytest.skip(problem)
+    return get_backend("opencl")
