@@ -6,10 +6,10 @@ an ``.npz`` with (at least) ``rho``, ``origin`` (3 floats: where grid index (0, 
 the part's frame), ``spacing``, ``shape``, ``sigma``, ``penalty`` and ``lambda_out``.
 
 :func:`descriptor_for_part` goes through ``engine.cache.load_or_compute``, keyed by the mesh's
-bytes, the grid, the parameters, the method, the descriptor module's numerical constants and
-:data:`FORMAT_VERSION`; a second call with the same inputs loads the stored array. The key does
-not include the backend: the numpy and OpenCL paths agree to float32 precision, so either one's
-result serves both.
+bytes, the grid, the parameters, the method, the descriptor module's numerical constants, a
+digest of the descriptor's source files and :data:`FORMAT_VERSION`; a second call with the
+same inputs loads the stored array. The key does not include the backend: the numpy and
+OpenCL paths agree to float32 precision, so either one's result serves both.
 
 All parts of a scene share one grid spacing (so that the correlation needs no resampling at
 R = I): :func:`scene_spacing` picks it, :func:`descriptors_for_scene` computes both.
@@ -184,6 +184,33 @@ def scene_spacing(scene: Any, parts: Sequence[Any]) -> float:
 
 
 # --------------------------------------------------------------------------- compute / cache
+_CODE_DIGEST: str | None = None
+
+
+def _descriptor_code_digest() -> str:
+    """SHA-256 of the descriptor's source files: a changed kernel must not reuse old entries.
+
+    Covers engine/descriptor.py, engine/descriptor_cl.py and engine/bvh.py (whichever
+    exist); an installed program never changes them, so users keep their cache, while a
+    developer's edit recomputes instead of serving stale values.
+    """
+    global _CODE_DIGEST
+    if _CODE_DIGEST is None:
+        import hashlib
+
+        import engine
+
+        h = hashlib.sha256()
+        folder = Path(engine.__file__).parent
+        for name in ("descriptor.py", "descriptor_cl.py", "bvh.py"):
+            path = folder / name
+            if path.is_file():
+                h.update(name.encode())
+                h.update(path.read_bytes())
+        _CODE_DIGEST = h.hexdigest()
+    return _CODE_DIGEST
+
+
 def _descriptor_constants() -> dict[str, Any]:
     """Module-level numerical constants of engine.descriptor (they change the result)."""
     import engine.descriptor as d
@@ -206,6 +233,7 @@ def cache_key_parts(part: Any, grid: Grid, params: Any, method: str) -> dict[str
         "method": method,
         "format": FORMAT_VERSION,
         "constants": _descriptor_constants(),
+        "code": _descriptor_code_digest(),
     }
 
 

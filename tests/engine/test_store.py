@@ -181,3 +181,15 @@ def test_real_descriptor_is_cached_and_loads_fast(private_cache):
     assert time.perf_counter() - t0 < 0.5
     assert second.from_cache
     np.testing.assert_array_equal(second.rho, first.rho)
+
+
+def test_changed_descriptor_code_recomputes(fake_compute, monkeypatch):
+    import engine.store as store
+
+    part = box_part()
+    grid = grid_for_part(part, samples=6, padding=1)
+    descriptor_for_part(part, grid, backend="numpy")
+    assert descriptor_for_part(part, grid, backend="numpy").from_cache
+    monkeypatch.setattr(store, "_CODE_DIGEST", "a different kernel")
+    assert not descriptor_for_part(part, grid, backend="numpy").from_cache
+    assert len(fake_compute) == 2
