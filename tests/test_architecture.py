@@ -40,3 +40,16 @@ def test_importing_every_engine_module_loads_no_qt():
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True
     )
     assert out.stdout.strip() == "", out.stdout
+
+
+def test_import_linter_contract_is_kept():
+    import shutil
+
+    import pytest
+
+    exe = shutil.which("lint-imports", path=str(pathlib.Path(sys.executable).parent))
+    if exe is None:
+        pytest.skip("import-linter is not installed (pip install -e '.[test]')")
+    out = subprocess.run([exe], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "1 kept, 0 broken" in out.stdout
