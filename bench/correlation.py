@@ -91,7 +91,9 @@ def _scene_pairs(paths: list[str]) -> list[tuple[str, object, object, np.ndarray
 
 
 # ---------------------------------------------------------------------------- measures
-def _poses(fitted: np.ndarray, spread: float, count: int, rng) -> list[tuple[np.ndarray, np.ndarray]]:
+def _poses(
+    fitted: np.ndarray, spread: float, count: int, rng
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Poses around the fitted one: translations within ``spread``, rotations up to ~0.3 rad."""
     from engine.pose import rotation_matrix
 
@@ -254,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
     print("\n| pair | backend | m' | median us | p99 us | energy err | abs F err | F dir err (deg) "
           "| min shift (cells) |")
     print("|---|---|---|---:|---:|---:|---:|---:|---:|")
-    for name, backend, label, med, p99, e_err, f_err, angle, shift, cells in rows:
+    for name, backend, label, med, p99, e_err, f_err, angle, _shift, cells in rows:
         print(f"| {name} | {backend} | {label} | {med:.1f} | {p99:.1f} | {e_err:.2e} | {f_err:.2e} "
               f"| {angle:.2f} | {cells:.2f} |")
     print("\nInterpolation error of the rotated spectrum (trilinear, against the exact "

@@ -51,6 +51,7 @@ from engine.spectrum import (
 )
 
 PER_POSE_BACKENDS = ("numpy", "numba", "opencl")
+SELECTIONS = ("cube", "largest")
 BACKEND_CHOICES = ("auto",) + PER_POSE_BACKENDS
 TWO_PI = 2.0 * math.pi
 
@@ -92,9 +93,14 @@ def _check_descriptor(obj: Any, name: str) -> None:
         raise TypeError(f"{name} must have .rho and .grid (a store.Descriptor)")
 
 
-def _reach_radius(modes: int, scale: float) -> int:
-    """Lattice radius the rotated kept cube can reach: ``scale sqrt(3) (K // 2 + 1)``, +1."""
-    return int(math.ceil(scale * math.sqrt(3.0) * (modes // 2 + 1))) + 1
+def _cube_reach(modes: int) -> float:
+    """Largest ``|k|`` of the kept cube, with one step to spare: ``sqrt(3) (K // 2 + 1)``."""
+    return math.sqrt(3.0) * (modes // 2 + 1)
+
+
+def _radius(reach: float, scale: float) -> int:
+    """Table radius (lattice steps) that covers frequencies up to ``reach``, +1."""
+    return int(math.ceil(scale * reach)) + 1
 
 
 def required_fft_size(shape1: tuple[int, ...], shape2: tuple[int, ...]) -> int:
@@ -143,6 +149,11 @@ class Correlator:
         refined table is ``refine^3`` times larger for the same ``K``; at ``K = 32`` it no
         longer fits the CPU caches (about 58 MB) and a pose costs several ms instead of
         about 0.5 ms, hence the default 24.
+    selection : {"cube", "largest"}
+        Which ``K^3`` modes to keep: the cube of the lowest frequencies (separable phases,
+        all backends), or the ``K^3`` of largest ``|rho1^(w)| * P2(|w|)`` anywhere on the
+        lattice (``P2``: RMS of ``|rho2^|`` over the sphere ``|w|``, a rotation-invariant
+        estimate of what the product keeps; numpy and numba only).
     use_cache : bool
         Use the on-disk spectrum cache.
 
@@ -171,6 +182,7 @@ class Correlator:
         fft_size: int | None = None,
         refine: int = 2,
         fine_modes: int = 24,
+        selection: str = "cube",
         use_cache: bool = True,
     ) -> None:
         _check_descriptor(fixed, "fixed")
@@ -188,6 +200,9 @@ class Correlator:
             )
         if not (math.isfinite(kappa) and kappa > 0):
             raise ValueError(f"kappa must be a positive finite number, got {kappa!r}")
+        if selection not in SELECTIONS:
+            raise ValueError(f"unknown selection {selection!r}; valid: {', '.join(SELECTIONS)}")
+        self.selection = selection
         if not (math.isfinite(oversample) and oversample >= 1):
             raise ValueError(f"oversample must be at least 1, got {oversample!r}")
         self.kappa = float(kappa)
@@ -223,7 +238,8 @@ class Correlator:
         self._fine_table: np.ndarray | None = None
         if self.fine_modes:
             self._fine_scale = float(self.oversample_factor * self.refine)
-            self._fine_radius = _reach_radius(self.fine_modes, self._fine_scale)
+            self._fine_reach = _cube_reach(self.fine_modes)
+            self._fine_radius = _radius(self._fine_reach, self._fine_scale)
             self._fine_table = refined_table(
                 moving.rho, g2, size * self.oversample_factor, self.refine, self._fine_radius,
                 moments=self.rotation, use_cache=use_cache,
@@ -253,30 +269,80 @@ class Correlator:
         if k == self.modes:
             return
         self.modes = k
-        self._kept = kept_indices(k, self.size)  # (K,) signed
-        wrapped = np.mod(self._kept, self.size)
         dw = 1.0 / (self.size * self.spacing) ** 3
-        self._fixed_kept = (
-            self.spectrum_fixed.values[np.ix_(wrapped, wrapped, wrapped)] * np.float32(dw)
-        ).astype(np.complex64)  # (K, K, K): rho1c^(w) dw
+        if self.selection == "cube":
+            self._kept = kept_indices(k, self.size)  # (K,) signed
+            wrapped = np.mod(self._kept, self.size)
+            self._fixed_kept = (
+                self.spectrum_fixed.values[np.ix_(wrapped, wrapped, wrapped)] * np.float32(dw)
+            ).astype(np.complex64)  # (K, K, K): rho1c^(w) dw
+            self._mode_k = None
+            self._reach = _cube_reach(k)
+        else:
+            kvec, self._reach = self._largest_modes(k)
+            wrapped = np.mod(kvec, self.size)
+            self._mode_k = np.ascontiguousarray(kvec, dtype=np.float64)  # (m', 3)
+            self._mode_a = (
+                self.spectrum_fixed.values[wrapped[:, 0], wrapped[:, 1], wrapped[:, 2]]
+                * np.float32(dw)
+            ).astype(np.complex64)  # (m',)
         self._table: np.ndarray | None = None  # per-pose table, built lazily per backend
         self.stats["truncations"] += 1
         for kernel in self._kernels.values():
             if hasattr(kernel, "set_modes"):
                 kernel.set_modes(self)
 
+    def _largest_modes(self, k: int) -> tuple[np.ndarray, float]:
+        """The ``k^3`` lattice frequencies of largest ``|rho1^(w)| P2(|w|)``.
+
+        Returns
+        -------
+        kvec : (k^3, 3) int64
+            Signed frequency indices, sorted (for locality).
+        reach : float
+            Largest ``|k|`` among them plus one.
+        """
+        n = self.size
+        freq = np.fft.fftfreq(n, 1.0 / n)
+        if not hasattr(self, "_radial_moving"):
+            # RMS of |rho2c^| on spheres, in units of part 1's lattice step
+            spec = self.spectrum_moving
+            fm = np.fft.fftfreq(spec.size, 1.0 / spec.size) / self.oversample_factor
+            radius = np.sqrt(fm[:, None, None] ** 2 + fm[None, :, None] ** 2
+                             + fm[None, None, :] ** 2)
+            bins = np.rint(radius).astype(np.int64).ravel()
+            power = np.bincount(bins, weights=np.abs(spec.values.ravel()) ** 2)
+            counts = np.maximum(np.bincount(bins), 1)
+            self._radial_moving = np.sqrt(power / counts)
+        radius = np.sqrt(freq[:, None, None] ** 2 + freq[None, :, None] ** 2
+                         + freq[None, None, :] ** 2)
+        profile = np.interp(radius.ravel(), np.arange(len(self._radial_moving)),
+                            self._radial_moving)
+        weight = np.abs(self.spectrum_fixed.values.ravel()) * profile
+        count = min(k**3, weight.size)
+        flat = np.argpartition(-weight, count - 1)[:count] if count < weight.size else (
+            np.arange(weight.size))
+        flat = np.sort(flat)
+        ix, iy, iz = np.unravel_index(flat, (n, n, n))
+        kvec = np.stack([freq[ix], freq[iy], freq[iz]], axis=1).astype(np.int64)
+        reach = float(np.sqrt((kvec.astype(np.float64) ** 2).sum(axis=1)).max()) + 1.0
+        return kvec, reach
+
     def _table_too_large(self) -> bool:
         """Whether the compiled backends' table for the current K would exceed the cap."""
         if self.uses_fine_table():
             return False
-        side = 2 * _reach_radius(self.modes, float(self.oversample_factor)) + 2
+        side = 2 * _radius(self._reach, float(self.oversample_factor)) + 2
         channels = 8 if self.rotation else 2
         return side**3 * channels * 4 > MAX_TABLE_BYTES
 
     def uses_fine_table(self, modes: int | None = None) -> bool:
-        """Whether ``modes`` per axis read the refined table (else the ``q`` lattice)."""
-        k = self.modes if modes is None else modes
-        return self._fine_table is not None and k <= self.fine_modes
+        """Whether the kept modes (or a cube of ``modes``) read the refined table."""
+        reach = self._reach if modes is None else _cube_reach(modes)
+        return self._fine_for(reach)
+
+    def _fine_for(self, reach: float) -> bool:
+        return self._fine_table is not None and reach <= self._fine_reach + 1e-9
 
     def moving_table(self) -> tuple[np.ndarray, int, float]:
         """Interleaved lattice of part 2's spectra that the kept modes can reach.
@@ -296,14 +362,14 @@ class Correlator:
         if self._table is None:
             if self.uses_fine_table():
                 scale = self._fine_scale
-                radius = _reach_radius(self.modes, scale)
+                radius = _radius(self._reach, scale)
                 lo = self._fine_radius - radius
                 hi = lo + 2 * radius + 2
                 table = self._fine_table[lo:hi, lo:hi, lo:hi]
             else:
                 scale = float(self.oversample_factor)
                 m = self.spectrum_moving.size
-                radius = _reach_radius(self.modes, scale)
+                radius = _radius(self._reach, scale)
                 idx = np.mod(np.arange(-radius, radius + 2), m)
                 sel = np.ix_(idx, idx, idx)
                 parts = [self.spectrum_moving.values[sel]]
@@ -319,7 +385,7 @@ class Correlator:
         return self._table, self._table_radius, self._table_scale
 
     def _interpolate_rows(
-        self, rk: np.ndarray, modes: int, moments: bool
+        self, rk: np.ndarray, reach: float, moments: bool
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Part 2's spectra at ``-R^T w`` by trilinear interpolation (the reference).
 
@@ -327,9 +393,9 @@ class Correlator:
         ----------
         rk : (n, 3) float64
             Rows ``R^T k`` (``k`` integer frequency indices).
-        modes : int
-            The K these rows belong to (picks the refined table or the ``q`` lattice, as
-            the compiled backends do).
+        reach : float
+            Reach of the mode set these rows belong to (picks the refined table or the
+            ``q`` lattice, as the compiled backends do).
         moments : bool
             Also interpolate the three moment spectra.
 
@@ -338,7 +404,7 @@ class Correlator:
         values : (n,) complex128
         moment_values : (3, n) complex128 or None
         """
-        if self.uses_fine_table(modes):
+        if self._fine_for(reach):
             scale = self._fine_scale
             table = self._fine_table.view(np.complex64)  # (B, B, B, P)
             side = table.shape[0]
@@ -473,23 +539,29 @@ class Correlator:
         ``f = sum c G``, ``S_k = sum c G k``, ``S_m = sum Im(c m) x (R^T k)``.
         """
         n = self.size
-        kept = self._kept.astype(np.float64)
         shift = self._shift(rot, t)
-        phase = [np.exp(2j * np.pi * kept * shift[a] / (n * self.spacing)) for a in range(3)]
-        coeff = (
-            self._fixed_kept.astype(np.complex128)
-            * phase[0][:, None, None]
-            * phase[1][None, :, None]
-            * phase[2][None, None, :]
-        ).ravel()
-        kx, ky, kz = np.meshgrid(kept, kept, kept, indexing="ij")
-        kvec = np.stack([kx.ravel(), ky.ravel(), kz.ravel()], axis=1)  # (m', 3)
+        if self._mode_k is None:
+            kept = self._kept.astype(np.float64)
+            phase = [np.exp(2j * np.pi * kept * shift[a] / (n * self.spacing)) for a in range(3)]
+            coeff = (
+                self._fixed_kept.astype(np.complex128)
+                * phase[0][:, None, None]
+                * phase[1][None, :, None]
+                * phase[2][None, None, :]
+            ).ravel()
+            kx, ky, kz = np.meshgrid(kept, kept, kept, indexing="ij")
+            kvec = np.stack([kx.ravel(), ky.ravel(), kz.ravel()], axis=1)  # (m', 3)
+        else:
+            kvec = self._mode_k
+            coeff = self._mode_a.astype(np.complex128) * np.exp(
+                2j * np.pi * (kvec @ shift) / (n * self.spacing)
+            )
         total = np.zeros(7)
         for lo in range(0, len(kvec), _NUMPY_CHUNK):
             kc = kvec[lo : lo + _NUMPY_CHUNK]
             cc = coeff[lo : lo + _NUMPY_CHUNK]
             rk = kc @ rot  # (n, 3): rows are R^T k
-            g, mm = self._interpolate_rows(rk, self.modes, self.rotation)
+            g, mm = self._interpolate_rows(rk, self._reach, self.rotation)
             cg = cc * g
             total[0] += cg.real.sum()
             total[1:4] += cg.imag @ kc
@@ -524,11 +596,20 @@ class Correlator:
         n = self.size
         h = self.spacing
         k_modes = self.modes if modes is None else min(int(modes), n)
-        kept = kept_indices(k_modes, n)
-        wrapped = np.mod(kept, n)
-        sel = np.ix_(wrapped, wrapped, wrapped)
+        if self.selection == "cube":
+            kept = kept_indices(k_modes, n)
+            wrapped = np.mod(kept, n)
+            sel = np.ix_(wrapped, wrapped, wrapped)
+            g = self._interpolate_moving(rot, kept)  # (K, K, K) complex64
+        else:
+            if k_modes == self.modes:
+                kvec, reach = self._mode_k.astype(np.int64), self._reach
+            else:
+                kvec, reach = self._largest_modes(k_modes)
+            wrapped = np.mod(kvec, n)
+            sel = (wrapped[:, 0], wrapped[:, 1], wrapped[:, 2])
+            g = self._interpolate_rows(kvec.astype(np.float64) @ rot, reach, False)[0]
         coeff = self.spectrum_fixed.values[sel].astype(np.complex64)
-        g = self._interpolate_moving(rot, kept)  # (K, K, K) complex64
         # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N): t0 + R c2 - c1 = 0
         spectrum = np.zeros((n, n, n), dtype=np.complex64)
         spectrum[sel] = coeff * g * np.float32(1.0 / (n * h) ** 3)
@@ -574,7 +655,7 @@ class Correlator:
         ky, kz = np.meshgrid(kf, kf, indexing="ij")
         for i, kx in enumerate(kf):
             kvec = np.stack([np.full(ky.size, kx), ky.ravel(), kz.ravel()], axis=1)
-            g, _ = self._interpolate_rows(kvec @ rot, len(kept), False)
+            g, _ = self._interpolate_rows(kvec @ rot, _cube_reach(len(kept)), False)
             out[i] = g.reshape(ky.shape)
         return out
 
@@ -797,6 +878,15 @@ def _pose_kernel(
     for ix in range(nk):
         for j in range(7):
             sums[j] += partial[ix, j]
+    return _finish_sums(sums, rot, c2, kappa, n_h, moments)
+
+
+def _finish_sums(sums, rot, c2, kappa, n_h, moments):
+    """[E, F (3), T (3)] from the raw sums (see ``Correlator._finish``)."""
+    out = np.zeros(7)
+    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
+    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
+    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
     factor = 2.0 * np.pi * kappa / n_h
     out[0] = -kappa * sums[0]
     for a in range(3):
@@ -814,31 +904,169 @@ def _pose_kernel(
     return out
 
 
+def _pose_kernel_list(
+    rot, t, kvec, coeff, table, radius, c1, c2, half1, half2, h, n_h, q, kappa, moments,
+    partial,
+):
+    """As ``_pose_kernel`` for an arbitrary list of modes (selection "largest").
+
+    kvec (m', 3) float64 signed frequency indices; coeff (m',) complex64 rho1c^(w) dw;
+    partial (P, 7) float64 scratch, one row per chunk of modes. One sincos per mode (the
+    phases are not separable off the cube).
+    """
+    out = np.zeros(7)
+    rc2 = np.empty(3)
+    for a in range(3):
+        rc2[a] = rot[a, 0] * c2[0] + rot[a, 1] * c2[1] + rot[a, 2] * c2[2]
+        extent = (abs(rot[a, 0]) * half2[0] + abs(rot[a, 1]) * half2[1]
+                  + abs(rot[a, 2]) * half2[2])
+        if abs(rc2[a] + t[a] - c1[a]) >= half1[a] + extent + h:
+            return out
+    side = 2 * radius + 2
+    scale = 2.0 * np.pi / n_h
+    s_x = scale * (t[0] + rc2[0] - c1[0])
+    s_y = scale * (t[1] + rc2[1] - c1[1])
+    s_z = scale * (t[2] + rc2[2] - c1[2])
+    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
+    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
+    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
+    nm = kvec.shape[0]
+    nchunk = partial.shape[0]
+    chunk = (nm + nchunk - 1) // nchunk
+    for ci in prange(nchunk):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        s6 = 0.0
+        for m in range(ci * chunk, min(nm, (ci + 1) * chunk)):
+            kx = kvec[m, 0]
+            ky = kvec[m, 1]
+            kz = kvec[m, 2]
+            rk0 = kx * r00 + ky * r10 + kz * r20
+            rk1 = kx * r01 + ky * r11 + kz * r21
+            rk2 = kx * r02 + ky * r12 + kz * r22
+            ux = -q * rk0
+            uy = -q * rk1
+            uz = -q * rk2
+            fx = np.floor(ux)
+            fy = np.floor(uy)
+            fz = np.floor(uz)
+            tx = np.float32(ux - fx)
+            ty = np.float32(uy - fy)
+            tz = np.float32(uz - fz)
+            sx = np.float32(1.0) - tx
+            sy = np.float32(1.0) - ty
+            sz = np.float32(1.0) - tz
+            b00 = ((int(fx) + radius) * side + int(fy) + radius) * side + int(fz) + radius
+            b01 = b00 + side
+            b10 = b00 + side * side
+            b11 = b10 + side
+            w000 = sx * sy * sz
+            w001 = sx * sy * tz
+            w010 = sx * ty * sz
+            w011 = sx * ty * tz
+            w100 = tx * sy * sz
+            w101 = tx * sy * tz
+            w110 = tx * ty * sz
+            w111 = tx * ty * tz
+            g_re = (w000 * table[b00, 0] + w001 * table[b00 + 1, 0]
+                    + w010 * table[b01, 0] + w011 * table[b01 + 1, 0]
+                    + w100 * table[b10, 0] + w101 * table[b10 + 1, 0]
+                    + w110 * table[b11, 0] + w111 * table[b11 + 1, 0])
+            g_im = (w000 * table[b00, 1] + w001 * table[b00 + 1, 1]
+                    + w010 * table[b01, 1] + w011 * table[b01 + 1, 1]
+                    + w100 * table[b10, 1] + w101 * table[b10 + 1, 1]
+                    + w110 * table[b11, 1] + w111 * table[b11 + 1, 1])
+            ph = kx * s_x + ky * s_y + kz * s_z
+            c = coeff[m] * (np.cos(ph) + 1j * np.sin(ph))
+            c_re = c.real
+            c_im = c.imag
+            cg_re = c_re * g_re - c_im * g_im
+            cg_im = c_re * g_im + c_im * g_re
+            s0 += cg_re
+            s1 += cg_im * kx
+            s2 += cg_im * ky
+            s3 += cg_im * kz
+            if moments:
+                mv0 = (w000 * table[b00, 2] + w001 * table[b00 + 1, 2]
+                       + w010 * table[b01, 2] + w011 * table[b01 + 1, 2]
+                       + w100 * table[b10, 2] + w101 * table[b10 + 1, 2]
+                       + w110 * table[b11, 2] + w111 * table[b11 + 1, 2])
+                mv1 = (w000 * table[b00, 3] + w001 * table[b00 + 1, 3]
+                       + w010 * table[b01, 3] + w011 * table[b01 + 1, 3]
+                       + w100 * table[b10, 3] + w101 * table[b10 + 1, 3]
+                       + w110 * table[b11, 3] + w111 * table[b11 + 1, 3])
+                mv2 = (w000 * table[b00, 4] + w001 * table[b00 + 1, 4]
+                       + w010 * table[b01, 4] + w011 * table[b01 + 1, 4]
+                       + w100 * table[b10, 4] + w101 * table[b10 + 1, 4]
+                       + w110 * table[b11, 4] + w111 * table[b11 + 1, 4])
+                mv3 = (w000 * table[b00, 5] + w001 * table[b00 + 1, 5]
+                       + w010 * table[b01, 5] + w011 * table[b01 + 1, 5]
+                       + w100 * table[b10, 5] + w101 * table[b10 + 1, 5]
+                       + w110 * table[b11, 5] + w111 * table[b11 + 1, 5])
+                mv4 = (w000 * table[b00, 6] + w001 * table[b00 + 1, 6]
+                       + w010 * table[b01, 6] + w011 * table[b01 + 1, 6]
+                       + w100 * table[b10, 6] + w101 * table[b10 + 1, 6]
+                       + w110 * table[b11, 6] + w111 * table[b11 + 1, 6])
+                mv5 = (w000 * table[b00, 7] + w001 * table[b00 + 1, 7]
+                       + w010 * table[b01, 7] + w011 * table[b01 + 1, 7]
+                       + w100 * table[b10, 7] + w101 * table[b10 + 1, 7]
+                       + w110 * table[b11, 7] + w111 * table[b11 + 1, 7])
+                im0 = c_re * mv1 + c_im * mv0
+                im1 = c_re * mv3 + c_im * mv2
+                im2 = c_re * mv5 + c_im * mv4
+                s4 += im1 * rk2 - im2 * rk1
+                s5 += im2 * rk0 - im0 * rk2
+                s6 += im0 * rk1 - im1 * rk0
+        partial[ci, 0] = s0
+        partial[ci, 1] = s1
+        partial[ci, 2] = s2
+        partial[ci, 3] = s3
+        partial[ci, 4] = s4
+        partial[ci, 5] = s5
+        partial[ci, 6] = s6
+    sums = np.zeros(7)
+    for ci in range(nchunk):
+        for j in range(7):
+            sums[j] += partial[ci, j]
+    return _finish_sums(sums, rot, c2, kappa, n_h, moments)
+
+
 def _prange_placeholder(n):  # replaced by numba.prange when numba is present
     return range(n)
 
 
 prange = _prange_placeholder
-_NUMBA_FUNCS: dict[bool, Any] = {}
+_NUMBA_FUNCS: dict[tuple[bool, str], Any] = {}
 
 
-def _numba_function(parallel: bool) -> Any:
-    """The compiled sum, serial or parallel over kx planes (compiled once, cached on disk)."""
-    global prange
-    if parallel not in _NUMBA_FUNCS:
+def _numba_function(parallel: bool, kind: str = "cube") -> Any:
+    """The compiled sum, serial or parallel (compiled once, cached on disk).
+
+    ``kind`` is "cube" (separable phases over the kept cube) or "list" (any mode list).
+    """
+    global prange, _finish_sums
+    key = (parallel, kind)
+    if key not in _NUMBA_FUNCS:
         import numba
 
         prange = numba.prange
-        # A distinct function object (own name) per variant, so the two compiled versions
-        # get separate on-disk cache entries.
-        name = "_pose_kernel_parallel" if parallel else "_pose_kernel_serial"
-        func = types.FunctionType(_pose_kernel.__code__.replace(co_name=name), globals(), name)
+        if not hasattr(_finish_sums, "py_func"):
+            _finish_sums = numba.njit(fastmath=True, cache=True, nogil=True)(_finish_sums)
+        source = _pose_kernel if kind == "cube" else _pose_kernel_list
+        # A distinct function object (own name) per variant, so the compiled versions get
+        # separate on-disk cache entries.
+        name = f"{source.__name__}_{'parallel' if parallel else 'serial'}"
+        func = types.FunctionType(source.__code__.replace(co_name=name), globals(), name)
         func.__qualname__ = name
-        func.__doc__ = _pose_kernel.__doc__
-        _NUMBA_FUNCS[parallel] = numba.njit(
+        func.__doc__ = source.__doc__
+        _NUMBA_FUNCS[key] = numba.njit(
             fastmath=True, cache=True, parallel=parallel, nogil=True
         )(func)
-    return _NUMBA_FUNCS[parallel]
+    return _NUMBA_FUNCS[key]
 
 
 class NumbaKernel:
@@ -849,9 +1077,10 @@ class NumbaKernel:
             import numba
         except ImportError as exc:  # pragma: no cover - depends on the install
             raise RuntimeError("numba is not installed: `pip install numba`") from exc
-        self.threads = max(1, min(2, numba.config.NUMBA_NUM_THREADS))
-        self._serial = _numba_function(False)
-        self._parallel = _numba_function(True) if self.threads > 1 else None
+        self.threads = max(1, numba.get_num_threads())
+        kind = "cube" if correlator.selection == "cube" else "list"
+        self._serial = _numba_function(False, kind)
+        self._parallel = _numba_function(True, kind) if self.threads > 1 else None
         self.parallel = False
         self._modes = -1
         self.prepare(correlator)
@@ -865,17 +1094,21 @@ class NumbaKernel:
         self._modes = -1  # rebind lazily: the table is rebuilt on first use
 
     def describe(self) -> str:
-        return f"numba ({self.threads if self.parallel else 1} thread{'s' if self.parallel else ''})"
+        return f"numba ({self.threads} threads)" if self.parallel else "numba (1 thread)"
 
     def prepare(self, correlator: Correlator) -> None:
         """Bind the arrays of the current truncation (call after set_modes)."""
         table, radius, scale = correlator.moving_table()
-        self._partial = np.zeros((correlator.modes, 7))
+        if correlator.selection == "cube":
+            self._partial = np.zeros((correlator.modes, 7))
+            modes = (correlator._fixed_kept, table.reshape(-1, table.shape[-1]), radius,
+                     correlator._kept.astype(np.float64))
+        else:
+            self._partial = np.zeros((max(1, min(64, len(correlator._mode_k) // 512)), 7))
+            modes = (correlator._mode_k, correlator._mode_a, table.reshape(-1, table.shape[-1]),
+                     radius)
         self._args = (
-            correlator._fixed_kept,
-            table.reshape(-1, table.shape[-1]),
-            radius,
-            correlator._kept.astype(np.float64),
+            *modes,
             correlator.centre_fixed,
             correlator.centre_moving,
             correlator.half_fixed,

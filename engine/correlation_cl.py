@@ -151,6 +151,11 @@ class OpenCLKernel:
         ctx = self.backend.context
         device = ctx.devices[0]
         self.double = "cl_khr_fp64" in device.extensions
+        if correlator.selection != "cube":
+            raise RuntimeError(
+                "the OpenCL kernel sums the cube of lowest modes only; "
+                "use numba or numpy for selection='largest'"
+            )
         self.channels = 8 if correlator.rotation else 2
         options = [f"-DCHANNELS={self.channels}", "-cl-fast-relaxed-math"]
         if self.double:

@@ -54,7 +54,7 @@ class Landscape:
     def minimum(self) -> tuple[np.ndarray, float]:
         """Translation (3,) float64 of the lowest energy sample, and that energy."""
         idx = np.unravel_index(int(np.argmin(self.energy)), self.energy.shape)
-        t = np.array([ax[i] for ax, i in zip(self.translations, idx)])
+        t = np.array([ax[i] for ax, i in zip(self.translations, idx, strict=True)])
         return t, float(self.energy[idx])
 
     def section(

@@ -190,7 +190,8 @@ def test_invariant_under_moving_both_parts(full):
     before = full.evaluate(rot, t)
     after = moved.evaluate(q @ rot, q @ t + b)
     assert after.energy == pytest.approx(before.energy, rel=0.01)
-    np.testing.assert_allclose(after.force, q @ before.force, atol=0.02 * np.linalg.norm(before.force))
+    np.testing.assert_allclose(after.force, q @ before.force,
+                               atol=0.02 * np.linalg.norm(before.force))
 
 
 def test_far_apart_is_exactly_zero(fast, full):
@@ -358,7 +359,8 @@ def test_numba_agrees_with_numpy(fields, k):
         ref = corr.evaluate(rot, t)
         scale = abs(ref.energy) + 1e-9
         assert got.energy == pytest.approx(ref.energy, abs=1e-5 * scale)
-        np.testing.assert_allclose(got.force, ref.force, atol=1e-5 * (np.linalg.norm(ref.force) + 1))
+        np.testing.assert_allclose(got.force, ref.force,
+                                   atol=1e-5 * (np.linalg.norm(ref.force) + 1))
         np.testing.assert_allclose(got.torque, ref.torque,
                                    atol=1e-5 * (np.linalg.norm(ref.torque) + 1))
 
@@ -425,3 +427,40 @@ def test_full_modes_on_compiled_backend_fall_back_to_reference(fields, monkeypat
     assert corr.stats["reference_fallbacks"] == 1
     corr.use_backend("numpy")
     assert got.energy == corr.evaluate(rot, np.zeros(3)).energy
+
+
+def test_largest_selection(fields):
+    """K^3 largest modes: numba = numpy, all modes = the full cube, better than the cube."""
+    r1, r2 = fields
+    rot = rotation_matrix(np.array([0.3, -0.2, 0.6]))
+    t = np.array([0.4, 0.1, -0.3])
+    largest = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8,
+                         selection="largest", backend="numba", use_cache=False)
+    assert largest._mode_k.shape == (512, 3)
+    got = largest.evaluate(rot, t)
+    largest.use_backend("numpy")
+    ref = largest.evaluate(rot, t)
+    assert got.energy == pytest.approx(ref.energy, rel=1e-5)
+    np.testing.assert_allclose(got.force, ref.force, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(got.torque, ref.torque, rtol=1e-4, atol=1e-6)
+    land = largest.landscape(rot, forces=False)
+    i = land.energy.shape[0] // 2
+    t_grid = np.array([ax[i] for ax in land.translations])
+    assert land.energy[i, i, i] == pytest.approx(largest.evaluate(rot, t_grid).energy, rel=1e-4)
+    # every mode kept: the same sum as the full cube
+    largest.set_modes(largest.size)
+    cube = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=largest.size,
+                      backend="numpy", use_cache=False)
+    assert largest.evaluate(rot, t).energy == pytest.approx(cube.evaluate(rot, t).energy, rel=1e-6)
+    # the Gaussians' spectra peak at w = 0, so the 8^3 largest sit close to the 8^3 cube:
+    # the same order of accuracy
+    exact = -closed_form(BLOBS1, BLOBS2, rot, t)[0].real
+    cube.set_modes(8)
+    largest.set_modes(8)
+    error_largest = abs(largest.evaluate(rot, t).energy - exact)
+    assert error_largest < 1.5 * abs(cube.evaluate(rot, t).energy - exact)
+    with pytest.raises(RuntimeError, match="cube"):
+        largest.use_backend("opencl")
+    with pytest.raises(ValueError, match="valid: cube, largest"):
+        Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), selection="random",
+                   use_cache=False)

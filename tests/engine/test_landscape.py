@@ -37,7 +37,7 @@ def test_identity_full_modes_equals_brute_force(corr):
     rng = np.random.default_rng(1)
     for _ in range(6):
         idx = rng.integers(0, land.energy.shape[0], size=3)
-        t = np.array([ax[i] for ax, i in zip(land.translations, idx)])
+        t = np.array([ax[i] for ax, i in zip(land.translations, idx, strict=True)])
         shift = np.rint((t + np.asarray(GRID2.origin) - np.asarray(GRID1.origin)) / H).astype(int)
         total = 0j
         for i in range(rho2.shape[0]):
@@ -47,7 +47,8 @@ def test_identity_full_modes_equals_brute_force(corr):
                     if 0 <= a < 13 and 0 <= b < 13 and 0 <= c < 13:
                         total += complex(rho1[a, b, c]) * complex(rho2[i, j, k])
         expected = -(total * H**3).real
-        assert land.energy[tuple(idx)] == pytest.approx(expected, abs=1e-5 * float(np.abs(land.energy).max()))
+        scale = float(np.abs(land.energy).max())
+        assert land.energy[tuple(idx)] == pytest.approx(expected, abs=1e-5 * scale)
 
 
 def test_matches_per_pose_evaluation(corr):
@@ -59,7 +60,7 @@ def test_matches_per_pose_evaluation(corr):
     n = land.energy.shape[0]
     for _ in range(5):
         idx = rng.integers(n // 4, 3 * n // 4, size=3)
-        t = np.array([ax[i] for ax, i in zip(land.translations, idx)])
+        t = np.array([ax[i] for ax, i in zip(land.translations, idx, strict=True)])
         ev = corr.evaluate(rot, t)
         scale = float(np.abs(land.energy).max())
         assert land.energy[tuple(idx)] == pytest.approx(ev.energy, abs=1e-5 * scale)

@@ -44,7 +44,10 @@ def test_values_and_moments_equal_direct_sums():
 
 
 def test_gaussian_has_its_closed_form_transform():
-    """FT of exp(-|p - mu|^2 / 2 s^2) about c is (2 pi s^2)^1.5 exp(-2 pi^2 s^2 w^2 - 2 pi i w.(mu - c))."""
+    """FT of exp(-|p - mu|^2 / 2 s^2) about c:
+
+    (2 pi s^2)^1.5 exp(-2 pi^2 s^2 w^2 - 2 pi i w.(mu - c)).
+    """
     grid = Grid((-4.0, -4.0, -4.0), 0.4, (21, 21, 21))
     mu = np.array([0.3, -0.5, 0.2])
     s = 0.9
