@@ -469,7 +469,7 @@ def start_engine(
     modes: int | None = None,
     backend: str = "auto",
     frame_queue: int = 64,
-    process: bool = False,
+    process: bool | None = None,
     switch_interval: float | None = 5e-4,
 ) -> EngineHandle:
     """Start the engine thread on a scene; returns at once.
@@ -496,12 +496,16 @@ def start_engine(
         Frames kept for the GUI; older ones are dropped.
     switch_interval : float or None
         ``sys.setswitchinterval`` while the engine thread runs (None: leave Python's 5 ms).
-    process : bool
-        Run the loop in its own process (``engine.loop.ProcessEngine``: frames through
+    process : bool or None
+        None (default): a process when the scene's device renders force (``openhaptics``,
+        ``udp``), where the period's tail matters, else a thread (see the measurements in
+        docs/readme/simulation.md). True: run the loop in its own process (``engine.loop.ProcessEngine``: frames through
         shared memory, only the newest kept; commands through a queue), out of reach of the
         GUI's GIL. The input is then the mouse (SetProxyPose); ReadyEvent carries no
         descriptors (load them with ``engine.store`` for slice views).
     """
+    if process is None:
+        process = device is None and handle.config.device.kind in ("openhaptics", "udp")
     if process:
         from engine.loop import ProcessEngine
 

@@ -959,10 +959,19 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
             if keep_periods and len(eval_log) < 1_000_000:
                 eval_log.append(s.microseconds)
 
-        from engine.devices import TrajectoryDevice
+        from engine.devices import MouseDevice, TrajectoryDevice
 
-        device = None
-        if options.get("bench_motion", True) and keep_periods:
+        device: Any = None
+        if not keep_periods:
+            # the scene's device, opened here in the engine process; the mouse if it fails
+            cfg = handle.config.device
+            try:
+                device = open_device(cfg.kind, sim.proxy_pose, dict(cfg.options),
+                                     handle.path.parent)
+            except DeviceError as exc:
+                device = MouseDevice(sim.proxy_pose)
+                events.put(api.DeviceEvent(cfg.kind, False, str(exc), fallback="mouse"))
+        elif options.get("bench_motion", True):
             from bench.loop import _proxy_motion
 
             pose_at = _proxy_motion(sim)

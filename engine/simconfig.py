@@ -59,7 +59,10 @@ class SimulationParams:
     kappa : float or None
         Geometric force gain ``E = -kappa Re f``; ``None``: the scale-invariant default.
     guidance_gain : float
-        Dimensionless factor in the default kappa (see the module docstring).
+        Dimensionless factor in the default kappa (see the module docstring). 0.2: on the
+        peg in hole, the seated part holds a 3 degree / 3 % misaligned proxy to 0.05 degree
+        and 0.01 mm, and the part is drawn in a few millimetres ahead of the proxy rather
+        than snapping in from its start (gain 1 pulls it 18 mm in 0.2 s).
     body_damping_ratio : float
         Viscous damping of the free body (relative to its coupling frequency), applied when
         effects.damping is on; keeps the body from ringing inside a stiff geometric well.
@@ -69,7 +72,7 @@ class SimulationParams:
 
     rate_hz: float = 1000.0
     kappa: float | None = None
-    guidance_gain: float = 1.0
+    guidance_gain: float = 0.2
     body_damping_ratio: float = 0.5
     seconds: float = 5.0
 
@@ -398,7 +401,7 @@ def parse_simconfig(
     simulation = SimulationParams(
         rate_hz=sim.number("rate_hz", 1000.0, positive=True),
         kappa=sim.number("kappa", None, minimum=0.0, allow_none=True),
-        guidance_gain=sim.number("guidance_gain", 1.0, minimum=0.0),
+        guidance_gain=sim.number("guidance_gain", 0.2, minimum=0.0),
         body_damping_ratio=sim.number("body_damping_ratio", 0.5, minimum=0.0),
         seconds=sim.number("seconds", 5.0, positive=True),
     )
