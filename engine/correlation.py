@@ -371,6 +371,7 @@ class Correlator:
                 radius = _radius(self._reach, scale)
                 lo = self._fine_radius - radius
                 hi = lo + 2 * radius + 2
+                assert self._fine_table is not None
                 table = self._fine_table[lo:hi, lo:hi, lo:hi]
             else:
                 scale = float(self.oversample_factor)
@@ -379,8 +380,9 @@ class Correlator:
                 idx = np.mod(np.arange(-radius, radius + 2), m)
                 sel = np.ix_(idx, idx, idx)
                 parts = [self.spectrum_moving.values[sel]]
-                if self.rotation:
-                    parts += [self.spectrum_moving.moments[a][sel] for a in range(3)]
+                moments = self.spectrum_moving.moments
+                if self.rotation and moments is not None:
+                    parts += [moments[a][sel] for a in range(3)]
                 stacked = np.stack(parts, axis=-1)  # (B, B, B, P) complex64
                 table = np.empty(stacked.shape[:3] + (2 * len(parts),), dtype=np.float32)
                 table[..., 0::2] = stacked.real
@@ -412,6 +414,7 @@ class Correlator:
         """
         if self._fine_for(reach):
             scale = self._fine_scale
+            assert self._fine_table is not None
             table = self._fine_table.view(np.complex64)  # (B, B, B, P)
             side = table.shape[0]
             flat = table.reshape(-1, table.shape[-1])
@@ -431,9 +434,10 @@ class Correlator:
         g = np.zeros(n, dtype=np.complex128)
         mm = np.zeros((3, n), dtype=np.complex128) if moments else None
         values = self.spectrum_moving.values.ravel()
-        moment_flat = (
-            self.spectrum_moving.moments.reshape(3, -1)
-            if (moments and flat is None) else None
+        spec_moments = self.spectrum_moving.moments
+        moment_flat: Any = (
+            spec_moments.reshape(3, -1)
+            if (moments and flat is None and spec_moments is not None) else None
         )
         for dx in (0, 1):
             wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
@@ -609,6 +613,7 @@ class Correlator:
             g = self._interpolate_moving(rot, kept)  # (K, K, K) complex64
         else:
             if k_modes == self.modes:
+                assert self._mode_k is not None
                 kvec, reach = self._mode_k.astype(np.int64), self._reach
             else:
                 kvec, reach = self._largest_modes(k_modes)
@@ -1112,15 +1117,17 @@ class NumbaKernel:
     def prepare(self, correlator: Correlator) -> None:
         """Bind the arrays of the current truncation (call after set_modes)."""
         table, radius, scale = correlator.moving_table()
+        modes: tuple[Any, ...]
         if correlator.selection == "cube":
             self._partial = np.zeros((correlator.modes, 7))
             modes = (correlator._fixed_kept, table.reshape(-1, table.shape[-1]), radius,
                      correlator._kept.astype(np.float64))
         else:
+            assert correlator._mode_k is not None
             self._partial = np.zeros((max(1, min(64, len(correlator._mode_k) // 512)), 7))
             modes = (correlator._mode_k, correlator._mode_a, table.reshape(-1, table.shape[-1]),
                      radius)
-        self._args = (
+        self._args: tuple[Any, ...] = (
             *modes,
             correlator.centre_fixed,
             correlator.centre_moving,
@@ -1139,7 +1146,7 @@ class NumbaKernel:
         """(7,) float64 ``[E, F (3), T (3)]`` at one pose."""
         if self._modes != correlator.modes:
             self.prepare(correlator)
-        func = self._parallel if self.parallel else self._serial
+        func: Any = self._parallel if self.parallel else self._serial
         return func(rot, t, *self._args)
 
 

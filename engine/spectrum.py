@@ -269,7 +269,8 @@ def refined_table(
                         padded[:nx, :ny, :nz] = field * modulation
                         spec = scipy.fft.fftn(padded, workers=FFT_WORKERS, overwrite_x=True)
                         picked = spec[np.ix_(coarse[0], coarse[1], coarse[2])]
-                        table[np.ix_(pos[0], pos[1], pos[2], [c])] = (picked * ramp)[..., None]
+                        channel = np.array([c])
+                        table[np.ix_(pos[0], pos[1], pos[2], channel)] = (picked * ramp)[..., None]
         out = np.empty((side, side, side, 2 * channels), dtype=np.float32)
         out[..., 0::2] = table.real
         out[..., 1::2] = table.imag
