@@ -499,10 +499,11 @@ def start_engine(
     process : bool or None
         None (default): a process when the scene's device renders force (``openhaptics``,
         ``udp``), where the period's tail matters, else a thread (see the measurements in
-        docs/readme/simulation.md). True: run the loop in its own process (``engine.loop.ProcessEngine``: frames through
-        shared memory, only the newest kept; commands through a queue), out of reach of the
-        GUI's GIL. The input is then the mouse (SetProxyPose); ReadyEvent carries no
-        descriptors (load them with ``engine.store`` for slice views).
+        docs/readme/simulation.md). True: run the loop in its own process
+        (``engine.loop.ProcessEngine``: frames through shared memory, only the newest kept;
+        commands through a queue), out of reach of the GUI's GIL. The process opens the
+        scene's device itself; ReadyEvent carries no descriptors (load them with
+        ``engine.store`` for slice views) and RequestLandscape is not answered.
     """
     if process is None:
         process = device is None and handle.config.device.kind in ("openhaptics", "udp")
