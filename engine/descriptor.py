@@ -442,18 +442,30 @@ def _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, stack):  # pragma: 
 
 
 @numba.njit(cache=True, inline="always")
-def _curvature(x, axi, inv2s2, quq):  # pragma: no cover - compiled
-    """Factor ``1 + (g''/g) u.Q.u / (2 |xi|^2)`` for the Gaussian's curvature over a piece.
+def _radial(xi, eta, x, axi, inv2s2, quq):  # pragma: no cover - compiled
+    """Complex factor ``1 + (w''/w) u.Q.u / 2`` for w(eta) = zeta^-2 g varying over a piece.
 
     ``Q`` is the piece's (or cluster's) area-normalised second moment about its centroid
-    and ``u`` the direction to it. The Gaussian varies on the scale ``sigma |xi|``, the
-    smallest one around, so its curvature is the leading error of the centroid rule.
-    Clamped to [0.5, 1.5]: in the Gaussian's far tail pieces may be coarse (see _tail) and
-    the expansion no longer holds, but there the term is negligible anyway.
+    and ``u`` the direction to it, so ``u.Q.u`` is the variance of eta across it. With
+    ``h = log w``: ``h' = -2i/zeta - x/(sigma^2 |xi|)``, ``h'' = -2/zeta^2 - 1/(sigma |xi|)^2``
+    and ``w''/w = h'' + h'^2``. This removes the leading (second-order) error of the
+    centroid rule. The correction is scaled down to at most 0.5 in modulus: in the
+    Gaussian's far tail pieces may be coarse (see _tail) and the expansion no longer holds,
+    but there the term is negligible anyway.
     """
+    den = xi * xi + eta * eta
     inv_s2 = 2.0 * inv2s2
-    f = 1.0 + 0.5 * (x * x * inv_s2 * inv_s2 - inv_s2) * quq / (axi * axi)
-    return min(max(f, 0.5), 1.5)
+    hr = -x * inv_s2 / axi - 2.0 * eta / den
+    hi = -2.0 * xi / den
+    b = -inv_s2 / (axi * axi)
+    den2 = den * den
+    cr = 0.5 * quq * (-2.0 * (xi * xi - eta * eta) / den2 + b + hr * hr - hi * hi)
+    ci = 0.5 * quq * (4.0 * xi * eta / den2 + 2.0 * hr * hi)
+    mag = math.sqrt(cr * cr + ci * ci)
+    if mag > 0.5:
+        cr *= 0.5 / mag
+        ci *= 0.5 / mag
+    return 1.0 + cr, ci
 
 
 @numba.njit(cache=True, inline="always")
@@ -463,7 +475,7 @@ def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2, trq, quq):  #
     ``trq`` and ``quq`` are the trace and radial component of the piece's second moment:
     eta is taken at its mean over the piece, ``|c - p| + (tr Q - u.Q.u) / (2 |c - p|)``
     (a curved or tilted piece lies farther on average than its centroid), and the
-    Gaussian gets its curvature factor. g is without its constant.
+    second-order factor of _radial. g is without its constant.
     """
     dx = cx - px
     dy = cy - py
@@ -476,17 +488,20 @@ def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2, trq, quq):  #
     eta = eta + (trq - quq) / (2.0 * eta)
     eta2 = eta * eta
     x = eta * inv_axi - 1.0
-    f = math.exp(-x * x * inv2s2) * nu * _curvature(x, 1.0 / inv_axi, inv2s2, quq)
+    f = math.exp(-x * x * inv2s2) * nu
     den = xi * xi + eta2
     f = f / (den * den)
-    return f * (xi * xi - eta2), f * (-2.0 * xi * eta)
+    tr = f * (xi * xi - eta2)
+    ti = f * (-2.0 * xi * eta)
+    kr, ki = _radial(xi, eta, x, 1.0 / inv_axi, inv2s2, quq)
+    return tr * kr - ti * ki, tr * ki + ti * kr
 
 
 @numba.njit(cache=True)
 def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover - compiled
     """(re, im) of a lumped cluster, to second order in its size.
 
-    The centroid term ``w(eta) N.u`` (eta at its mean, the Gaussian's curvature, as in
+    The centroid term ``w(eta) N.u`` (eta at its mean, the factor of _radial, as in
     _term) plus the first-order correction ``sum_ab J_ab S_ab`` with ``J`` the Jacobian of
     ``V(q) = w(eta) (q - p)/eta`` and ``S`` the cluster's first moment (engine.bvh), which
     removes the O(r/d) error of clusters whose normals differ (edges, corners, thin walls):
@@ -512,7 +527,7 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
     eta = eta + (trq - quq) / (2.0 * eta)
     eta2 = eta * eta
     x = eta * inv_axi - 1.0
-    g = math.exp(-x * x * inv2s2) * _curvature(x, 1.0 / inv_axi, inv2s2, quq)
+    g = math.exp(-x * x * inv2s2)
     den = xi * xi + eta2
     g = g / (den * den)
     wr = g * (xi * xi - eta2)
@@ -526,7 +541,10 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
     trs = node[nd, 16] + node[nd, 20] + node[nd, 24]
     fr = nu + (-2.0 * eta / den - 2.0 * x * inv2s2 * inv_axi - 1.0 / eta) * usu + trs / eta
     fi = (-2.0 * xi / den) * usu
-    return wr * fr - wi * fi, wr * fi + wi * fr
+    tr = wr * fr - wi * fi
+    ti = wr * fi + wi * fr
+    kr, ki = _radial(xi, eta, x, 1.0 / inv_axi, inv2s2, quq)
+    return tr * kr - ti * ki, tr * ki + ti * kr
 
 
 @numba.njit(cache=True, inline="always")

@@ -252,12 +252,28 @@ float winding(float3 p, __global const float *tri, int m, __global const float *
     return (float)total / (4.0f * M_PI_F);
 }
 
-/* Curvature factor of the Gaussian over a piece (engine.descriptor._curvature). */
-inline float curvature(float x, float axi, float inv2s2, float quq)
+/* Complex second-order factor 1 + (w''/w) u.Q.u / 2 (engine.descriptor._radial). */
+inline float2 radial(float xi, float eta, float x, float axi, float inv2s2, float quq)
 {
+    float den = xi * xi + eta * eta;
     float inv_s2 = 2.0f * inv2s2;
-    float f = 1.0f + 0.5f * (x * x * inv_s2 * inv_s2 - inv_s2) * quq / (axi * axi);
-    return fmin(fmax(f, 0.5f), 1.5f);
+    float hr = -x * inv_s2 / axi - 2.0f * eta / den;
+    float hi = -2.0f * xi / den;
+    float b = -inv_s2 / (axi * axi);
+    float den2 = den * den;
+    float cr = 0.5f * quq * (-2.0f * (xi * xi - eta * eta) / den2 + b + hr * hr - hi * hi);
+    float ci = 0.5f * quq * (4.0f * xi * eta / den2 + 2.0f * hr * hi);
+    float mag = sqrt(cr * cr + ci * ci);
+    if (mag > 0.5f) {
+        cr *= 0.5f / mag;
+        ci *= 0.5f / mag;
+    }
+    return (float2)(1.0f + cr, ci);
+}
+
+inline float2 cmul(float2 a, float2 b)
+{
+    return (float2)(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x);
 }
 
 /* zeta^-2 g dA_perp for area vector n lumped at c, eta at its mean over the piece
@@ -273,10 +289,11 @@ inline float2 term(float3 p, float3 c, float3 n, float xi, float inv_axi, float 
     eta = eta + (trq - quq) / (2.0f * eta);
     eta2 = eta * eta;
     float x = eta * inv_axi - 1.0f;
-    float f = exp(-x * x * inv2s2) * nu * curvature(x, 1.0f / inv_axi, inv2s2, quq);
+    float f = exp(-x * x * inv2s2) * nu;
     float den = xi * xi + eta2;
     f = f / (den * den);
-    return (float2)(f * (xi * xi - eta2), f * (-2.0f * xi * eta));
+    float2 tv = (float2)(f * (xi * xi - eta2), f * (-2.0f * xi * eta));
+    return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq));
 }
 
 /* A lumped cluster to second order (engine.descriptor._node_term). */
@@ -293,7 +310,7 @@ float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, fl
     eta = eta + (trq - quq) / (2.0f * eta);
     eta2 = eta * eta;
     float x = eta * inv_axi - 1.0f;
-    float g = exp(-x * x * inv2s2) * curvature(x, 1.0f / inv_axi, inv2s2, quq);
+    float g = exp(-x * x * inv2s2);
     float den = xi * xi + eta2;
     g = g / (den * den);
     float wr = g * (xi * xi - eta2);
@@ -305,7 +322,8 @@ float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, fl
     float trs = nb[16] + nb[20] + nb[24];
     float fr = nu + (-2.0f * eta / den - 2.0f * x * inv2s2 * inv_axi - 1.0f / eta) * usu + trs / eta;
     float fi = (-2.0f * xi / den) * usu;
-    return (float2)(wr * fr - wi * fi, wr * fi + wi * fr);
+    float2 tv = (float2)(wr * fr - wi * fi, wr * fi + wi * fr);
+    return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq));
 }
 
 /* How much coarser than at the Gaussian's peak a piece may be (engine.descriptor._tail). */
