@@ -138,10 +138,19 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
     }
 
 
+_RUNS: dict = {}
+
+
+def cached_run(name, guidance):
+    if (name, guidance) not in _RUNS:
+        _RUNS[name, guidance] = seating_run(name, guidance)
+    return _RUNS[name, guidance]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", PAIRS)
 def test_guided_pair_seats(name):
-    r = seating_run(name, "skeletal")
+    r = cached_run(name, "skeletal")
     assert r["distance"] <= r["half_cell"], r
     assert r["angle_deg"] <= 1.0, r
 
@@ -150,7 +159,7 @@ def test_guided_pair_seats(name):
 @pytest.mark.parametrize("name", PAIRS)
 def test_collision_only_pair_is_measured(name):
     # the baseline is measured, not required to seat: guidance must do at least as well
-    guided = seating_run(name, "skeletal")
-    baseline = seating_run(name, "collision")
+    guided = cached_run(name, "skeletal")
+    baseline = cached_run(name, "collision")
     assert np.all(np.isfinite(baseline["final_pose"]))
     assert guided["distance"] <= baseline["distance"] + guided["half_cell"]
