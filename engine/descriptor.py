@@ -75,9 +75,9 @@ from engine.grid import Grid
 #: Floor on |xi| and the normal push distance, in grid cells.
 EPS_FLOOR = 1e-3
 #: Largest piece radius / distance (and / sigma |xi|) before a piece is split.
-THETA = 0.25
+THETA = 0.35
 #: Largest cluster radius / distance (and / sigma |xi|) for a lumped cluster.
-THETA_NODE = 0.25
+THETA_NODE = 0.35
 #: The Gaussian size test uses min(sigma, SIGMA_RESOLUTION): a wide Gaussian still gets
 #: pieces no coarser than at the default sigma (the 1/r^2-like kernel needs them anyway).
 SIGMA_RESOLUTION = 0.5
