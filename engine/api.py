@@ -154,7 +154,7 @@ class Frame:
 class SetProxyPose:
     """Move the input proxy (mouse drags); ``pose`` (6,) relative to part 1."""
 
-    pose: tuple[float, float, float, float, float, float]
+    pose: tuple[float, ...]
 
     def __post_init__(self) -> None:
         p = tuple(float(v) for v in np.asarray(self.pose, dtype=float).reshape(6))
@@ -232,7 +232,7 @@ class RequestLandscape:
     """Ask for the translational energy landscape at the part's current rotation (or
     ``rotvec``); answered off the loop by :class:`LandscapeReady`."""
 
-    rotvec: tuple[float, float, float] | None = None
+    rotvec: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -246,7 +246,7 @@ class Pause:
 class Reset:
     """Put part and proxy back at the scene's start pose (or ``pose``) at rest."""
 
-    pose: tuple[float, float, float, float, float, float] | None = None
+    pose: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -309,7 +309,7 @@ class LandscapeReady:
     """Answer to :class:`RequestLandscape`: an ``engine.correlation.Landscape``."""
 
     landscape: Any
-    rotvec: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotvec: tuple[float, ...] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)

@@ -75,7 +75,7 @@ def collision_descriptor(descriptor: Any, part: Any) -> Any:
     rho = arrays["rho"]
     if dataclasses.is_dataclass(descriptor):
         try:
-            return dataclasses.replace(descriptor, rho=rho)
+            return dataclasses.replace(descriptor, rho=rho)  # type: ignore[type-var]
         except TypeError:
             pass
     return SimpleNamespace(rho=rho, grid=grid, params=params)

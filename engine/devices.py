@@ -117,7 +117,7 @@ class MouseDevice(Device):
         self._pose: tuple[float, ...] | None = None if pose is None else _pose_tuple(pose)
         self._seen: tuple[float, ...] | None = None
 
-    def set_pose(self, pose: np.ndarray) -> None:
+    def set_pose(self, pose: np.ndarray | tuple[float, ...]) -> None:
         """Set the proxy pose (6,); a tuple swap, atomic under the GIL."""
         self._pose = _pose_tuple(pose)
 

@@ -219,7 +219,7 @@ def _fallback_descriptors(scene: Any, parts: Any, progress: Any, cancel: Any) ->
                "params": [params.sigma, params.penalty, params.lambda_out], "version": 1}
         arrays, _ = load_or_compute(
             "sim-descriptor", key,
-            lambda v=v, part=part, grid=grid, sub=sub: {
+            lambda v=v, part=part, grid=grid, sub=sub: {  # type: ignore[misc]
                 "rho": compute_descriptor(v, part.faces, grid, params, backend="numpy",
                                           progress=sub, cancel=cancel)
             },
@@ -360,7 +360,7 @@ class EngineLoop:
         self.commands.put(command)
 
     def poll_frames(self, max_frames: int | None = None) -> list[api.Frame]:
-        out = []
+        out: list[api.Frame] = []
         pop = self.frames.popleft
         while self.frames and (max_frames is None or len(out) < max_frames):
             try:
@@ -370,7 +370,7 @@ class EngineLoop:
         return out
 
     def poll_events(self) -> list[Any]:
-        out = []
+        out: list[Any] = []
         while self.events:
             try:
                 out.append(self.events.popleft())
@@ -692,7 +692,8 @@ class EngineLoop:
         def run() -> None:
             try:
                 land = correlator.landscape(rot)
-                self.events.append(api.LandscapeReady(land, tuple(map(float, rotvec))))
+                rv = tuple(float(v) for v in rotvec)
+                self.events.append(api.LandscapeReady(land, rv))
             except Exception as exc:
                 self.events.append(api.ErrorEvent(_message(exc), type(exc).__name__))
 
@@ -1014,5 +1015,5 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
     except Exception as exc:
         events.put(api.ErrorEvent(_message(exc), type(exc).__name__, fatal=True))
     finally:
-        block = None  # drop the view so the shared block can close
+        block = None  # type: ignore[assignment]  # drop the view so the block can close
         shm.close()

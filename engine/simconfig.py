@@ -184,7 +184,7 @@ class MassSpec:
 
     mass: float | None = None
     density: float | None = None
-    inertia: tuple[tuple[float, float, float], ...] | None = None
+    inertia: tuple[tuple[float, ...], ...] | None = None
     center_of_mass: tuple[float, float, float] | None = None
 
 
@@ -428,6 +428,7 @@ def parse_simconfig(
     guidance = eff.choice("guidance", "skeletal", GUIDANCE)
     eff.used.add("axes")
     axes_value = eff.table.get("axes", "all")
+    axes: tuple[str, ...]
     if axes_value == "all":
         axes = AXES
     elif axes_value == "translation":
