@@ -1097,15 +1097,17 @@ class NumbaKernel:
         self.parallel = False
         self._modes = -1
         self.prepare(correlator)
-        if self._parallel is not None:
+        if self._parallel is not None and correlator.modes > 32:
+            self.parallel = True  # large sums amortise the thread start-up; no need to time
+        elif self._parallel is not None:
             # Interleaved, so that a burst of load from other processes hits both alike;
             # two threads only when clearly faster (oversubscribed threads stall badly).
             serial, par = [], []
-            for _ in range(12):
+            for _ in range(6):
                 self.parallel = False
-                serial.append(_median_microseconds(correlator, self, calls=3))
+                serial.append(_median_microseconds(correlator, self, calls=2))
                 self.parallel = True
-                par.append(_median_microseconds(correlator, self, calls=3))
+                par.append(_median_microseconds(correlator, self, calls=2))
             self.parallel = float(np.median(par)) < 0.75 * float(np.median(serial))
 
     def set_modes(self, correlator: Correlator) -> None:
