@@ -27,9 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--triangles", type=int, nargs="+", default=[1000, 20000, 200000],
                         help="approximate triangle counts of the test tori")  # fmt: skip
     parser.add_argument("--backends", nargs="+", default=None,
-                        help="numpy and/or opencl (default: every one that works here)")  # fmt: skip
+                        help="numpy and/or opencl (default: all that work here)")  # fmt: skip
     parser.add_argument("--sample", type=int, default=1000,
-                        help="grid points compared with brute force per case (0: skip)")  # fmt: skip
+                        help="points compared with brute force per case (0: skip)")  # fmt: skip
     parser.add_argument("--quick", action="store_true",
                         help="small run: grids 16 32, triangles 1000 20000")  # fmt: skip
     parser.add_argument("-o", "--output", default="descriptor_bench.png", help="PNG plot")
@@ -138,7 +138,7 @@ def _plot(rows, path: str) -> None:
         for m in sorted({r[2] for r in rows}):
             pts = [(r[3], r[4]) for r in rows if r[1] == name and r[2] == m]
             if pts:
-                n, s = zip(*sorted(pts))
+                n, s = zip(*sorted(pts), strict=True)
                 ax.loglog(np.asarray(n) ** 3, s, "o-", label=f"{name}, {m} triangles")
     ax.axhline(120, color="grey", ls="--", lw=0.8)
     ax.set_xlabel("grid samples")

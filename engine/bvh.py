@@ -244,9 +244,7 @@ def _node_geometry(tri, index):  # pragma: no cover - compiled
                 for child in (left, right):
                     wgt = node[child, 13] / area_sum
                     q = node[child, 25:31]
-                    qc = np.array(
-                        [[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]]
-                    )
+                    qc = np.array([[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]])
                     off = node[child, 6:9] - centre
                     for a in range(3):
                         for b in range(3):

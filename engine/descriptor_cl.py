@@ -159,8 +159,10 @@ void nearest(float3 p, __global const float *tri, int m, __global const float *n
             }
         } else {
             int right = nidx[4 * nd + 1];
-            float3 cl = (float3)(node[NS * left + 6], node[NS * left + 7], node[NS * left + 8]) - p;
-            float3 cr = (float3)(node[NS * right + 6], node[NS * right + 7], node[NS * right + 8]) - p;
+            __global const float *nl = node + NS * left;
+            __global const float *nr = node + NS * right;
+            float3 cl = (float3)(nl[6], nl[7], nl[8]) - p;
+            float3 cr = (float3)(nr[6], nr[7], nr[8]) - p;
             if (dot(cl, cl) < dot(cr, cr)) {
                 stack[sp] = right;
                 stack[sp + 1] = left;
@@ -320,7 +322,8 @@ float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, fl
               + u.y * (nb[19] * u.x + nb[20] * u.y + nb[21] * u.z)
               + u.z * (nb[22] * u.x + nb[23] * u.y + nb[24] * u.z);
     float trs = nb[16] + nb[20] + nb[24];
-    float fr = nu + (-2.0f * eta / den - 2.0f * x * inv2s2 * inv_axi - 1.0f / eta) * usu + trs / eta;
+    float fr = nu + (-2.0f * eta / den - 2.0f * x * inv2s2 * inv_axi - 1.0f / eta) * usu
+               + trs / eta;
     float fi = (-2.0f * xi / den) * usu;
     float2 tv = (float2)(wr * fr - wi * fi, wr * fi + wi * fr);
     return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq));
@@ -482,7 +485,7 @@ __kernel void skeletal(__global const float *pts, int npts,
 }
 """
 
-_programs: "weakref.WeakKeyDictionary[Any, Any]" = weakref.WeakKeyDictionary()
+_programs: weakref.WeakKeyDictionary[Any, Any] = weakref.WeakKeyDictionary()
 _lock = threading.Lock()
 
 
@@ -542,7 +545,7 @@ class OpenCLDescriptor:
         self.program = build_program(backend.context)
         self.kernel = self.program.skeletal
 
-    _instances: "dict[int, OpenCLDescriptor]" = {}
+    _instances: dict[int, OpenCLDescriptor] = {}
 
     @classmethod
     def for_backend(cls, backend: Any) -> OpenCLDescriptor:

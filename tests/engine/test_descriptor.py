@@ -106,7 +106,8 @@ def test_winding_number_tree_matches_exact_on_an_annulus(descriptor_backend):
     pts = rng.uniform(-1.3, 1.3, size=(400, 3))
     r = np.hypot(pts[:, 0], pts[:, 1])
     # Stay clear of the faceted walls (the polygon lies within cos(pi/32) of the circle).
-    ok = (np.abs(r - 0.5) > 0.02) & (np.abs(r - 1.0) > 0.02) & (np.abs(np.abs(pts[:, 2]) - 0.5) > 0.02)
+    ok = (np.abs(r - 0.5) > 0.02) & (np.abs(r - 1.0) > 0.02)
+    ok &= np.abs(np.abs(pts[:, 2]) - 0.5) > 0.02
     pts = pts[ok]
     r = r[ok]
     inside = (r > 0.5) & (r < 1.0) & (np.abs(pts[:, 2]) < 0.5)
@@ -217,7 +218,7 @@ def test_points_on_and_near_the_boundary_stay_finite_and_bounded(descriptor_back
 def test_thin_wall_slivers_and_degenerate_triangles_stay_finite(descriptor_backend):
     # A plate a fifth of a cell thick, a fan of slivers, and a zero-area triangle.
     plate = trimesh.creation.box(extents=(1.0, 1.0, 0.02))
-    cyl = trimesh.creation.cylinder(radius=0.3, height=0.5, sections=200)  # sliver caps (aspect ~ 60)
+    cyl = trimesh.creation.cylinder(radius=0.3, height=0.5, sections=200)  # sliver caps
     cyl.apply_translation((0, 0, 1.0))
     merged = trimesh.util.concatenate([plate, cyl])
     v = np.asarray(merged.vertices, float)
