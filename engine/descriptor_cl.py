@@ -485,7 +485,7 @@ __kernel void skeletal(__global const float *pts, int npts,
 }
 """
 
-_programs: weakref.WeakKeyDictionary[Any, Any] = weakref.WeakKeyDictionary()
+_programs: weakref.WeakKeyDictionary[Any, dict[bool, Any]] = weakref.WeakKeyDictionary()
 _lock = threading.Lock()
 
 
@@ -493,14 +493,19 @@ def _has_fp64(device: Any) -> bool:
     return "cl_khr_fp64" in device.extensions
 
 
-def build_program(context: Any) -> Any:
-    """Compile (once per context) and return the program."""
+def build_program(context: Any, *, double: bool | None = None) -> Any:
+    """Compile (once per context and accumulator type) and return the program.
+
+    ``double``: accumulate in double (default: when the device has ``cl_khr_fp64``).
+    """
     import pyopencl as cl
 
+    dev = context.devices[0]
+    if double is None:
+        double = _has_fp64(dev)
     with _lock:
-        prog = _programs.get(context)
+        prog = _programs.setdefault(context, {}).get(double)
         if prog is None:
-            dev = context.devices[0]
             options = [
                 f"-DPIECE_STACK={_d.PIECE_STACK}",
                 f"-DNODE_STACK={_d.NODE_STACK}",
@@ -508,7 +513,7 @@ def build_program(context: Any) -> Any:
                 f"-DTIE={_d.TIE!r}f",
                 f"-DMAX_NORMALS={_d.MAX_NORMALS}",
             ]
-            if _has_fp64(dev):
+            if double:
                 options.append("-DUSE_DOUBLE")
             try:
                 prog = cl.Program(context, KERNEL_SOURCE).build(options=options)
@@ -522,7 +527,7 @@ def build_program(context: Any) -> Any:
                     f"compile the descriptor kernel ({why}); use --backend numpy, or pick "
                     "another device with --device / SKELASM_DEVICE"
                 ) from exc
-            _programs[context] = prog
+            _programs[context][double] = prog
         return prog
 
 
@@ -540,9 +545,9 @@ def kernel_builds(backend: Any) -> bool:
 class OpenCLDescriptor:
     """The compiled kernel on one backend (context and queue)."""
 
-    def __init__(self, backend: Any) -> None:
+    def __init__(self, backend: Any, *, double: bool | None = None) -> None:
         self.backend = backend
-        self.program = build_program(backend.context)
+        self.program = build_program(backend.context, double=double)
         self.kernel = self.program.skeletal
 
     _instances: dict[int, OpenCLDescriptor] = {}
