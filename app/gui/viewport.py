@@ -131,9 +131,14 @@ class Viewport(QtCore.QObject):
                     mesh, color=GHOST_COLOUR, opacity=0.25, name="ghost", pickable=True,
                 )
                 ghost_edges = self.plotter.add_mesh(
-                    mesh.extract_feature_edges(30), color=GHOST_COLOUR, line_width=1.5,
+                    mesh.extract_feature_edges(30), color=GHOST_COLOUR,
+                    line_width=2.5 if self.software_gl else 1.5,
                     name="ghost_edges", pickable=False,
                 )
+                if self.software_gl:
+                    # a translucent surface cost ~20 ms a frame on llvmpipe (blending over
+                    # the whole part); the ghost is drawn by its edges alone there
+                    ghost.SetVisibility(False)
                 self._actors.update(moving=actor, ghost=ghost, ghost_edges=ghost_edges)
                 self._centroid = np.asarray(part.vertices, float).mean(axis=0)
                 self._proxy_pose = np.asarray(part.pose, float).copy()
@@ -266,7 +271,9 @@ class Viewport(QtCore.QObject):
             return False
         self._last_render = now
         self._dirty = False
-        self.plotter.ren_win.Render()  # straight to VTK: BasePlotter.render adds checks
+        # Through Qt: the widget's paintEvent renders. Rendering here directly as well made
+        # two renders per frame, as Qt repaints the native VTK window after each one.
+        self.plotter.update()
         self.frames_rendered += 1
         return True
 

@@ -74,12 +74,17 @@ def test_mouse_drag_moves_the_proxy_and_the_part_follows(make_window, wait_until
         > 0.8 * np.linalg.norm(moved), 10000, "the part to follow the proxy")
     assert np.dot(win.latest_frame.part_pose[:3] - start_part[:3], r1.T @ basis[:, 0]) > 0
     # a drag away from the part turns the camera and leaves the proxy alone
-    proxy = np.asarray(win.latest_frame.proxy_pose).copy()
+    proxy = win.session.relative(vp.proxy_pose)  # where the drag left it
+    wait_until(lambda: np.allclose(win.latest_frame.proxy_pose, proxy, atol=1e-9), 5000,
+               "the engine's proxy to reach the end of the drag")
+    camera = np.array(vp.plotter.camera.position)
     corner = QtCore.QPoint(10, vp.widget.height() - 10)
     assert not vp.pick_moving(QtCore.QPointF(corner))
     drag(vp.widget, corner, corner + QtCore.QPoint(40, -40))
-    QtWidgets.QApplication.processEvents()
-    assert np.allclose(win.latest_frame.proxy_pose, proxy)
+    n = win.frames_received
+    wait_until(lambda: win.frames_received > n + 5, 5000, "more frames")
+    assert np.allclose(win.latest_frame.proxy_pose, proxy, atol=1e-9)
+    assert not np.allclose(vp.plotter.camera.position, camera)
 
 
 def test_ctrl_drag_rotates_and_shift_drag_moves_in_depth(make_window, wait_until):
