@@ -51,14 +51,15 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
     handle = win.session.handle
     start = np.asarray(handle.start_pose, float)
     goal = np.asarray(handle.assembled_pose, float)
-    # bring the part half-way to its fit, a little off to the side, so forces show
+    # drag the proxy (the ghost) towards the fit and off to the side, so that the part,
+    # the ghost and the forces all show
     size = float(np.ptp(handle.parts[-1].vertices, axis=0).max())
-    for f in np.linspace(0.0, 0.6, 30):
-        pose = start + f * (goal - start)
-        pose[0] += 0.06 * size * f
+    for f in np.linspace(0.0, 1.0, 30):
+        pose = start + 0.2 * f * (goal - start)
+        pose[0] += 0.35 * size * f
         win.session.send(api.SetProxyPose(tuple(pose)))
         spin(0.05)
-    spin(3.0)
+    spin(2.0)
     view = win.slice_view
     view.part.setCurrentIndex(slice_part)
     view.axis.setCurrentIndex(1)
