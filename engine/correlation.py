@@ -32,7 +32,8 @@ How it is evaluated
   compiled backends reuse scratch buffers); landscapes may be computed alongside.
 
 Per-pose backends: ``numpy`` (reference, vectorised), ``numba`` (compiled in process; the
-fast path on CPUs, DESIGN.md section 4) and ``opencl`` (one fused kernel, buffers kept on
+fast path on CPUs, DESIGN.md section 4; one thread unless ``SKELASM_CORRELATION_THREADS``
+asks for more and they measure clearly faster) and ``opencl`` (one fused kernel, buffers kept on
 the device; :mod:`engine.correlation_cl`). ``auto`` measures the compiled ones at start-up
 and keeps the faster; :attr:`Correlator.backend_name` says which and why.
 """
@@ -40,6 +41,7 @@ and keeps the faster; :attr:`Correlator.backend_name` says which and why.
 from __future__ import annotations
 
 import math
+import os
 import time
 import types
 from dataclasses import dataclass
@@ -1083,25 +1085,28 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
 
 
 class NumbaKernel:
-    """Per-pose sums compiled in process with numba (serial or two threads, measured)."""
+    """Per-pose sums compiled in process with numba (one thread unless asked for more)."""
 
     def __init__(self, correlator: Correlator) -> None:
         try:
             import numba
         except ImportError as exc:  # pragma: no cover - depends on the install
             raise RuntimeError("numba is not installed: `pip install numba`") from exc
-        self.threads = max(1, numba.get_num_threads())
+        # One thread unless asked for more: on a shared 2-core machine a parallel region
+        # whose second thread is not scheduled stalls for a whole time slice (the
+        # benchmark saw medians of 36 ms instead of 80 us), which a 1 kHz loop cannot take.
+        wanted = int(os.environ.get("SKELASM_CORRELATION_THREADS", "1") or 1)
+        self.threads = max(1, min(wanted, numba.get_num_threads()))
         kind = "cube" if correlator.selection == "cube" else "list"
         self._serial = _numba_function(False, kind)
         self._parallel = _numba_function(True, kind) if self.threads > 1 else None
         self.parallel = False
         self._modes = -1
         self.prepare(correlator)
-        if self._parallel is not None and correlator.modes > 32:
-            self.parallel = True  # large sums amortise the thread start-up; no need to time
-        elif self._parallel is not None:
+        if self._parallel is not None:
+            numba.set_num_threads(self.threads)
             # Interleaved, so that a burst of load from other processes hits both alike;
-            # two threads only when clearly faster (oversubscribed threads stall badly).
+            # several threads only when clearly faster.
             serial, par = [], []
             for _ in range(6):
                 self.parallel = False
