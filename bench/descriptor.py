@@ -11,6 +11,7 @@ CPU seconds, which tell what a loaded machine hides) and writes a log-log plot.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import time
 
@@ -126,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
     print()
     for desc in sorted({r[0] for r in rows}):
         print(f"- {desc}")
+    print(f"- {os.cpu_count()} CPU cores; load average at the end {os.getloadavg()[0]:.1f}")
     _plot(rows, args.output)
     print(f"plot written to {args.output}")
     return 0
