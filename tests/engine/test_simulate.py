@@ -144,7 +144,12 @@ _RUNS: dict = {}
 
 def cached_run(name, guidance):
     if (name, guidance) not in _RUNS:
-        _RUNS[name, guidance] = seating_run(name, guidance)
+        r = seating_run(name, guidance)
+        _RUNS[name, guidance] = r
+        # shown with -s: the figures of the report
+        print(f"\nSEATING {name} {guidance}: distance {r['distance']:.3f} (lateral "
+              f"{r['lateral']:.3f}, axial {r['axial']:+.3f}), angle {r['angle_deg']:.2f} deg, "
+              f"half cell {r['half_cell']:.3f}, start offset {r['start_offset']:.3f}")
     return _RUNS[name, guidance]
 
 
