@@ -326,6 +326,7 @@ class EngineLoop:
         self.realtime = realtime
         self.device = device or MouseDevice(sim.proxy_pose)
         self.mouse = self.device if isinstance(self.device, MouseDevice) else None
+        self._apply_device_limits()
         self.frames: collections.deque[api.Frame] = collections.deque(maxlen=int(frame_queue))
         self.events: collections.deque[Any] = collections.deque()
         self.commands: queue.SimpleQueue[Any] = queue.SimpleQueue()
@@ -496,6 +497,16 @@ class EngineLoop:
         except Exception as exc:
             self._fallback_to_mouse(str(exc))
 
+    def _apply_device_limits(self) -> None:
+        """Clamp the rendered force to the device's maximum unless the scene set a lower one."""
+        caps = self.device.capabilities
+        lim = self.sim.limits
+        self.sim.limits = replace(
+            lim,
+            max_force=min(lim.max_force, caps.max_force),
+            max_torque=min(lim.max_torque, caps.max_torque),
+        )
+
     def _fallback_to_mouse(self, message: str) -> None:
         lost = self.device.name
         try:
@@ -617,6 +628,7 @@ class EngineLoop:
             pass
         self.device = dev
         self.mouse = dev if isinstance(dev, MouseDevice) else None
+        self._apply_device_limits()
         self.events.append(api.DeviceEvent(cmd.kind, True, f"{cmd.kind} connected", cmd.kind))
 
     # -- background work ------------------------------------------------------------------------

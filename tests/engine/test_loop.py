@@ -247,3 +247,13 @@ def test_api_end_to_end_on_a_scene_without_guidance():
         engine.stop()
     assert not engine.running
     assert any(isinstance(e, api.StoppedEvent) for e in engine.poll_events())
+
+
+def test_device_maximum_clamps_the_rendered_force():
+    dev = FlakyDevice(fail_after=10**9)
+    dev.capabilities = DeviceCapabilities("flaky", force_feedback=True, max_force=0.25)
+    loop, _, _ = make_loop(realtime=False, device=dev)
+    loop.run(max_steps=5)
+    assert loop.sim.limits.max_force == 0.25
+    assert np.linalg.norm(dev.forces[-2]) == pytest.approx(0.25)  # the proxy is 0.1 away
+    assert np.linalg.norm(dev.forces[-1]) == 0.0  # and the device is let go at the end
