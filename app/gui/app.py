@@ -78,4 +78,9 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
     import gc
 
     gc.collect()
+    from app.gui.session import wait_for_workers
+
+    if not wait_for_workers(2.0):
+        print("skelasm gui: waiting for background work to stop…", file=sys.stderr)
+        wait_for_workers(120.0)
     return status["code"]

@@ -47,7 +47,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
         ``fps`` (renders per second), ``latency_ms_p50/p95/p99/max`` (how late a 20 ms
         timer fired), ``engine_rate_hz`` (median of the frames' period stats),
         ``engine_p99_us``, ``eval_us`` (median), ``frames_received``, ``frames_rendered``,
-        ``seconds``, ``guidance_ready``, ``engine`` (real or preview), ``scene``.
+        ``seconds``, ``guidance_ready``, ``engine`` ("engine" or "engine process"), ``scene``.
     """
     from app.gui.app import DEFAULT_SCENE, check_display, make_application
 
@@ -157,6 +157,9 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
             import gc
 
             gc.collect()
+            from app.gui.session import wait_for_workers
+
+            wait_for_workers(120.0)
 
 
 def run_loop_benchmark(args, load=None):

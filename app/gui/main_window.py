@@ -167,6 +167,7 @@ class MainWindow(QtWidgets.QMainWindow):
         for w in (self.status_engine, self.status_fps, self.status_latency):
             self.statusBar().addPermanentWidget(w)
         self._build_menus()
+        self.params.pause.toggled.connect(self._pause_changed)
 
         self.latency = LatencyMonitor(self)
         self._tick_timer = QtCore.QTimer(self)
@@ -361,8 +362,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.viewport.set_scene(views)
         scene = handle.scene
         title = getattr(scene, "name", "") or Path(handle.path).stem
-        suffix = "" if self.session.backend is api else f" — {self.session.engine_name}"
-        self.setWindowTitle(f"{title} — skelasm{suffix}")
+        self.setWindowTitle(f"{title} — skelasm")
         meshes = [(v.name, v.vertices, v.faces) for v in views]
         self.slice_view.set_parts(meshes, [posemath.pose_to_matrix(v.pose) for v in views])
         self.slice_view.set_descriptors(())
@@ -422,6 +422,11 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def _toggle_pause(self, checked: bool) -> None:
         self.params.pause.setChecked(checked)
+
+    def _pause_changed(self, paused: bool) -> None:
+        self.pause_action.blockSignals(True)
+        self.pause_action.setChecked(paused)
+        self.pause_action.blockSignals(False)
 
     def _step_modes(self, delta: int) -> None:
         self.params.modes.setValue(self.params.modes.value() + delta)

@@ -78,6 +78,9 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
     written = [win.save_screenshot(outdir / name, widget) for name, widget in shots.items()]
     win.close()
     tmp.cleanup()
+    from app.gui.session import wait_for_workers
+
+    wait_for_workers(120.0)
     return written
 
 

@@ -35,13 +35,13 @@ def real_engine_available() -> bool:
 
 
 def engine_backend():
-    """The module providing ``open_scene`` and ``start_engine``: ``engine.api``, or the
-    stand-in while the engine's loop has not landed."""
-    if real_engine_available():
-        return api
-    from app.gui import standin
-
-    return standin
+    """The module providing ``open_scene`` and ``start_engine``: ``engine.api``."""
+    if not real_engine_available():
+        raise RuntimeError(
+            "the engine's loop (engine.loop) or scene loader (engine.scene) is not installed; "
+            "reinstall skelasm"
+        )
+    return api
 
 
 @dataclass(frozen=True)
@@ -94,8 +94,6 @@ class Session(QtCore.QObject):
 
     @property
     def engine_name(self) -> str:
-        if self.backend is not api:
-            return "preview engine (engine.loop not installed)"
         return "engine process" if self.process else "engine"
 
     @property
@@ -309,13 +307,24 @@ class Session(QtCore.QObject):
         if self.engine is not None:
             self.engine.stop()
             self.engine = None
-            # let the engine's workers (descriptors, landscapes) leave compiled code before
-            # the interpreter may shut down under them
-            deadline = time.perf_counter() + 3.0
-            for t in threading.enumerate():
-                if t.name.startswith("skelasm-") and t is not threading.current_thread():
-                    t.join(max(0.0, deadline - time.perf_counter()))
+            wait_for_workers(3.0)
         self._tmp.cleanup()
+
+
+def wait_for_workers(timeout: float) -> bool:
+    """Join the engine's and the window's background threads (descriptors, landscapes).
+
+    A worker still inside compiled parallel code when the interpreter exits aborts the
+    process ("terminate called without an active exception"); stopping the engine cancels
+    them, and they notice within seconds. Returns True if none is left.
+    """
+    deadline = time.perf_counter() + timeout
+    for t in threading.enumerate():
+        if t is threading.current_thread() or not t.name.startswith(("skelasm-", "gui-")):
+            continue
+        t.join(max(0.0, deadline - time.perf_counter()))
+    return not any(t.is_alive() and t.name.startswith(("skelasm-", "gui-"))
+                   for t in threading.enumerate() if t is not threading.current_thread())
 
 
 def _message(exc: BaseException) -> str:

@@ -118,6 +118,16 @@ def qapp_args():
 
 
 @pytest.fixture(scope="session", autouse=True)
+def _workers_finish():
+    """At the end, wait for engine workers that closed windows cancelled: one still in
+    compiled parallel code when the interpreter exits aborts the process."""
+    yield
+    from app.gui.session import wait_for_workers
+
+    assert wait_for_workers(180.0), "engine background threads did not stop"
+
+
+@pytest.fixture(scope="session", autouse=True)
 def _settings_location(qapp):
     from PySide6 import QtCore
 

