@@ -174,7 +174,7 @@ def test_guided_pair_seats(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", PAIRS)
+@pytest.mark.parametrize("name", SEATING_PAIRS)
 def test_collision_only_pair_is_measured(name):
     # the baseline is measured, not required to seat: guidance must do at least as well
     guided = cached_run(name, "skeletal")
