@@ -145,52 +145,22 @@ def _sim_and_model(args: argparse.Namespace):
     handle = replace(handle, config=replace(handle.config, effects=effects))
     if args.fake:
         from engine.coupling import CorrelatorField
+        from engine.loop import AnalyticWell
 
         sim, model = build_simulation(handle, prepare=False)
-        sim.set_field(CorrelatorField(_AnalyticWell(), sim.physics.kappa))
+        sim.set_field(CorrelatorField(AnalyticWell(), sim.physics.kappa))
         return handle, sim, model, "analytic field"
     sim, model = build_simulation(handle, modes=args.modes, backend=args.backend, prepare=True)
     c = getattr(sim.field, "correlator", None)
     return handle, sim, model, getattr(c, "backend_name", type(sim.field).__name__)
 
 
-class _AnalyticWell:
-    """A quadratic well (energy, force, torque in closed form): the loop without the sum."""
-
-    rotation = True
-    modes = 0
-
-    def evaluate(self, R, t):
-        from engine.correlation import Evaluation
-
-        t = np.asarray(t, float)
-        return Evaluation(0.5 * float(t @ t), -t, -0.5 * (R - R.T)[[2, 0, 1], [1, 2, 0]], 0.0, 0)
-
-    def set_modes(self, k):
-        pass
-
-
-def _proxy_motion(sim):
-    """A slow circle of the proxy around the start pose, so the part keeps moving."""
-    start = np.array(sim.start_pose)
-    length = sim.physics.length
-
-    def pose_at(t: float) -> np.ndarray:
-        p = start.copy()
-        p[0] += 0.05 * length * np.sin(2 * np.pi * 0.5 * t)
-        p[1] += 0.05 * length * np.cos(2 * np.pi * 0.5 * t)
-        p[2] -= 0.2 * length * (0.5 - 0.5 * np.cos(2 * np.pi * 0.25 * t))
-        return p
-
-    return pose_at
-
-
 def _run_thread(args, load):
     from engine.devices import TrajectoryDevice
-    from engine.loop import EngineLoop
+    from engine.loop import EngineLoop, bench_proxy_motion
 
     handle, sim, model, field = _sim_and_model(args)
-    pose_at = _proxy_motion(sim)
+    pose_at = bench_proxy_motion(sim)
     ts = np.arange(0.0, args.seconds + 2.0, 0.01)
     traj = TrajectoryDevice(np.column_stack([ts, np.array([pose_at(t) for t in ts])]))
     loop = EngineLoop(sim, model=model, device=traj, rate_hz=args.rate, realtime=True,

@@ -770,6 +770,42 @@ def _message(exc: BaseException) -> str:
 
 
 # ---------------------------------------------------------------------------------------------
+# benchmark helpers (also used by the engine process when it benchmarks)
+
+
+class AnalyticWell:
+    """A quadratic well (energy, force, torque in closed form): the loop without the sum."""
+
+    rotation = True
+    modes = 0
+
+    def evaluate(self, R: np.ndarray, t: np.ndarray) -> Any:
+        from engine.correlation import Evaluation
+
+        t = np.asarray(t, float)
+        return Evaluation(0.5 * float(t @ t), -t, -0.5 * (R - R.T)[[2, 0, 1], [1, 2, 0]], 0.0, 0)
+
+    def set_modes(self, k: int) -> None:
+        pass
+
+
+def bench_proxy_motion(sim: Simulation) -> Callable[[float], np.ndarray]:
+    """A slow circle of the proxy around the start pose, so the part keeps moving."""
+    start = np.array(sim.start_pose)
+    length = sim.physics.length
+
+    def pose_at(t: float) -> np.ndarray:
+        p = start.copy()
+        p[0] += 0.05 * length * np.sin(2 * np.pi * 0.5 * t)
+        p[1] += 0.05 * length * np.cos(2 * np.pi * 0.5 * t)
+        p[2] -= 0.2 * length * (0.5 - 0.5 * np.cos(2 * np.pi * 0.25 * t))
+        return p
+
+    return pose_at
+
+
+
+# ---------------------------------------------------------------------------------------------
 # the loop in its own process
 
 
@@ -943,10 +979,9 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
             prepare=not fake,
         )
         if fake:
-            from bench.loop import _AnalyticWell
             from engine.coupling import CorrelatorField
 
-            sim.set_field(CorrelatorField(_AnalyticWell(), sim.physics.kappa))
+            sim.set_field(CorrelatorField(AnalyticWell(), sim.physics.kappa))
         field_name = _backend_name(sim.field)
         eval_log: list[float] = []
 
@@ -985,9 +1020,7 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
                 device = MouseDevice(sim.proxy_pose)
                 events.put(api.DeviceEvent(cfg.kind, False, str(exc), fallback="mouse"))
         elif options.get("bench_motion", True):
-            from bench.loop import _proxy_motion
-
-            pose_at = _proxy_motion(sim)
+            pose_at = bench_proxy_motion(sim)
             ts = np.arange(0.0, 3600.0, 0.01)[:200000]
             device = TrajectoryDevice(np.column_stack([ts, np.array([pose_at(t) for t in ts])]))
         loop = EngineLoop(
