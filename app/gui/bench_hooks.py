@@ -19,7 +19,7 @@ import numpy as np
 def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 wait_ready: float = 180.0, drag_radius: float | None = None,
                 engine_kwargs: dict | None = None, keep_periods: bool = False,
-                handle_transform=None) -> dict:
+                handle_transform=None, window_size: tuple[int, int] | None = None) -> dict:
     """Run the window for ``seconds`` while the proxy is dragged; return measurements.
 
     Parameters
@@ -40,6 +40,8 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
         (thread engine only).
     handle_transform : callable, optional
         SceneHandle -> SceneHandle before the engine starts (e.g. rotation locked).
+    window_size : (int, int), optional
+        Window width and height (default: the window's own, 1500 x 920).
 
     Returns
     -------
@@ -66,6 +68,8 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                                     QtCore.QSettings.IniFormat)
         win = MainWindow(settings=settings, engine_kwargs=engine_kwargs,
                          handle_transform=handle_transform)
+        if window_size is not None:
+            win.resize(*window_size)
         win.show()
         try:
             win.open_path(scene, wait=True)
@@ -139,6 +143,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 "guidance_error": win.guidance_error,
                 "seconds": elapsed,
                 "fps": rendered / elapsed,
+                "view_pixels": [win.viewport.widget.width(), win.viewport.widget.height()],
                 "frames_rendered": int(rendered),
                 "frames_received": int(win.frames_received - received0),
                 "latency_ms_p50": pct(50),
