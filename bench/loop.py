@@ -11,7 +11,7 @@ interpreter:
 - ``--load vtk``: a thread rendering an off-screen pyvista scene and reading it back (does
   VTK hold the GIL while it renders?);
 - ``--gui``: the real application window rendering beside the loop (``app.gui``, imported
-  only then);
+  only then; it needs a display: ``xvfb-run -a skelasm bench loop --gui``);
 - ``--process``: the loop in its own process (``engine.loop.ProcessEngine``) while the load
   runs in this one;
 - ``--switch-interval S``: ``sys.setswitchinterval`` while the loop runs (Python's default
@@ -92,6 +92,9 @@ def run(args: argparse.Namespace) -> int:
         load = threading.Thread(target=target, args=(stop, counter), name="bench-load",
                                 daemon=True)
 
+    if args.gui and args.process:
+        raise RuntimeError("--gui with --process is not measured yet: the GUI's benchmark hook "
+                           "starts a thread engine; run the two separately")
     if args.process:
         periods, info = _run_process(args, load)
     elif args.gui:
