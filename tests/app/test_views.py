@@ -174,3 +174,23 @@ def test_engine_in_its_own_process_drives_the_same_views(make_window, small_scen
     wait_until(lambda: win.latest_frame.part_pose[0] > start[0] + 1.5, 10000,
                "the part in the engine process to follow")
     assert win.latest_frame.eval_us > 0
+
+
+def test_failed_recompute_and_missing_device_are_reported_and_the_session_goes_on(
+        ready_window, wait_until):
+    win = ready_window
+    old = win.slice_view._descriptors
+    win.params.set_progress(0.0)  # as after a request from the panel
+    win.session.send(api.SetDescriptorParams(sigma=-1.0))  # no valid descriptor has this
+    wait_until(lambda: win.last_error is not None, 30000, "the recompute's error")
+    assert "sigma" in win.last_error.lower()
+    assert win.params.progress.format() == "recompute failed"
+    assert win.slice_view._descriptors is old
+    win.last_error = None
+    win.session.send(api.SetDevice("spacemouse"))  # none is plugged in here
+    wait_until(lambda: "spacemouse" in win.statusBar().currentMessage(), 10000,
+               "the device message")
+    assert "mouse" in win.statusBar().currentMessage()
+    n = win.frames_received
+    wait_until(lambda: win.frames_received > n + 5, 5000, "frames after both failures")
+    assert win.latest_frame.device == "mouse"
