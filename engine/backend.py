@@ -101,7 +101,36 @@ def _pick_device(devices: list[Any], wanted: str | None) -> Any:
                 return dev
         raise BackendError(f"no OpenCL device matches {wanted!r}; have: {_names(devices)}")
     gpus = [d for d in devices if d.type & cl.device_type.GPU]
-    return (gpus or devices)[0]
+    others = [d for d in devices if not d.type & cl.device_type.GPU]
+    problems = []
+    for dev in gpus + others:
+        problem = _compile_problem(dev)
+        if problem is None:
+            return dev
+        problems.append(f"{dev.name} ({dev.platform.name}): {problem}")
+    raise BackendError(
+        "no OpenCL device can compile kernels here: " + "; ".join(problems)
+        + ". On Debian, `apt-get install pocl-opencl-icd` gives a working CPU device; "
+        "or use --backend numpy"
+    )
+
+
+def _compile_problem(dev: Any) -> str | None:
+    """None when ``dev`` builds a trivial kernel, else the first line of the build error.
+
+    Some installs list a device that cannot compile anything (seen here: the PoCL 3.0 wheel's
+    LLVM 14 does not know this CPU, "unknown target CPU 'generic'"), so the automatic choice
+    skips devices that fail this probe.
+    """
+    import pyopencl as cl
+
+    try:
+        ctx = cl.Context([dev])
+        cl.Program(ctx, "__kernel void probe(__global float *x) { x[0] = 1.0f; }").build()
+    except Exception as exc:  # pyopencl raises several types (RuntimeError, cl.Error, ...)
+        lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+        return lines[0][:200] if lines else type(exc).__name__
+    return None
 
 
 def _names(devices: list[Any]) -> str:
@@ -166,10 +195,10 @@ def _make_opencl(device: str | None) -> Backend:
 
 
 def available_backends() -> list[str]:
-    """Names of the backends that work here, numpy first."""
+    """Names of the backends that work here (OpenCL: a device compiles a kernel), numpy first."""
     names = ["numpy"]
     try:
-        _opencl_devices()
+        _pick_device(_opencl_devices(), None)
         names.append("opencl")
     except BackendError:
         pass
