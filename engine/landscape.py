@@ -106,7 +106,8 @@ class Landscape:
         -------
         engine.correlation.Evaluation
             ``torque`` is None (the rotation is locked); outside the landscape the energy
-            and force are 0 (the parts' grid boxes do not overlap there).
+            and force are 0 (the parts' grid boxes do not overlap there). The force is
+            zeros when the landscape was computed with ``forces=False``.
         """
         from engine.correlation import Evaluation
 
