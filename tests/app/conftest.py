@@ -23,30 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-_XVFB: subprocess.Popen | None = None
+from app.display import start_virtual_screen, stop_virtual_screens
+
 _SETTINGS_DIR = tempfile.mkdtemp(prefix="skelasm-gui-settings-")
 _CACHE_DIR = tempfile.mkdtemp(prefix="skelasm-gui-cache-")
-
-
-def _start_xvfb() -> str | None:
-    """Start Xvfb on a free display; return ':N' or None."""
-    global _XVFB
-    exe = shutil.which("Xvfb")
-    if exe is None:
-        return None
-    r, w = os.pipe()
-    proc = subprocess.Popen(
-        [exe, "-displayfd", str(w), "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
-        pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )
-    os.close(w)
-    with os.fdopen(r) as f:
-        number = f.readline().strip()
-    if not number or proc.poll() is not None:
-        proc.kill()
-        return None
-    _XVFB = proc
-    return f":{number}"
 
 
 _PROBE = """
@@ -65,9 +45,7 @@ assert img.std() > 0
 def _display_problem() -> str | None:
     if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
         return None
-    display = _start_xvfb()
-    if display is not None:
-        os.environ["DISPLAY"] = display
+    if start_virtual_screen() is not None:
         return None
     env = dict(os.environ, QT_QPA_PLATFORM="offscreen")
     probe = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
@@ -103,12 +81,7 @@ def pytest_collection_modifyitems(config, items):
 
 
 def pytest_sessionfinish(session, exitstatus):
-    if _XVFB is not None:
-        _XVFB.terminate()
-        try:
-            _XVFB.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            _XVFB.kill()
+    stop_virtual_screens()
     shutil.rmtree(_SETTINGS_DIR, ignore_errors=True)
 
 
