@@ -2,7 +2,8 @@
 
 Entries are ``.npz`` files named by the SHA-256 of everything that determines them:
 the mesh bytes, the grid, the parameters and a format version. The cache lives in
-``SKELASM_CACHE`` or ``~/.cache/skelasm``.
+``SKELASM_CACHE`` or ``~/.cache/skelasm`` and is kept under ``SKELASM_CACHE_MAX_GB``
+(default 2 GiB) by deleting the least recently used entries after each store.
 """
 
 from __future__ import annotations
@@ -24,6 +25,48 @@ def cache_dir() -> Path:
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "skelasm"
     )
     return Path(root)
+
+
+#: Default cap on the cache's size, in GiB (spectra of a 160^3 FFT are ~60 MB each).
+DEFAULT_MAX_GB = 2.0
+
+
+def max_bytes() -> int:
+    """The cache's size cap from ``SKELASM_CACHE_MAX_GB`` (default 2 GiB)."""
+    raw = os.environ.get("SKELASM_CACHE_MAX_GB")
+    try:
+        gb = float(raw) if raw else DEFAULT_MAX_GB
+    except ValueError as exc:
+        raise ValueError(f"SKELASM_CACHE_MAX_GB must be a number of GiB, got {raw!r}") from exc
+    return int(gb * 2**30)
+
+
+def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
+    """Delete least recently used entries until the cache holds at most ``limit`` bytes.
+
+    ``keep`` (the entry just written) is never deleted. Returns the bytes freed.
+    """
+    limit = max_bytes() if limit is None else limit
+    entries = []
+    for path in cache_dir().glob("*/*.npz"):
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        entries.append((max(st.st_atime, st.st_mtime), st.st_size, path))
+    total = sum(size for _, size, _ in entries)
+    freed = 0
+    for _, size, path in sorted(entries):
+        if total - freed <= limit:
+            break
+        if keep is not None and path == keep:
+            continue
+        try:
+            path.unlink()
+            freed += size
+        except OSError:
+            pass
+    return freed
 
 
 def content_key(kind: str, parts: Mapping[str, Any]) -> str:
@@ -48,7 +91,9 @@ def load(kind: str, key: str) -> dict[str, np.ndarray] | None:
         return None
     try:
         with np.load(path, allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
+            arrays = {k: data[k] for k in data.files}
+        os.utime(path)  # mark as recently used, whatever the file system's atime policy
+        return arrays
     except (OSError, ValueError, EOFError):
         path.unlink(missing_ok=True)
         return None
@@ -89,7 +134,7 @@ def load_or_compute(
     arrays = dict(compute())
     if use_cache:
         try:
-            store(kind, key, arrays)
+            evict(keep=store(kind, key, arrays))
         except OSError:
             pass  # a read-only or full disk costs a recompute next time, nothing more
     return arrays, False
