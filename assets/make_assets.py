@@ -165,11 +165,13 @@ def boss_cover() -> int:
 
 # --------------------------------------------------------------------------- (c) bracket and slot
 # Block 40 x 30 x 15 (top face z = 0) with a closed slot 30 long (x), 2 wide (y), 10 deep.
-# Bracket: a thin L, web 30 x 2 x 25 going down into the slot and a flange 30 x 16 x 2 on top
-# of the web, reaching towards +y, 1.5 mm wall fillet inside the L. Bracket origin: the
-# centre of the web's bottom edge, which sits on the slot's bottom when seated:
-# assembled_pose = (0, 0, -10).
-SLOT_L, SLOT_W, SLOT_D, WEB_H = 30.0, 2.0, 10.0, 25.0
+# Bracket: a thin L, web 30 x 2 x 10 going down into the slot and a flange 30 x 16 x 2 on top
+# of the web, reaching towards +y, its far top edge rounded (1.5 mm). Seated, the web's bottom
+# sits on the slot's floor and the flange on the block's top face (a web taller than the slot
+# left the flange hanging above the block, and the energy then preferred pushing the web
+# through the 5 mm floor to bring the flange down onto the top face). Bracket origin: the
+# centre of the web's bottom edge: assembled_pose = (0, 0, -10).
+SLOT_L, SLOT_W, SLOT_D, WEB_H = 30.0, 2.0, 10.0, 10.0
 
 
 def slot_block() -> int:
@@ -183,9 +185,12 @@ def bracket() -> int:
     web = occ.addBox(-SLOT_L / 2, -SLOT_W / 2, z0, SLOT_L, SLOT_W, WEB_H)
     flange = occ.addBox(-SLOT_L / 2, -SLOT_W / 2, z0 + WEB_H, SLOT_L, 16, 2)
     body = _fuse(web, [flange])
-    inner = _curves_in_box(-SLOT_L / 2 - .1, SLOT_W / 2 - .1, z0 + WEB_H - .1, SLOT_L / 2 + .1,
-                           SLOT_W / 2 + .1, z0 + WEB_H + .1)
-    out = occ.fillet([body], inner, [1.5])
+    # the flange's far top edge is rounded (a fillet inside the L would sit in the block's
+    # sharp slot edge when seated)
+    far_y = -SLOT_W / 2 + 16
+    outer = _curves_in_box(-SLOT_L / 2 - .1, far_y - .1, z0 + WEB_H + 2 - .1, SLOT_L / 2 + .1,
+                           far_y + .1, z0 + WEB_H + 2 + .1)
+    out = occ.fillet([body], outer, [1.5])
     return [t for d, t in out if d == 3][0]
 
 

@@ -33,19 +33,8 @@ def pair(request):
     return scene, correlator_for_scene(scene, modes=24, backend="numba")
 
 
-#: Pairs whose descriptors (not the correlation) put the minimum elsewhere. bracket_slot: a
-#: 2 mm web in a 2 mm slot (2.8 cells at h = 0.71 mm); even at full modes, where the
-#: spectral sum equals the brute-force spatial sum, pushing the web 14 mm through the slot's
-#: 5 mm floor scores -25856 against -15486 seated (inside-outside below the block counts as
-#: fit). Strict, so that a descriptor or scene fix shows up here.
-MINIMUM_ELSEWHERE = {"bracket_slot"}
-
-
-def test_fitted_pose_is_the_global_minimum(pair, request):
+def test_fitted_pose_is_the_global_minimum(pair):
     scene, corr = pair
-    if scene.path.parent.name in MINIMUM_ELSEWHERE:
-        request.node.add_marker(pytest.mark.xfail(
-            strict=True, reason="the descriptors' minimum is not the assembled pose"))
     fit = np.asarray(scene.assembled_pose, dtype=float)
     rot = rotation_matrix(fit[3:])
     land = corr.landscape(rot, forces=False)
