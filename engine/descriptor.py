@@ -918,6 +918,15 @@ def _run(
             node, nidx = np.zeros((1, 32)), np.full((1, 4), -1, dtype=np.int32)
 
         def chunk(lo: int, hi: int) -> None:
+            # Points cost very different amounts (near the surface vs deep inside):
+            # hand them to the threads in small batches rather than one half each.
+            previous = numba.set_parallel_chunksize(64)
+            try:
+                _evaluate_chunk(lo, hi)
+            finally:
+                numba.set_parallel_chunksize(previous)
+
+        def _evaluate_chunk(lo: int, hi: int) -> None:
             _evaluate(
                 np.ascontiguousarray(points_local[lo:hi]), local.tri, node, nidx, use_tree,
                 mode, params.sigma, params.lambda_in, params.lambda_out, THETA, THETA_NODE,
