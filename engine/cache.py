@@ -107,7 +107,7 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path:
     fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp.npz")
     os.close(fd)
     try:
-        np.savez(tmp, **arrays)
+        np.savez(tmp, **dict(arrays))  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -913,6 +913,7 @@ def _run(
             out[lo:hi] = evaluate(points_local[lo:hi], mode)
     else:
         if use_tree:
+            assert local.tree is not None  # use_tree implies a tree was built
             node, nidx = local.tree.node, local.tree.node_index
         else:
             node, nidx = np.zeros((1, 32)), np.full((1, 4), -1, dtype=np.int32)

@@ -63,7 +63,7 @@ class Grid:
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sample coordinates along x, y and z: three 1D float64 arrays."""
         return tuple(  # type: ignore[return-value]
-            o + self.spacing * np.arange(n) for o, n in zip(self.origin, self.shape)
+            o + self.spacing * np.arange(n) for o, n in zip(self.origin, self.shape, strict=True)
         )
 
     def points(self) -> np.ndarray:

@@ -47,9 +47,9 @@ def matrix_to_quaternion(matrix: np.ndarray) -> np.ndarray:
     else:
         s = 2.0 * np.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
         q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
+    unit = np.asarray(q, dtype=np.float64)
+    unit /= np.linalg.norm(unit)
+    return unit if unit[0] >= 0 else -unit
 
 
 def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:

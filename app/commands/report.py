@@ -94,11 +94,14 @@ def run(args: argparse.Namespace) -> int:
     lines = [f"# {scene.name}", "", f"Scene: `{scene.path}`, units: {scene.units}.", ""]
 
     parts = load_scene_parts(scene)
-    lines += ["## Parts", "", "| part | file | triangles | extent | checks |", "|---|---|---|---|---|"]
+    lines += ["## Parts", "", "| part | file | triangles | extent | checks |",
+              "|---|---|---|---|---|"]
     for spec, part in zip(scene.parts, parts, strict=False):
         extent = " x ".join(f"{e:.4g}" for e in part.extent)
         checks = "; ".join(part.warnings) or "closed, consistent"
-        lines.append(f"| {part.name} | {spec.file.name} | {len(part.faces)} | {extent} | {checks} |")
+        lines.append(
+            f"| {part.name} | {spec.file.name} | {len(part.faces)} | {extent} | {checks} |"
+        )
 
     t0 = time.perf_counter()
     descriptors = descriptors_for_scene(scene, parts=parts)
@@ -107,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
               f"sigma = {scene.descriptor.sigma}, penalty = {scene.descriptor.penalty}, "
               f"one spacing h = {descriptors[0].grid.spacing:.4g} {scene.units} "
               f"({seconds:.2f} s in all, cache included).", "",
-              "| part | grid | seconds | backend | from cache | slice |", "|---|---|---|---|---|---|"]
+              "| part | grid | seconds | backend | from cache | slice |",
+              "|---|---|---|---|---|---|"]
     for part, d in zip(parts, descriptors, strict=False):
         image = f"slice_{part.name}.png"
         _slice_png(out / image, d, part.name)

@@ -32,7 +32,13 @@ def test_grid_for_bounds_by_spacing_matches_samples():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(), dict(samples=10, spacing=0.1), dict(samples=1), dict(spacing=-1.0), dict(spacing=np.nan)],
+    [
+        dict(),
+        dict(samples=10, spacing=0.1),
+        dict(samples=1),
+        dict(spacing=-1.0),
+        dict(spacing=np.nan),
+    ],
 )
 def test_grid_for_bounds_rejects_bad_options(kwargs):
     with pytest.raises(ValueError):

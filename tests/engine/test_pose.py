@@ -37,7 +37,9 @@ def test_rotvec_roundtrip_including_near_zero_and_half_turn(angle):
 def test_quaternion_and_matrix_agree():
     for rv in _random_rotvecs(20, seed=1):
         q = pose.rotvec_to_quaternion(rv)
-        np.testing.assert_allclose(pose.quaternion_to_matrix(q), pose.rotation_matrix(rv), atol=1e-12)
+        np.testing.assert_allclose(
+            pose.quaternion_to_matrix(q), pose.rotation_matrix(rv), atol=1e-12
+        )
         np.testing.assert_allclose(pose.quaternion_to_rotvec(q), rv, atol=1e-9)
 
 
