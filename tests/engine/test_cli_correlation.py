@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -100,3 +101,22 @@ def test_bad_modes_is_a_user_error(scene_file, capsys):
 
     assert main(["evaluate", str(scene_file), "--modes", "0"]) == 2
     assert "modes" in capsys.readouterr().err
+
+
+def test_report_writes_markdown_with_its_images(scene_file, tmp_path, capsys):
+    from app.cli import main
+
+    out = tmp_path / "report"
+    assert main(["report", str(scene_file), "-o", str(out), "--backend", "numba"]) == 0
+    text = (out / "report.md").read_text()
+    for heading in ("## Parts", "## Descriptors", "## Energy, force and torque",
+                    "## What the mode count costs", "## Energy landscape"):
+        assert heading in text
+    # every image the report links to was written and is a PNG
+    images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
+    assert {"slice_cup.png", "slice_box.png", "landscape_xy.png", "landscape_xz.png"} <= set(images)
+    for name in images:
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the separated pose is far out of reach: exactly zero energy, as the correlation promises
+    row = next(line for line in text.splitlines() if line.startswith("| separated"))
+    assert row.split("|")[4].strip() == "0"
