@@ -499,7 +499,7 @@ def start_engine(
     process : bool or None
         None (default): a process when the scene's device renders force (``openhaptics``,
         ``udp``), where the period's tail matters, else a thread (see the measurements in
-        docs/readme/simulation.md). True: run the loop in its own process
+        README.md, "Simulation"). True: run the loop in its own process
         (``engine.loop.ProcessEngine``: frames through shared memory, only the newest kept;
         commands through a queue), out of reach of the GUI's GIL. The process opens the
         scene's device itself; ReadyEvent carries no descriptors (load them with
@@ -536,7 +536,7 @@ def start_engine(
         frame_queue=frame_queue,
         prepare=True,
         # another thread may hold the GIL this long before the loop gets it back (Python's
-        # default is 5 ms); measured in docs/readme/simulation.md
+        # default is 5 ms); measured in README.md, "Simulation"
         switch_interval=switch_interval,
     )
     if notice is not None:
