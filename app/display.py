@@ -50,6 +50,23 @@ def start_virtual_screen(width: int = 1920, height: int = 1080) -> str | None:
     return display
 
 
+def ensure_screen(program: str) -> str | None:
+    """None when Qt and VTK can open windows, starting a private Xvfb if needed; else why not.
+
+    Starting Xvfb is announced on stderr, naming ``program``.
+    """
+    if has_screen():
+        return None
+    display = start_virtual_screen()
+    if display is None:
+        return ("no screen: DISPLAY is not set and Xvfb is not installed. Run on a desktop, "
+                "or install a virtual screen (apt-get install xvfb; skelasm starts it by "
+                "itself) and add --screenshot OUT.png to see the window")
+    print(f"{program}: no screen found; running on a virtual screen (Xvfb {display}). "
+          "Use --screenshot OUT.png --quit-after SECONDS to see the window.", file=sys.stderr)
+    return None
+
+
 def stop_virtual_screens() -> None:
     """Stop every Xvfb this process started."""
     while _servers:

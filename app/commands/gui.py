@@ -32,21 +32,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.quit_after is not None and args.quit_after < 0:
         raise ValueError(f"--quit-after must be zero or positive, got {args.quit_after}")
-    import sys
-
-    from app.display import has_screen, start_virtual_screen
-
-    if not has_screen():
-        display = start_virtual_screen()
-        if display is None:
-            raise RuntimeError(
-                "no screen: DISPLAY is not set and Xvfb is not installed. Run skelasm gui on "
-                "a desktop, or install a virtual screen (apt-get install xvfb; skelasm starts "
-                "it by itself) and add --screenshot OUT.png to see the window"
-            )
-        print(f"skelasm gui: no screen found; running on a virtual screen (Xvfb {display}). "
-              "Use --screenshot OUT.png --quit-after SECONDS to see the window.",
-              file=sys.stderr)
     try:
         from app.gui.app import run as run_gui
     except ImportError as exc:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -25,14 +24,13 @@ def make_application(argv: list[str] | None = None):
 
 
 def check_display() -> str | None:
-    """A message when no display is reachable (pyvistaqt needs an OpenGL window), else None."""
-    if sys.platform.startswith("linux"):
-        platform = os.environ.get("QT_QPA_PLATFORM", "")
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) and \
-                platform not in ("offscreen", "minimal", "vnc"):
-            return ("no display: set DISPLAY, or run under a virtual one, e.g. "
-                    "`xvfb-run -a -s '-screen 0 1920x1080x24' skelasm gui ...`")
-    return None
+    """A message when no display is reachable (pyvistaqt needs an OpenGL window), else None.
+
+    On a headless Linux machine a private Xvfb is started (see :mod:`app.display`).
+    """
+    from app.display import ensure_screen
+
+    return ensure_screen("skelasm")
 
 
 def run(scene: str | None = None, *, screenshot: str | None = None,

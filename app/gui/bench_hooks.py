@@ -189,6 +189,9 @@ def run_loop_benchmark(args, load=None):
     from dataclasses import replace
 
     kwargs = {"rate_hz": args.rate, "modes": args.modes, "backend": args.backend}
+    if getattr(args, "process", False):
+        # the engine process keeps no period list for us: its frames carry its period stats
+        kwargs["process"] = True
     if getattr(args, "switch_interval", None) is not None:
         kwargs["switch_interval"] = args.switch_interval
     transform = None
@@ -209,6 +212,8 @@ def run_loop_benchmark(args, load=None):
         "gui_fps": round(r["fps"], 1),
         "gui_latency_ms": {k: round(r[f"latency_ms_{k}"], 1) for k in ("p50", "p99", "max")},
         "guidance_ready": r["guidance_ready"],
+        "engine_rate_hz": r["engine_rate_hz"],
+        "engine_p99_us": r["engine_p99_us"],
     }
     return periods, info
 
