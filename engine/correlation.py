@@ -750,6 +750,34 @@ def _median_microseconds(correlator: Correlator, kernel: Any, calls: int = 30) -
 
 
 # ---------------------------------------------------------------------- numba backend
+def _cell(ux, uy, uz, radius, side):
+    """Trilinear cell of the lattice point ``(ux, uy, uz)`` in a table of ``side^3`` rows:
+    the rows of its four lower-x/y corners (z neighbours are the next rows) and its eight
+    float32 weights. Inlined into the compiled kernels."""
+    fx = np.floor(ux)
+    fy = np.floor(uy)
+    fz = np.floor(uz)
+    tx = np.float32(ux - fx)
+    ty = np.float32(uy - fy)
+    tz = np.float32(uz - fz)
+    sx = np.float32(1.0) - tx
+    sy = np.float32(1.0) - ty
+    sz = np.float32(1.0) - tz
+    b00 = ((int(fx) + radius) * side + int(fy) + radius) * side + int(fz) + radius
+    return (b00, b00 + side, b00 + side * side, b00 + side * side + side,
+            sx * sy * sz, sx * sy * tz, sx * ty * sz, sx * ty * tz,
+            tx * sy * sz, tx * sy * tz, tx * ty * sz, tx * ty * tz)
+
+
+def _lerp(table, col, cell):
+    """Column ``col`` of the interleaved table, interpolated in ``cell`` (from :func:`_cell`)."""
+    b00, b01, b10, b11, w000, w001, w010, w011, w100, w101, w110, w111 = cell
+    return (w000 * table[b00, col] + w001 * table[b00 + 1, col]
+            + w010 * table[b01, col] + w011 * table[b01 + 1, col]
+            + w100 * table[b10, col] + w101 * table[b10 + 1, col]
+            + w110 * table[b11, col] + w111 * table[b11 + 1, col])
+
+
 def _pose_kernel(
     rot, t, fixed_kept, table, radius, kept, c1, c2, half1, half2, h, n_h, q, kappa,
     moments, partial,
@@ -809,38 +837,9 @@ def _pose_kernel(
                 rk0 = a0 + kz * r20
                 rk1 = a1 + kz * r21
                 rk2 = a2 + kz * r22
-                ux = -q * rk0
-                uy = -q * rk1
-                uz = -q * rk2
-                fx = np.floor(ux)
-                fy = np.floor(uy)
-                fz = np.floor(uz)
-                tx = np.float32(ux - fx)
-                ty = np.float32(uy - fy)
-                tz = np.float32(uz - fz)
-                sx = np.float32(1.0) - tx
-                sy = np.float32(1.0) - ty
-                sz = np.float32(1.0) - tz
-                b00 = ((int(fx) + radius) * side + int(fy) + radius) * side + int(fz) + radius
-                b01 = b00 + side
-                b10 = b00 + side * side
-                b11 = b10 + side
-                w000 = sx * sy * sz
-                w001 = sx * sy * tz
-                w010 = sx * ty * sz
-                w011 = sx * ty * tz
-                w100 = tx * sy * sz
-                w101 = tx * sy * tz
-                w110 = tx * ty * sz
-                w111 = tx * ty * tz
-                g_re = (w000 * table[b00, 0] + w001 * table[b00 + 1, 0]
-                        + w010 * table[b01, 0] + w011 * table[b01 + 1, 0]
-                        + w100 * table[b10, 0] + w101 * table[b10 + 1, 0]
-                        + w110 * table[b11, 0] + w111 * table[b11 + 1, 0])
-                g_im = (w000 * table[b00, 1] + w001 * table[b00 + 1, 1]
-                        + w010 * table[b01, 1] + w011 * table[b01 + 1, 1]
-                        + w100 * table[b10, 1] + w101 * table[b10 + 1, 1]
-                        + w110 * table[b11, 1] + w111 * table[b11 + 1, 1])
+                cell = _cell(-q * rk0, -q * rk1, -q * rk2, radius, side)
+                g_re = _lerp(table, 0, cell)
+                g_im = _lerp(table, 1, cell)
                 c = fixed_kept[ix, iy, iz] * pxy * pz[iz]
                 c_re = c.real
                 c_im = c.imag
@@ -850,30 +849,12 @@ def _pose_kernel(
                 row_im += cg_im
                 s3 += cg_im * kz
                 if moments:
-                    mv0 = (w000 * table[b00, 2] + w001 * table[b00 + 1, 2]
-                           + w010 * table[b01, 2] + w011 * table[b01 + 1, 2]
-                           + w100 * table[b10, 2] + w101 * table[b10 + 1, 2]
-                           + w110 * table[b11, 2] + w111 * table[b11 + 1, 2])
-                    mv1 = (w000 * table[b00, 3] + w001 * table[b00 + 1, 3]
-                           + w010 * table[b01, 3] + w011 * table[b01 + 1, 3]
-                           + w100 * table[b10, 3] + w101 * table[b10 + 1, 3]
-                           + w110 * table[b11, 3] + w111 * table[b11 + 1, 3])
-                    mv2 = (w000 * table[b00, 4] + w001 * table[b00 + 1, 4]
-                           + w010 * table[b01, 4] + w011 * table[b01 + 1, 4]
-                           + w100 * table[b10, 4] + w101 * table[b10 + 1, 4]
-                           + w110 * table[b11, 4] + w111 * table[b11 + 1, 4])
-                    mv3 = (w000 * table[b00, 5] + w001 * table[b00 + 1, 5]
-                           + w010 * table[b01, 5] + w011 * table[b01 + 1, 5]
-                           + w100 * table[b10, 5] + w101 * table[b10 + 1, 5]
-                           + w110 * table[b11, 5] + w111 * table[b11 + 1, 5])
-                    mv4 = (w000 * table[b00, 6] + w001 * table[b00 + 1, 6]
-                           + w010 * table[b01, 6] + w011 * table[b01 + 1, 6]
-                           + w100 * table[b10, 6] + w101 * table[b10 + 1, 6]
-                           + w110 * table[b11, 6] + w111 * table[b11 + 1, 6])
-                    mv5 = (w000 * table[b00, 7] + w001 * table[b00 + 1, 7]
-                           + w010 * table[b01, 7] + w011 * table[b01 + 1, 7]
-                           + w100 * table[b10, 7] + w101 * table[b10 + 1, 7]
-                           + w110 * table[b11, 7] + w111 * table[b11 + 1, 7])
+                    mv0 = _lerp(table, 2, cell)
+                    mv1 = _lerp(table, 3, cell)
+                    mv2 = _lerp(table, 4, cell)
+                    mv3 = _lerp(table, 5, cell)
+                    mv4 = _lerp(table, 6, cell)
+                    mv5 = _lerp(table, 7, cell)
                     im0 = c_re * mv1 + c_im * mv0
                     im1 = c_re * mv3 + c_im * mv2
                     im2 = c_re * mv5 + c_im * mv4
@@ -963,38 +944,9 @@ def _pose_kernel_list(
             rk0 = kx * r00 + ky * r10 + kz * r20
             rk1 = kx * r01 + ky * r11 + kz * r21
             rk2 = kx * r02 + ky * r12 + kz * r22
-            ux = -q * rk0
-            uy = -q * rk1
-            uz = -q * rk2
-            fx = np.floor(ux)
-            fy = np.floor(uy)
-            fz = np.floor(uz)
-            tx = np.float32(ux - fx)
-            ty = np.float32(uy - fy)
-            tz = np.float32(uz - fz)
-            sx = np.float32(1.0) - tx
-            sy = np.float32(1.0) - ty
-            sz = np.float32(1.0) - tz
-            b00 = ((int(fx) + radius) * side + int(fy) + radius) * side + int(fz) + radius
-            b01 = b00 + side
-            b10 = b00 + side * side
-            b11 = b10 + side
-            w000 = sx * sy * sz
-            w001 = sx * sy * tz
-            w010 = sx * ty * sz
-            w011 = sx * ty * tz
-            w100 = tx * sy * sz
-            w101 = tx * sy * tz
-            w110 = tx * ty * sz
-            w111 = tx * ty * tz
-            g_re = (w000 * table[b00, 0] + w001 * table[b00 + 1, 0]
-                    + w010 * table[b01, 0] + w011 * table[b01 + 1, 0]
-                    + w100 * table[b10, 0] + w101 * table[b10 + 1, 0]
-                    + w110 * table[b11, 0] + w111 * table[b11 + 1, 0])
-            g_im = (w000 * table[b00, 1] + w001 * table[b00 + 1, 1]
-                    + w010 * table[b01, 1] + w011 * table[b01 + 1, 1]
-                    + w100 * table[b10, 1] + w101 * table[b10 + 1, 1]
-                    + w110 * table[b11, 1] + w111 * table[b11 + 1, 1])
+            cell = _cell(-q * rk0, -q * rk1, -q * rk2, radius, side)
+            g_re = _lerp(table, 0, cell)
+            g_im = _lerp(table, 1, cell)
             ph = kx * s_x + ky * s_y + kz * s_z
             c = coeff[m] * (np.cos(ph) + 1j * np.sin(ph))
             c_re = c.real
@@ -1006,30 +958,12 @@ def _pose_kernel_list(
             s2 += cg_im * ky
             s3 += cg_im * kz
             if moments:
-                mv0 = (w000 * table[b00, 2] + w001 * table[b00 + 1, 2]
-                       + w010 * table[b01, 2] + w011 * table[b01 + 1, 2]
-                       + w100 * table[b10, 2] + w101 * table[b10 + 1, 2]
-                       + w110 * table[b11, 2] + w111 * table[b11 + 1, 2])
-                mv1 = (w000 * table[b00, 3] + w001 * table[b00 + 1, 3]
-                       + w010 * table[b01, 3] + w011 * table[b01 + 1, 3]
-                       + w100 * table[b10, 3] + w101 * table[b10 + 1, 3]
-                       + w110 * table[b11, 3] + w111 * table[b11 + 1, 3])
-                mv2 = (w000 * table[b00, 4] + w001 * table[b00 + 1, 4]
-                       + w010 * table[b01, 4] + w011 * table[b01 + 1, 4]
-                       + w100 * table[b10, 4] + w101 * table[b10 + 1, 4]
-                       + w110 * table[b11, 4] + w111 * table[b11 + 1, 4])
-                mv3 = (w000 * table[b00, 5] + w001 * table[b00 + 1, 5]
-                       + w010 * table[b01, 5] + w011 * table[b01 + 1, 5]
-                       + w100 * table[b10, 5] + w101 * table[b10 + 1, 5]
-                       + w110 * table[b11, 5] + w111 * table[b11 + 1, 5])
-                mv4 = (w000 * table[b00, 6] + w001 * table[b00 + 1, 6]
-                       + w010 * table[b01, 6] + w011 * table[b01 + 1, 6]
-                       + w100 * table[b10, 6] + w101 * table[b10 + 1, 6]
-                       + w110 * table[b11, 6] + w111 * table[b11 + 1, 6])
-                mv5 = (w000 * table[b00, 7] + w001 * table[b00 + 1, 7]
-                       + w010 * table[b01, 7] + w011 * table[b01 + 1, 7]
-                       + w100 * table[b10, 7] + w101 * table[b10 + 1, 7]
-                       + w110 * table[b11, 7] + w111 * table[b11 + 1, 7])
+                mv0 = _lerp(table, 2, cell)
+                mv1 = _lerp(table, 3, cell)
+                mv2 = _lerp(table, 4, cell)
+                mv3 = _lerp(table, 5, cell)
+                mv4 = _lerp(table, 6, cell)
+                mv5 = _lerp(table, 7, cell)
                 im0 = c_re * mv1 + c_im * mv0
                 im1 = c_re * mv3 + c_im * mv2
                 im2 = c_re * mv5 + c_im * mv4
@@ -1063,7 +997,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
 
     ``kind`` is "cube" (separable phases over the kept cube) or "list" (any mode list).
     """
-    global prange, _finish_sums
+    global prange, _finish_sums, _cell, _lerp
     key = (parallel, kind)
     if key not in _NUMBA_FUNCS:
         import numba
@@ -1071,6 +1005,9 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
         prange = numba.prange
         if not hasattr(_finish_sums, "py_func"):
             _finish_sums = numba.njit(fastmath=True, cache=True, nogil=True)(_finish_sums)
+        if not hasattr(_cell, "py_func"):
+            inline = numba.njit(inline="always", fastmath=True, cache=True, nogil=True)
+            _cell, _lerp = inline(_cell), inline(_lerp)
         source = _pose_kernel if kind == "cube" else _pose_kernel_list
         # A distinct function object (own name) per variant, so the compiled versions get
         # separate on-disk cache entries.
