@@ -32,3 +32,19 @@ def test_opencl_backend_has_context_and_queue():
 def test_missing_device_gives_clear_message():
     with pytest.raises(backend_mod.BackendError, match="no OpenCL device matches 'no-such-gpu'"):
         backend_mod.get_backend("opencl", device="no-such-gpu")
+
+
+@pytest.mark.gpu
+def test_automatic_choice_prefers_a_gpu():
+    cl = pytest.importorskip("pyopencl")
+    gpus = []
+    for platform in cl.get_platforms():
+        try:
+            gpus += [d for d in platform.get_devices() if d.type & cl.device_type.GPU]
+        except cl.Error:
+            continue
+    if not gpus:
+        pytest.skip("no GPU OpenCL device here")
+    chosen = backend_mod.get_backend("opencl")
+    assert chosen.is_gpu, chosen.describe()
+    # the descriptor and correlation tests then run their OpenCL cases on this GPU
