@@ -55,5 +55,5 @@ def test_help_lists_the_options(flag, capsys):
     with pytest.raises(SystemExit):
         main(["gui", flag])
     text = capsys.readouterr().out
-    for option in ("--screenshot", "--quit-after", "--engine-process"):
+    for option in ("--screenshot", "--quit-after", "--engine"):
         assert option in text
