@@ -778,6 +778,15 @@ def _lerp(table, col, cell):
             + w110 * table[b11, col] + w111 * table[b11 + 1, col])
 
 
+def _moment_torque(table, cell, c_re, c_im, rk0, rk1, rk2):
+    """One mode's torque terms ``Im(c m) x R^T k`` from the three interpolated moment
+    spectra (table columns 2..7). Inlined into the compiled kernels."""
+    im0 = c_re * _lerp(table, 3, cell) + c_im * _lerp(table, 2, cell)
+    im1 = c_re * _lerp(table, 5, cell) + c_im * _lerp(table, 4, cell)
+    im2 = c_re * _lerp(table, 7, cell) + c_im * _lerp(table, 6, cell)
+    return im1 * rk2 - im2 * rk1, im2 * rk0 - im0 * rk2, im0 * rk1 - im1 * rk0
+
+
 def _pose_kernel(
     rot, t, fixed_kept, table, radius, kept, c1, c2, half1, half2, h, n_h, q, kappa,
     moments, partial,
@@ -849,18 +858,10 @@ def _pose_kernel(
                 row_im += cg_im
                 s3 += cg_im * kz
                 if moments:
-                    mv0 = _lerp(table, 2, cell)
-                    mv1 = _lerp(table, 3, cell)
-                    mv2 = _lerp(table, 4, cell)
-                    mv3 = _lerp(table, 5, cell)
-                    mv4 = _lerp(table, 6, cell)
-                    mv5 = _lerp(table, 7, cell)
-                    im0 = c_re * mv1 + c_im * mv0
-                    im1 = c_re * mv3 + c_im * mv2
-                    im2 = c_re * mv5 + c_im * mv4
-                    s4 += im1 * rk2 - im2 * rk1
-                    s5 += im2 * rk0 - im0 * rk2
-                    s6 += im0 * rk1 - im1 * rk0
+                    d4, d5, d6 = _moment_torque(table, cell, c_re, c_im, rk0, rk1, rk2)
+                    s4 += d4
+                    s5 += d5
+                    s6 += d6
             s1 += row_im * kx
             s2 += row_im * ky
         partial[ix, 0] = s0
@@ -958,18 +959,10 @@ def _pose_kernel_list(
             s2 += cg_im * ky
             s3 += cg_im * kz
             if moments:
-                mv0 = _lerp(table, 2, cell)
-                mv1 = _lerp(table, 3, cell)
-                mv2 = _lerp(table, 4, cell)
-                mv3 = _lerp(table, 5, cell)
-                mv4 = _lerp(table, 6, cell)
-                mv5 = _lerp(table, 7, cell)
-                im0 = c_re * mv1 + c_im * mv0
-                im1 = c_re * mv3 + c_im * mv2
-                im2 = c_re * mv5 + c_im * mv4
-                s4 += im1 * rk2 - im2 * rk1
-                s5 += im2 * rk0 - im0 * rk2
-                s6 += im0 * rk1 - im1 * rk0
+                d4, d5, d6 = _moment_torque(table, cell, c_re, c_im, rk0, rk1, rk2)
+                s4 += d4
+                s5 += d5
+                s6 += d6
         partial[ci, 0] = s0
         partial[ci, 1] = s1
         partial[ci, 2] = s2
@@ -997,7 +990,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
 
     ``kind`` is "cube" (separable phases over the kept cube) or "list" (any mode list).
     """
-    global prange, _finish_sums, _cell, _lerp
+    global prange, _finish_sums, _cell, _lerp, _moment_torque
     key = (parallel, kind)
     if key not in _NUMBA_FUNCS:
         import numba
@@ -1008,6 +1001,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
         if not hasattr(_cell, "py_func"):
             inline = numba.njit(inline="always", fastmath=True, cache=True, nogil=True)
             _cell, _lerp = inline(_cell), inline(_lerp)
+            _moment_torque = inline(_moment_torque)
         source = _pose_kernel if kind == "cube" else _pose_kernel_list
         # A distinct function object (own name) per variant, so the compiled versions get
         # separate on-disk cache entries.
