@@ -470,7 +470,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self.fps = (rendered - self._fps_frames) / (now - self._fps_t)
             self._fps_frames, self._fps_t = rendered, now
             lat = list(self.latency.samples)[-100:]
-            self.status_fps.setText(f"{self.fps:.0f} fps")
+            # renders happen only when something moved: say so rather than show "0 fps"
+            self.status_fps.setText(f"{self.fps:.0f} fps" if self.fps > 0 else "view idle")
             if lat:
                 self.status_latency.setText(f"event loop late ≤ {max(lat):.0f} ms")
 
