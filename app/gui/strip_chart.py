@@ -10,6 +10,18 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 
+def value_range(values: np.ndarray) -> tuple[float, float]:
+    """The vertical range for finite ``values``: their span, widened to at least 2 % of their
+    magnitude (a part resting in a fit jitters by parts per thousand, which a tight
+    autoscale would blow up into what looks like noise)."""
+    lo, hi = float(np.min(values)), float(np.max(values))
+    floor = max(0.02 * max(abs(lo), abs(hi)), 1e-12)
+    if hi - lo < floor:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * floor, mid + 0.5 * floor
+    return lo, hi
+
+
 class StripChart(QtWidgets.QWidget):
     """Two traces (energy, |force|) against time, each with its own vertical scale.
 
@@ -81,9 +93,7 @@ class StripChart(QtWidgets.QWidget):
             ok = np.isfinite(y)
             if not np.any(ok):
                 continue
-            lo, hi = float(np.min(y[ok])), float(np.max(y[ok]))
-            if hi - lo < 1e-12 * max(abs(hi), 1.0):
-                lo, hi = lo - 0.5, hi + 0.5
+            lo, hi = value_range(y[ok])
             ys = margin_top + plot_h * (1.0 - (y - lo) / (hi - lo))
             xs = x[pick][ok]
             poly = QtGui.QPolygonF(

@@ -118,3 +118,17 @@ def test_slider_field_log_mapping_and_signal(qtbot):
     assert len(seen) == 1 and field.slider.value() == 250
     with pytest.raises(ValueError):
         SliderField(0.0, 1.0, 0.5, log=True)
+
+
+def test_strip_chart_range_does_not_magnify_jitter():
+    from app.gui.strip_chart import value_range
+
+    # a resting part: energy -20166 +- 2 spans 2 % of its size, centred on the values
+    lo, hi = value_range(np.array([-20168.0, -20166.0, -20164.0]))
+    assert hi - lo == pytest.approx(0.02 * 20168.0)
+    assert (lo + hi) / 2 == pytest.approx(-20166.0)
+    # a real change keeps its own span
+    assert value_range(np.array([-20000.0, 0.0, 500.0])) == (-20000.0, 500.0)
+    # all zero (parts apart): still a non-empty range
+    lo, hi = value_range(np.zeros(5))
+    assert hi > lo
