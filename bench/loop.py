@@ -110,8 +110,16 @@ def run(args: argparse.Namespace) -> int:
     late = float(np.mean(periods > 1.2e-3 * 1000.0 / args.rate)) * 100
     print(f"engine loop: {info['what']}, K = {args.modes} (m' = {args.modes ** 3}), "
           f"{info['field']}")
+    interval = args.switch_interval
+    if interval is None and args.gui:
+        # the window starts its engine through start_engine, whose default this is
+        import inspect
+
+        from engine.api import start_engine
+
+        interval = inspect.signature(start_engine).parameters["switch_interval"].default
     print(f"mode: {'process' if args.process else 'thread'}, load: {args.load}, "
-          f"switch interval: {args.switch_interval or sys.getswitchinterval()} s"
+          f"switch interval: {interval or sys.getswitchinterval()} s"
           + (", GUI running" if args.gui else ""))
     print()
     print("| steps | seconds | rate (Hz) | median (us) | p1 (us) | p99 (us) | max (us) "
