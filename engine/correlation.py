@@ -871,11 +871,17 @@ def _pose_kernel(
         partial[ix, 4] = s4
         partial[ix, 5] = s5
         partial[ix, 6] = s6
+    return _finish_sums(_sum_partials(partial), rot, c2, kappa, n_h, moments)
+
+
+def _sum_partials(partial):
+    """(7,) float64: the per-row (or per-chunk) partial sums added up, in a fixed order so the
+    result does not depend on the thread count."""
     sums = np.zeros(7)
-    for ix in range(nk):
+    for i in range(partial.shape[0]):
         for j in range(7):
-            sums[j] += partial[ix, j]
-    return _finish_sums(sums, rot, c2, kappa, n_h, moments)
+            sums[j] += partial[i, j]
+    return sums
 
 
 def _finish_sums(sums, rot, c2, kappa, n_h, moments):
@@ -970,11 +976,7 @@ def _pose_kernel_list(
         partial[ci, 4] = s4
         partial[ci, 5] = s5
         partial[ci, 6] = s6
-    sums = np.zeros(7)
-    for ci in range(nchunk):
-        for j in range(7):
-            sums[j] += partial[ci, j]
-    return _finish_sums(sums, rot, c2, kappa, n_h, moments)
+    return _finish_sums(_sum_partials(partial), rot, c2, kappa, n_h, moments)
 
 
 def _prange_placeholder(n):  # replaced by numba.prange when numba is present
@@ -990,7 +992,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
 
     ``kind`` is "cube" (separable phases over the kept cube) or "list" (any mode list).
     """
-    global prange, _finish_sums, _cell, _lerp, _moment_torque
+    global prange, _finish_sums, _sum_partials, _cell, _lerp, _moment_torque
     key = (parallel, kind)
     if key not in _NUMBA_FUNCS:
         import numba
@@ -998,6 +1000,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
         prange = numba.prange
         if not hasattr(_finish_sums, "py_func"):
             _finish_sums = numba.njit(fastmath=True, cache=True, nogil=True)(_finish_sums)
+            _sum_partials = numba.njit(fastmath=True, cache=True, nogil=True)(_sum_partials)
         if not hasattr(_cell, "py_func"):
             inline = numba.njit(inline="always", fastmath=True, cache=True, nogil=True)
             _cell, _lerp = inline(_cell), inline(_lerp)
