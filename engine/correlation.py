@@ -358,9 +358,9 @@ class Correlator:
         Returns
         -------
         table : (B, B, B, C) float32
-            ``C = 8`` (rho2c^, then the three moment spectra, real and imaginary parts
-            interleaved) with rotation, ``C = 2`` without; lattice index ``u`` lies at
-            ``u + radius``.
+            ``C = 8`` (rho2c^, then its lattice derivatives ``dG/du`` along x, y, z from
+            the moment spectra; real and imaginary parts interleaved) with rotation,
+            ``C = 2`` without; lattice index ``u`` lies at ``u + radius``.
         radius : int
             Offset of index 0.
         scale : float
@@ -375,6 +375,13 @@ class Correlator:
                 hi = lo + 2 * radius + 2
                 assert self._fine_table is not None
                 table = self._fine_table[lo:hi, lo:hi, lo:hi]
+                if self.rotation:
+                    # moment spectra M to lattice derivatives dG/du = -2 pi i M / a
+                    factor = TWO_PI / self._gradient_scale(True)
+                    table = table.copy()
+                    raw = table[..., 2:].copy()
+                    table[..., 2::2] = factor * raw[..., 1::2]
+                    table[..., 3::2] = -factor * raw[..., 0::2]
             else:
                 scale = float(self.oversample_factor)
                 m = self.spectrum_moving.size
@@ -384,7 +391,8 @@ class Correlator:
                 parts = [self.spectrum_moving.values[sel]]
                 moments = self.spectrum_moving.moments
                 if self.rotation and moments is not None:
-                    parts += [moments[a][sel] for a in range(3)]
+                    to_gradient = np.complex64(-2j * np.pi / self._gradient_scale(False))
+                    parts += [moments[a][sel] * to_gradient for a in range(3)]
                 stacked = np.stack(parts, axis=-1)  # (B, B, B, P) complex64
                 table = np.empty(stacked.shape[:3] + (2 * len(parts),), dtype=np.float32)
                 table[..., 0::2] = stacked.real
@@ -394,10 +402,22 @@ class Correlator:
             self._table_scale = scale
         return self._table, self._table_radius, self._table_scale
 
+    def _gradient_scale(self, fine: bool) -> float:
+        """``a = scale N h``: lattice steps per unit of frequency ``nu`` of the table read.
+
+        The moment spectrum is ``M = (i / 2 pi) dG/dnu = (i a / 2 pi) dG/du`` (``u`` the
+        lattice coordinate), so the tables hold ``dG/du = -2 pi i M / a``.
+        """
+        scale = self._fine_scale if fine else float(self.oversample_factor)
+        return scale * self.size * self.spacing
+
     def _interpolate_rows(
-        self, rk: np.ndarray, reach: float, moments: bool
+        self, rk: np.ndarray, reach: float, gradient: bool
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Part 2's spectra at ``-R^T w`` by trilinear interpolation (the reference).
+        """Part 2's spectrum at ``-R^T w`` and its lattice gradient (the reference).
+
+        With rotation on (moment spectra present) the interpolant is the gradient-enhanced
+        one of :func:`_hermite_numpy`; without, plain trilinear.
 
         Parameters
         ----------
@@ -406,22 +426,23 @@ class Correlator:
         reach : float
             Reach of the mode set these rows belong to (picks the refined table or the
             ``q`` lattice, as the compiled backends do).
-        moments : bool
-            Also interpolate the three moment spectra.
+        gradient : bool
+            Also return the interpolant's gradient ``dG/du`` (needs rotation on).
 
         Returns
         -------
         values : (n,) complex128
-        moment_values : (3, n) complex128 or None
+        gradients : (3, n) complex128 or None
         """
-        if self._fine_for(reach):
+        fine = self._fine_for(reach)
+        if fine:
             scale = self._fine_scale
             assert self._fine_table is not None
-            table = self._fine_table.view(np.complex64)  # (B, B, B, P)
-            side = table.shape[0]
-            flat = table.reshape(-1, table.shape[-1])
+            fine_table = self._fine_table.view(np.complex64)  # (B, B, B, P)
+            side = fine_table.shape[0]
+            flat: np.ndarray | None = fine_table.reshape(-1, fine_table.shape[-1])
             offset = self._fine_radius
-            wrap = None
+            wrap = 0
         else:
             scale = float(self.oversample_factor)
             side = self.spectrum_moving.size
@@ -432,39 +453,45 @@ class Correlator:
         base = np.floor(u)
         frac = u - base
         base = base.astype(np.int64)
+        if gradient and not self.rotation:
+            raise ValueError("the interpolant's gradient needs rotation on (moment spectra)")
         n = len(rk)
-        g = np.zeros(n, dtype=np.complex128)
-        mm = np.zeros((3, n), dtype=np.complex128) if moments else None
-        values = self.spectrum_moving.values.ravel()
+        channels = 4 if self.rotation else 1
+        # the 8 corners of each row's cell as rows 8 i + 4 dx + 2 dy + dz of a small table
+        corners = np.empty((n, 8, channels), dtype=np.complex128)
         spec_moments = self.spectrum_moving.moments
-        moment_flat: Any = (
-            spec_moments.reshape(3, -1)
-            if (moments and flat is None and spec_moments is not None) else None
-        )
         for dx in (0, 1):
-            wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
             ix = base[:, 0] + dx
             for dy in (0, 1):
-                wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
                 iy = base[:, 1] + dy
                 for dz in (0, 1):
-                    wz = frac[:, 2] if dz else 1.0 - frac[:, 2]
                     iz = base[:, 2] + dz
-                    if wrap is not None:
+                    corner = 4 * dx + 2 * dy + dz
+                    if flat is None:
                         idx = (np.mod(ix, wrap) * wrap + np.mod(iy, wrap)) * wrap + np.mod(iz, wrap)
+                        corners[:, corner, 0] = self.spectrum_moving.values.ravel()[idx]
+                        if self.rotation:
+                            assert spec_moments is not None
+                            corners[:, corner, 1:] = spec_moments.reshape(3, -1)[:, idx].T
                     else:
                         idx = (ix * side + iy) * side + iz
-                    weight = wx * wy * wz
-                    if flat is None:
-                        g += weight * values[idx]
-                        if mm is not None:
-                            mm += weight * moment_flat[:, idx]
-                    else:
-                        rows = flat[idx]  # (n, P)
-                        g += weight * rows[:, 0]
-                        if mm is not None:
-                            mm += weight * rows[:, 1:4].T
-        return g, mm
+                        corners[:, corner, :] = flat[idx, :channels]
+        if self.rotation:
+            corners[:, :, 1:] *= -2j * np.pi / self._gradient_scale(fine)  # M -> dG/du
+        table = np.empty((8 * n, 2 * channels))
+        table[:, 0::2] = corners.reshape(8 * n, channels).real
+        table[:, 1::2] = corners.reshape(8 * n, channels).imag
+        b00 = 8 * np.arange(n)
+        cell = (b00, b00 + 2, b00 + 4, b00 + 6, frac[:, 0], frac[:, 1], frac[:, 2])
+        if not self.rotation:
+            lerp = _python(_lerp)
+            return lerp(table, 0, cell) + 1j * lerp(table, 1, cell), None
+        hermite = _python(_hermite)
+        re = hermite(table, 0, cell)
+        im = hermite(table, 1, cell)
+        g = re[0] + 1j * im[0]
+        grad = np.stack([re[a] + 1j * im[a] for a in (1, 2, 3)]) if gradient else None
+        return g, grad
 
     # ------------------------------------------------------------------ geometry
     def boxes_overlap(self, rotation: np.ndarray, translation: np.ndarray) -> bool:
@@ -573,13 +600,16 @@ class Correlator:
             kc = kvec[lo : lo + _NUMPY_CHUNK]
             cc = coeff[lo : lo + _NUMPY_CHUNK]
             rk = kc @ rot  # (n, 3): rows are R^T k
-            g, mm = self._interpolate_rows(rk, self._reach, self.rotation)
+            g, grad = self._interpolate_rows(rk, self._reach, self.rotation)
             cg = cc * g
             total[0] += cg.real.sum()
             total[1:4] += cg.imag @ kc
-            if mm is not None:
-                im_cm = (cc * mm).imag.T  # (n, 3)
-                total[4:7] += np.cross(im_cm, rk).sum(axis=0)
+            if grad is not None:
+                re_cd = (cc * grad).real.T  # (n, 3): Re(c dG/du)
+                total[4:7] += np.cross(re_cd, rk).sum(axis=0)
+        if self.rotation:
+            # Im(c M) = (a / 2 pi) Re(c dG/du), M the moment spectrum the interpolant implies
+            total[4:7] *= self._gradient_scale(self._fine_for(self._reach)) / TWO_PI
         return total
 
     # ------------------------------------------------------------------ landscapes
@@ -749,42 +779,144 @@ def _median_microseconds(correlator: Correlator, kernel: Any, calls: int = 30) -
     return float(np.median(times) * 1e6)
 
 
-# ---------------------------------------------------------------------- numba backend
+# ------------------------------------------------------------ interpolation (shared)
+# The helpers below read a table of interleaved float rows (columns: real and imaginary part
+# of the value, then of the derivatives along x, y, z) at a lattice cell: the row of the
+# cell's lower corner ``b00``, its +y neighbour ``b01``, +x neighbour ``b10`` and +x+y
+# neighbour ``b11`` (the +z neighbour of each is the next row), and the fractional position
+# ``(tx, ty, tz)`` in the cell. The compiled kernels inline them with scalar indices; the
+# numpy reference calls the same Python functions with index and position arrays.
 def _cell(ux, uy, uz, radius, side):
-    """Trilinear cell of the lattice point ``(ux, uy, uz)`` in a table of ``side^3`` rows:
-    the rows of its four lower-x/y corners (z neighbours are the next rows) and its eight
-    float32 weights. Inlined into the compiled kernels."""
+    """Lattice cell of the point ``(ux, uy, uz)`` in a table of ``side^3`` rows whose index 0
+    lies at ``radius``: ``(b00, b01, b10, b11, tx, ty, tz)``."""
     fx = np.floor(ux)
     fy = np.floor(uy)
     fz = np.floor(uz)
-    tx = np.float32(ux - fx)
-    ty = np.float32(uy - fy)
-    tz = np.float32(uz - fz)
-    sx = np.float32(1.0) - tx
-    sy = np.float32(1.0) - ty
-    sz = np.float32(1.0) - tz
     b00 = ((int(fx) + radius) * side + int(fy) + radius) * side + int(fz) + radius
     return (b00, b00 + side, b00 + side * side, b00 + side * side + side,
-            sx * sy * sz, sx * sy * tz, sx * ty * sz, sx * ty * tz,
-            tx * sy * sz, tx * sy * tz, tx * ty * sz, tx * ty * tz)
+            ux - fx, uy - fy, uz - fz)
 
 
 def _lerp(table, col, cell):
-    """Column ``col`` of the interleaved table, interpolated in ``cell`` (from :func:`_cell`)."""
-    b00, b01, b10, b11, w000, w001, w010, w011, w100, w101, w110, w111 = cell
-    return (w000 * table[b00, col] + w001 * table[b00 + 1, col]
-            + w010 * table[b01, col] + w011 * table[b01 + 1, col]
-            + w100 * table[b10, col] + w101 * table[b10 + 1, col]
-            + w110 * table[b11, col] + w111 * table[b11 + 1, col])
+    """Column ``col`` of the table, interpolated trilinearly in ``cell``."""
+    b00, b01, b10, b11, tx, ty, tz = cell
+    a00 = table[b00, col] + tz * (table[b00 + 1, col] - table[b00, col])
+    a01 = table[b01, col] + tz * (table[b01 + 1, col] - table[b01, col])
+    a10 = table[b10, col] + tz * (table[b10 + 1, col] - table[b10, col])
+    a11 = table[b11, col] + tz * (table[b11 + 1, col] - table[b11, col])
+    a0 = a00 + ty * (a01 - a00)
+    a1 = a10 + ty * (a11 - a10)
+    return a0 + tx * (a1 - a0)
 
 
-def _moment_torque(table, cell, c_re, c_im, rk0, rk1, rk2):
-    """One mode's torque terms ``Im(c m) x R^T k`` from the three interpolated moment
-    spectra (table columns 2..7). Inlined into the compiled kernels."""
-    im0 = c_re * _lerp(table, 3, cell) + c_im * _lerp(table, 2, cell)
-    im1 = c_re * _lerp(table, 5, cell) + c_im * _lerp(table, 4, cell)
-    im2 = c_re * _lerp(table, 7, cell) + c_im * _lerp(table, 6, cell)
-    return im1 * rk2 - im2 * rk1, im2 * rk0 - im0 * rk2, im0 * rk1 - im1 * rk0
+def _hermite(table, col, cell):
+    """Gradient-enhanced interpolation of one real component (``col`` 0: real part, 1:
+    imaginary part) in ``cell``: ``(G, dG/dux, dG/duy, dG/duz)``.
+
+    Columns ``col`` (value ``v``) and ``col + 2``, ``col + 4``, ``col + 6`` (the lattice
+    derivatives along x, y, z, from the moment spectra) give
+
+        G = trilinear(v) + 1/2 sum_a t_a (1 - t_a) B_a,
+
+    ``B_a`` the bilinear interpolation, over the other two axes, of the drop of the
+    ``a``-derivative across the cell (lower face minus upper face). This is exact for
+    quadratics (trilinear alone only for linear functions) and continuous across cell
+    faces; its gradient, differentiated exactly, is what the torque sums use, so the torque
+    is the derivative of the energy that is reported.
+    """
+    b00, b01, b10, b11, tx, ty, tz = cell
+    sx = 1.0 - tx
+    # trilinear part and its gradient
+    v000 = table[b00, col]
+    v010 = table[b01, col]
+    v100 = table[b10, col]
+    v110 = table[b11, col]
+    e00 = table[b00 + 1, col] - v000
+    e01 = table[b01 + 1, col] - v010
+    e10 = table[b10 + 1, col] - v100
+    e11 = table[b11 + 1, col] - v110
+    a00 = v000 + tz * e00
+    a01 = v010 + tz * e01
+    a10 = v100 + tz * e10
+    a11 = v110 + tz * e11
+    a0 = a00 + ty * (a01 - a00)
+    a1 = a10 + ty * (a11 - a10)
+    g = a0 + tx * (a1 - a0)
+    gx = a1 - a0
+    gy = sx * (a01 - a00) + tx * (a11 - a10)
+    ez0 = e00 + ty * (e01 - e00)
+    gz = ez0 + tx * (e10 + ty * (e11 - e10) - ez0)
+    # x: drop d(y, z) = X(0, y, z) - X(1, y, z), bilinear over (y, z)
+    c = col + 2
+    d00 = table[b00, c] - table[b10, c]
+    d01 = table[b00 + 1, c] - table[b10 + 1, c]
+    d10 = table[b01, c] - table[b11, c]
+    d11 = table[b01 + 1, c] - table[b11 + 1, c]
+    l0 = d00 + tz * (d01 - d00)
+    l1 = d10 + tz * (d11 - d10)
+    b = l0 + ty * (l1 - l0)
+    p = 0.5 * tx * sx
+    g += p * b
+    gx += (0.5 - tx) * b
+    gy += p * (l1 - l0)
+    gz += p * ((d01 - d00) + ty * ((d11 - d10) - (d01 - d00)))
+    # y: drop d(x, z) = Y(x, 0, z) - Y(x, 1, z), bilinear over (x, z)
+    c = col + 4
+    d00 = table[b00, c] - table[b01, c]
+    d01 = table[b00 + 1, c] - table[b01 + 1, c]
+    d10 = table[b10, c] - table[b11, c]
+    d11 = table[b10 + 1, c] - table[b11 + 1, c]
+    l0 = d00 + tz * (d01 - d00)
+    l1 = d10 + tz * (d11 - d10)
+    b = l0 + tx * (l1 - l0)
+    p = 0.5 * ty * (1.0 - ty)
+    g += p * b
+    gy += (0.5 - ty) * b
+    gx += p * (l1 - l0)
+    gz += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)))
+    # z: drop d(x, y) = Z(x, y, 0) - Z(x, y, 1), bilinear over (x, y)
+    c = col + 6
+    d00 = table[b00, c] - table[b00 + 1, c]
+    d01 = table[b01, c] - table[b01 + 1, c]
+    d10 = table[b10, c] - table[b10 + 1, c]
+    d11 = table[b11, c] - table[b11 + 1, c]
+    l0 = d00 + ty * (d01 - d00)
+    l1 = d10 + ty * (d11 - d10)
+    b = l0 + tx * (l1 - l0)
+    p = 0.5 * tz * (1.0 - tz)
+    g += p * b
+    gz += (0.5 - tz) * b
+    gx += p * (l1 - l0)
+    gy += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)))
+    return g, gx, gy, gz
+
+
+def _python(func: Any) -> Any:
+    """The plain Python function behind a numba dispatcher (the numpy reference calls the
+    shared helpers on arrays, which the compiled versions are not built for)."""
+    return getattr(func, "py_func", func)
+
+
+# ---------------------------------------------------------------------- numba backend
+def _mode_terms(table, cell, c_re, c_im, rk0, rk1, rk2, moments):
+    """One mode's contributions: ``Re(c G)``, ``Im(c G)`` and, with ``moments``, the
+    torque terms ``Re(c dG/du) x R^T k``. Inlined into the compiled kernels."""
+    if moments:
+        g_re, gx_re, gy_re, gz_re = _hermite(table, 0, cell)
+        g_im, gx_im, gy_im, gz_im = _hermite(table, 1, cell)
+        r0 = c_re * gx_re - c_im * gx_im
+        r1 = c_re * gy_re - c_im * gy_im
+        r2 = c_re * gz_re - c_im * gz_im
+        t0 = r1 * rk2 - r2 * rk1
+        t1 = r2 * rk0 - r0 * rk2
+        t2 = r0 * rk1 - r1 * rk0
+    else:
+        g_re = _lerp(table, 0, cell)
+        g_im = _lerp(table, 1, cell)
+        t0 = 0.0
+        t1 = 0.0
+        t2 = 0.0
+    return c_re * g_re - c_im * g_im, c_re * g_im + c_im * g_re, t0, t1, t2
 
 
 def _pose_kernel(
@@ -847,21 +979,16 @@ def _pose_kernel(
                 rk1 = a1 + kz * r21
                 rk2 = a2 + kz * r22
                 cell = _cell(-q * rk0, -q * rk1, -q * rk2, radius, side)
-                g_re = _lerp(table, 0, cell)
-                g_im = _lerp(table, 1, cell)
                 c = fixed_kept[ix, iy, iz] * pxy * pz[iz]
-                c_re = c.real
-                c_im = c.imag
-                cg_re = c_re * g_re - c_im * g_im
-                cg_im = c_re * g_im + c_im * g_re
+                cg_re, cg_im, d4, d5, d6 = _mode_terms(
+                    table, cell, c.real, c.imag, rk0, rk1, rk2, moments
+                )
                 s0 += cg_re
                 row_im += cg_im
                 s3 += cg_im * kz
-                if moments:
-                    d4, d5, d6 = _moment_torque(table, cell, c_re, c_im, rk0, rk1, rk2)
-                    s4 += d4
-                    s5 += d5
-                    s6 += d6
+                s4 += d4
+                s5 += d5
+                s6 += d6
             s1 += row_im * kx
             s2 += row_im * ky
         partial[ix, 0] = s0
@@ -871,7 +998,7 @@ def _pose_kernel(
         partial[ix, 4] = s4
         partial[ix, 5] = s5
         partial[ix, 6] = s6
-    return _finish_sums(_sum_partials(partial), rot, c2, kappa, n_h, moments)
+    return _finish_sums(_sum_partials(partial), rot, c2, kappa, n_h, q, moments)
 
 
 def _sum_partials(partial):
@@ -884,9 +1011,13 @@ def _sum_partials(partial):
     return sums
 
 
-def _finish_sums(sums, rot, c2, kappa, n_h, moments):
-    """[E, F (3), T (3)] from the raw sums (see ``Correlator._finish``)."""
+def _finish_sums(sums, rot, c2, kappa, n_h, q, moments):
+    """[E, F (3), T (3)] from the raw sums (see ``Correlator._finish``); the torque sums
+    arrive as ``Re(c dG/du) x R^T k`` and are scaled to ``Im(c M) x R^T k`` here."""
     out = np.zeros(7)
+    if moments:
+        for a in range(4, 7):
+            sums[a] *= q * n_h / (2.0 * np.pi)
     r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
     r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
     r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
@@ -952,23 +1083,18 @@ def _pose_kernel_list(
             rk1 = kx * r01 + ky * r11 + kz * r21
             rk2 = kx * r02 + ky * r12 + kz * r22
             cell = _cell(-q * rk0, -q * rk1, -q * rk2, radius, side)
-            g_re = _lerp(table, 0, cell)
-            g_im = _lerp(table, 1, cell)
             ph = kx * s_x + ky * s_y + kz * s_z
             c = coeff[m] * (np.cos(ph) + 1j * np.sin(ph))
-            c_re = c.real
-            c_im = c.imag
-            cg_re = c_re * g_re - c_im * g_im
-            cg_im = c_re * g_im + c_im * g_re
+            cg_re, cg_im, d4, d5, d6 = _mode_terms(
+                table, cell, c.real, c.imag, rk0, rk1, rk2, moments
+            )
             s0 += cg_re
             s1 += cg_im * kx
             s2 += cg_im * ky
             s3 += cg_im * kz
-            if moments:
-                d4, d5, d6 = _moment_torque(table, cell, c_re, c_im, rk0, rk1, rk2)
-                s4 += d4
-                s5 += d5
-                s6 += d6
+            s4 += d4
+            s5 += d5
+            s6 += d6
         partial[ci, 0] = s0
         partial[ci, 1] = s1
         partial[ci, 2] = s2
@@ -976,7 +1102,7 @@ def _pose_kernel_list(
         partial[ci, 4] = s4
         partial[ci, 5] = s5
         partial[ci, 6] = s6
-    return _finish_sums(_sum_partials(partial), rot, c2, kappa, n_h, moments)
+    return _finish_sums(_sum_partials(partial), rot, c2, kappa, n_h, q, moments)
 
 
 def _prange_placeholder(n):  # replaced by numba.prange when numba is present
@@ -992,7 +1118,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
 
     ``kind`` is "cube" (separable phases over the kept cube) or "list" (any mode list).
     """
-    global prange, _finish_sums, _sum_partials, _cell, _lerp, _moment_torque
+    global prange, _finish_sums, _sum_partials, _cell, _lerp, _hermite, _mode_terms
     key = (parallel, kind)
     if key not in _NUMBA_FUNCS:
         import numba
@@ -1003,8 +1129,8 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
             _sum_partials = numba.njit(fastmath=True, cache=True, nogil=True)(_sum_partials)
         if not hasattr(_cell, "py_func"):
             inline = numba.njit(inline="always", fastmath=True, cache=True, nogil=True)
-            _cell, _lerp = inline(_cell), inline(_lerp)
-            _moment_torque = inline(_moment_torque)
+            _cell, _lerp, _hermite = inline(_cell), inline(_lerp), inline(_hermite)
+            _mode_terms = inline(_mode_terms)
         source = _pose_kernel if kind == "cube" else _pose_kernel_list
         # A distinct function object (own name) per variant, so the compiled versions get
         # separate on-disk cache entries.

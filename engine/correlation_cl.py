@@ -2,7 +2,9 @@
 
 Works on the same arrays as the numba path: part 1's kept spectrum ``(K, K, K)`` complex64
 (times ``dw``), part 2's interleaved spectrum table ``(B^3, C)`` float32 (``C = 8``: the
-centred spectrum and the three moment spectra; ``C = 2`` without torque) and the kept
+centred spectrum and its lattice derivatives from the moment spectra, interpolated by the
+gradient-enhanced scheme of :func:`engine.correlation._hermite`; ``C = 2`` without torque,
+trilinear) and the kept
 frequency indices. These stay on the device between calls; a call passes the pose as one
 ``float16`` kernel argument (rotation, and the phase offset ``(t + R c2 - c1) / (N h)``)
 and reads back seven numbers. The reduction over work-groups happens in the same kernel
@@ -28,6 +30,56 @@ typedef float acc_t;
 #endif
 
 #define NSUM 7
+
+#if CHANNELS == 8
+/* Gradient-enhanced interpolation (engine.correlation._hermite), real and imaginary parts
+   together. Table row: value, then dG/du along x, y, z (float2 each). out: value, d/dx,
+   d/dy, d/dz. */
+inline void hermite(__global const float *table, const int b00, const int b01,
+                    const int b10, const int b11, const float tx, const float ty,
+                    const float tz, float2 *out)
+{
+    const float8 c000 = vload8(b00, table), c001 = vload8(b00 + 1, table);
+    const float8 c010 = vload8(b01, table), c011 = vload8(b01 + 1, table);
+    const float8 c100 = vload8(b10, table), c101 = vload8(b10 + 1, table);
+    const float8 c110 = vload8(b11, table), c111 = vload8(b11 + 1, table);
+    const float sx = 1.0f - tx;
+    const float2 e00 = c001.s01 - c000.s01, e01 = c011.s01 - c010.s01;
+    const float2 e10 = c101.s01 - c100.s01, e11 = c111.s01 - c110.s01;
+    const float2 a00 = c000.s01 + tz * e00, a01 = c010.s01 + tz * e01;
+    const float2 a10 = c100.s01 + tz * e10, a11 = c110.s01 + tz * e11;
+    const float2 a0 = a00 + ty * (a01 - a00), a1 = a10 + ty * (a11 - a10);
+    float2 g = a0 + tx * (a1 - a0);
+    float2 gx = a1 - a0;
+    float2 gy = sx * (a01 - a00) + tx * (a11 - a10);
+    const float2 ez0 = e00 + ty * (e01 - e00);
+    float2 gz = ez0 + tx * (e10 + ty * (e11 - e10) - ez0);
+    float2 d00, d01, d10, d11, l0, l1, b;
+    float p;
+    /* x: drop X(0, y, z) - X(1, y, z), bilinear over (y, z) */
+    d00 = c000.s23 - c100.s23;  d01 = c001.s23 - c101.s23;
+    d10 = c010.s23 - c110.s23;  d11 = c011.s23 - c111.s23;
+    l0 = d00 + tz * (d01 - d00);  l1 = d10 + tz * (d11 - d10);
+    b = l0 + ty * (l1 - l0);  p = 0.5f * tx * sx;
+    g += p * b;  gx += (0.5f - tx) * b;  gy += p * (l1 - l0);
+    gz += p * ((d01 - d00) + ty * ((d11 - d10) - (d01 - d00)));
+    /* y: drop Y(x, 0, z) - Y(x, 1, z), bilinear over (x, z) */
+    d00 = c000.s45 - c010.s45;  d01 = c001.s45 - c011.s45;
+    d10 = c100.s45 - c110.s45;  d11 = c101.s45 - c111.s45;
+    l0 = d00 + tz * (d01 - d00);  l1 = d10 + tz * (d11 - d10);
+    b = l0 + tx * (l1 - l0);  p = 0.5f * ty * (1.0f - ty);
+    g += p * b;  gy += (0.5f - ty) * b;  gx += p * (l1 - l0);
+    gz += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)));
+    /* z: drop Z(x, y, 0) - Z(x, y, 1), bilinear over (x, y) */
+    d00 = c000.s67 - c001.s67;  d01 = c010.s67 - c011.s67;
+    d10 = c100.s67 - c101.s67;  d11 = c110.s67 - c111.s67;
+    l0 = d00 + ty * (d01 - d00);  l1 = d10 + ty * (d11 - d10);
+    b = l0 + tx * (l1 - l0);  p = 0.5f * tz * (1.0f - tz);
+    g += p * b;  gz += (0.5f - tz) * b;  gx += p * (l1 - l0);
+    gy += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)));
+    out[0] = g;  out[1] = gx;  out[2] = gy;  out[3] = gz;
+}
+#endif
 
 __kernel void pose_sums(
     __global const float2 *fixed,      /* (K^3) rho1c^(w) dw                     */
@@ -63,11 +115,9 @@ __kernel void pose_sums(
         const int b00 = (((int)fx + radius) * side + (int)fy + radius) * side + (int)fz + radius;
         const int b01 = b00 + side, b10 = b00 + side * side, b11 = b10 + side;
 #if CHANNELS == 8
-        const float8 v = sx * sy * sz * vload8(b00, table) + sx * sy * tz * vload8(b00 + 1, table)
-                       + sx * ty * sz * vload8(b01, table) + sx * ty * tz * vload8(b01 + 1, table)
-                       + tx * sy * sz * vload8(b10, table) + tx * sy * tz * vload8(b10 + 1, table)
-                       + tx * ty * sz * vload8(b11, table) + tx * ty * tz * vload8(b11 + 1, table);
-        const float g_re = v.s0, g_im = v.s1;
+        float2 hv[4];
+        hermite(table, b00, b01, b10, b11, tx, ty, tz, hv);
+        const float g_re = hv[0].x, g_im = hv[0].y;
 #else
         const float2 v = sx * sy * sz * vload2(b00, table) + sx * sy * tz * vload2(b00 + 1, table)
                        + sx * ty * sz * vload2(b01, table) + sx * ty * tz * vload2(b01 + 1, table)
@@ -91,12 +141,13 @@ __kernel void pose_sums(
         s[2] += cg_im * ky;
         s[3] += cg_im * kz;
 #if CHANNELS == 8
-        const float im0 = c_re * v.s3 + c_im * v.s2;
-        const float im1 = c_re * v.s5 + c_im * v.s4;
-        const float im2 = c_re * v.s7 + c_im * v.s6;
-        s[4] += im1 * rk2 - im2 * rk1;
-        s[5] += im2 * rk0 - im0 * rk2;
-        s[6] += im0 * rk1 - im1 * rk0;
+        /* Re(c dG/du) x R^T k; scaled to Im(c M) x R^T k on the host */
+        const float r0 = c_re * hv[1].x - c_im * hv[1].y;
+        const float r1 = c_re * hv[2].x - c_im * hv[2].y;
+        const float r2 = c_re * hv[3].x - c_im * hv[3].y;
+        s[4] += r1 * rk2 - r2 * rk1;
+        s[5] += r2 * rk0 - r0 * rk2;
+        s[6] += r0 * rk1 - r1 * rk0;
 #endif
     }
     for (int j = 0; j < NSUM; ++j) scratch[lid * NSUM + j] = s[j];
@@ -212,6 +263,8 @@ class OpenCLKernel:
         k.set_arg(9, b["counter"])
         k.set_arg(10, b["out"])
         k.set_arg(11, cl.LocalMemory(self.local_size * 7 * self._result.itemsize))
+        # torque sums arrive as Re(c dG/du) x R^T k: times a / (2 pi) gives Im(c M) x R^T k
+        self._torque_scale = scale * correlator.size * correlator.spacing / (2.0 * np.pi)
         self._modes = correlator.modes
 
     def sums(self, correlator: Any, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -225,7 +278,9 @@ class OpenCLKernel:
         queue = self.backend.queue
         cl.enqueue_nd_range_kernel(queue, self.kernel, (self.global_size,), (self.local_size,))
         cl.enqueue_copy(queue, self._result, self._buffers["out"], is_blocking=True)
-        return self._result[:7].astype(np.float64)
+        sums = self._result[:7].astype(np.float64)
+        sums[4:7] *= self._torque_scale
+        return sums
 
     def pose(self, correlator: Any, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(7,) float64 ``[E, F (3), T (3)]`` at one pose (zeros where the boxes are apart)."""

@@ -29,7 +29,15 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from engine.dynamics import BodyState, RigidBody, cross3, kinetic_energy, rotvec_between, step
+from engine.dynamics import (
+    BodyState,
+    RigidBody,
+    cross3,
+    drift,
+    kick,
+    kinetic_energy,
+    rotvec_between,
+)
 from engine.pose import quaternion_to_matrix, rotation_vector, rotvec_to_quaternion
 from engine.simconfig import Effects, Physics
 
@@ -277,11 +285,18 @@ class Simulation:
         self._rmask = self.effects.rotation_mask
         self._tmask_opt = None if self._tmask.all() else self._tmask
         self._rmask_opt = None if self._rmask.all() else self._rmask
+        self._sample_fresh = False  # kappa may have changed
 
     def set_field(self, field: GeometricField) -> None:
         if isinstance(field, (CorrelatorField, LandscapeField)):
             field.kappa = self.physics.kappa
         self.field = field
+        self.field_changed()
+
+    def field_changed(self) -> None:
+        """Say that the field changed (new modes, new descriptors): the next step evaluates it
+        afresh instead of reusing the sample from the end of the last step."""
+        self._sample_fresh = False
 
     def set_effects(self, effects: Effects, physics: Physics) -> None:
         self.effects = effects
@@ -296,6 +311,7 @@ class Simulation:
         self.steps = 0
         self.set_proxy(pose)
         self.sample = FieldSample()
+        self._sample_fresh = False  # the field at the current pose is yet to be evaluated
         self.coupling_force = _ZERO3
         self.coupling_torque = _ZERO3
         self.haptic_force = _ZERO3
@@ -330,17 +346,16 @@ class Simulation:
         return self.sample
 
     # -- stepping -------------------------------------------------------------------------------
-    def step(self) -> FieldSample:
-        """One fixed step: field at the current pose, coupling, body update. Returns the
-        field sample used (at the pose before the update)."""
-        state, body = self.state, self.body
-        R = state.rotation
-        origin = state.com - R @ body.center
-        sample = self.field.evaluate(R, origin)
-        self.sample = sample
+    def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Force and torque on the part at its current state: the stored field sample,
+        gravity, the coupling to the proxy (sets the coupling and haptic outputs) and body
+        damping."""
+        state, body, sample = self.state, self.body, self.sample
         force = sample.force + self._gravity_force
         torque = sample.torque
         if self.coupled:
+            R = state.rotation
+            origin = state.com - R @ body.center
             v_origin = state.velocity - cross3(state.omega, R @ body.center)
             g = self.gains
             fc = g.k_lin * (self._proxy_t - origin) - g.c_lin * v_origin
@@ -354,15 +369,27 @@ class Simulation:
             force = force - p.body_c_lin * state.velocity
         if p.body_c_rot:
             torque = torque - p.body_c_rot * state.omega
-        step(
-            body,
-            state,
-            force,
-            torque,
-            self.dt,
-            translation_mask=self._tmask_opt,
-            rotation_mask=self._rmask_opt,
-        )
+        return force, torque
+
+    def step(self) -> FieldSample:
+        """One fixed step, velocity Verlet: half a kick with the forces at the current pose
+        (the field sample from the end of the last step, the coupling to the proxy as it is
+        now), a drift, the field at the new pose, half a kick with the new forces. One field
+        evaluation per step; second order, so a free part keeps its energy far better than
+        with symplectic Euler at the same step. Returns the field sample at the new pose
+        (also in :attr:`sample`)."""
+        state, body = self.state, self.body
+        if not self._sample_fresh:
+            self.evaluate_field()
+            self._sample_fresh = True
+        half = 0.5 * self.dt
+        masks = {"translation_mask": self._tmask_opt, "rotation_mask": self._rmask_opt}
+        force, torque = self._total_forces()
+        kick(body, state, force, torque, half, **masks)
+        drift(body, state, self.dt, translation_mask=self._tmask_opt)
+        sample = self.evaluate_field()
+        force, torque = self._total_forces()
+        kick(body, state, force, torque, half, **masks)
         self.step_time = self.time
         self.time += self.dt
         self.steps += 1

@@ -6,12 +6,13 @@ orientation as a unit quaternion (w, x, y, z) (4,), linear velocity of the centr
 the part's *origin* (the convention of the correlation engine and of poses: torque about
 world axes through part 2's origin) and are moved to the centre of mass here.
 
-Integrator: semi-implicit (symplectic) Euler at a fixed step: velocities first from the
-current forces, then positions from the new velocities; orientation by the exact
-exponential of the angular step (``q <- exp(omega dt / 2) q``), renormalised. For a
-conservative field with damping off, the energy error stays bounded (no drift) for a step
-well inside the stability limit ``omega_max dt < 2``. The gyroscopic term
-``omega x (I omega)`` is explicit.
+Integrator pieces: :func:`kick` changes the velocities by an impulse, :func:`drift` moves
+the body at its velocities, orientation by the exact exponential of the angular step
+(``q <- exp(omega dt / 2) q``), renormalised; the gyroscopic term ``omega x (I omega)`` is
+explicit. :func:`step` is symplectic Euler (kick, then drift); the simulation composes them
+as velocity Verlet (half kick, drift, new forces, half kick: second order, one field
+evaluation per step). For a conservative field with damping off the energy error stays
+bounded (no drift) for a step well inside the stability limit ``omega_max dt < 2``.
 """
 
 from __future__ import annotations
@@ -172,7 +173,7 @@ def quaternion_step(quat: np.ndarray, omega: np.ndarray, dt: float) -> np.ndarra
     return q / math.sqrt(float(q @ q))
 
 
-def step(
+def kick(
     body: RigidBody,
     state: BodyState,
     force: np.ndarray,
@@ -182,7 +183,7 @@ def step(
     translation_mask: np.ndarray | None = None,
     rotation_mask: np.ndarray | None = None,
 ) -> None:
-    """Advance ``state`` in place by one symplectic Euler step.
+    """Change the velocities in place by ``dt`` of ``force`` and ``torque`` (positions kept).
 
     Parameters
     ----------
@@ -194,19 +195,15 @@ def step(
     torque : (3,) float64
         Total torque about world axes through the part's origin.
     dt : float
-        Time step in seconds.
+        Duration of the impulse in seconds.
     translation_mask, rotation_mask : (3,) float64, optional
-        1 for free axes, 0 for locked ones (part 1's frame). A locked translation axis holds
-        the part's *origin* coordinate; a locked rotation axis zeroes that angular velocity
-        component.
+        1 for free axes, 0 for locked ones (part 1's frame); locked components of the
+        velocity and angular velocity are zeroed.
     """
     R = state.rotation
     arm = R @ body.center  # (3,) origin -> centre of mass
     # torque about the centre of mass of a force applied at the origin
     torque_com = torque - cross3(arm, force)
-    locked_origin = None
-    if translation_mask is not None and not translation_mask.all():
-        locked_origin = state.com - arm
     state.velocity = state.velocity + (dt / body.mass) * force
     if translation_mask is not None:
         state.velocity = state.velocity * translation_mask
@@ -216,12 +213,47 @@ def step(
     state.omega = state.omega + dt * (inv_world @ (torque_com - gyro))
     if rotation_mask is not None:
         state.omega = state.omega * rotation_mask
+
+
+def drift(
+    body: RigidBody,
+    state: BodyState,
+    dt: float,
+    *,
+    translation_mask: np.ndarray | None = None,
+) -> None:
+    """Move the body in place for ``dt`` at its current velocities.
+
+    A locked translation axis (``translation_mask`` 0) holds the part's *origin* coordinate:
+    rotation about an offset centre of mass would otherwise move it.
+    """
+    locked_origin = None
+    if translation_mask is not None and not translation_mask.all():
+        locked_origin = state.com - state.rotation @ body.center
     state.com = state.com + dt * state.velocity
     state.quat = quaternion_step(state.quat, state.omega, dt)
     state._R = quaternion_to_matrix(state.quat)
     if locked_origin is not None:
-        # hold the origin on locked axes: rotation about an offset centre would move it
+        assert translation_mask is not None
         origin = state.com - state._R @ body.center
         keep = translation_mask == 0
         origin[keep] = locked_origin[keep]
         state.com = origin + state._R @ body.center
+
+
+def step(
+    body: RigidBody,
+    state: BodyState,
+    force: np.ndarray,
+    torque: np.ndarray,
+    dt: float,
+    *,
+    translation_mask: np.ndarray | None = None,
+    rotation_mask: np.ndarray | None = None,
+) -> None:
+    """Advance ``state`` in place by one symplectic Euler step: :func:`kick` by ``dt``, then
+    :func:`drift` by ``dt`` (arguments as there). The simulation composes the two as
+    velocity Verlet instead (:meth:`engine.coupling.Simulation.step`)."""
+    kick(body, state, force, torque, dt, translation_mask=translation_mask,
+         rotation_mask=rotation_mask)
+    drift(body, state, dt, translation_mask=translation_mask)

@@ -564,6 +564,7 @@ class EngineLoop:
                 sim.set_proxy(np.asarray(cmd.pose))
         elif isinstance(cmd, api.SetModes):
             sim.field.set_modes(cmd.modes)
+            sim.field_changed()
         elif isinstance(cmd, api.Pause):
             self.paused = bool(cmd.paused)
         elif isinstance(cmd, api.Reset):

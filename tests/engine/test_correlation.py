@@ -118,7 +118,9 @@ def test_identity_matches_closed_form(full):
     f, df_dt, df_dth = closed_form(BLOBS1, BLOBS2, np.eye(3), t)
     assert ev.energy == pytest.approx(-f.real, rel=1e-5)
     np.testing.assert_allclose(ev.force, df_dt.real, rtol=1e-4, atol=1e-5)
-    np.testing.assert_allclose(ev.torque, df_dth.real, rtol=1e-4, atol=1e-5)
+    # the torque is the derivative of the interpolated rotated energy, exact to third order
+    # in the lattice step: about 1 % here (rotations lift the modes off the lattice)
+    assert np.linalg.norm(ev.torque - df_dth.real) < 0.02 * np.linalg.norm(df_dth.real)
 
 
 @pytest.mark.parametrize(
@@ -153,23 +155,40 @@ def test_force_is_central_difference_of_energy(fast):
     np.testing.assert_allclose(ev.force, fd, rtol=1e-5, atol=1e-6 * np.linalg.norm(fd))
 
 
-def test_torque_is_central_difference_of_energy(full):
-    """T = -dE/dtheta with R -> exp([theta]x) R; agreement up to the interpolation error."""
-    rot = rotation_matrix(np.array([0.3, 0.5, -0.2]))
-    t = np.array([0.4, -0.3, 0.6])
-    ev = full.evaluate(rot, t)
-    eps = 1e-3
+def _rotation_difference(corr, rot, t, eps):
+    """``-dE/dtheta`` by central differences under ``R -> exp([theta]x) R``."""
     fd = np.empty(3)
     for a in range(3):
         d = np.zeros(3)
         d[a] = eps
-        plus = full.evaluate(rotation_matrix(d) @ rot, t).energy
-        minus = full.evaluate(rotation_matrix(-d) @ rot, t).energy
+        plus = corr.evaluate(rotation_matrix(d) @ rot, t).energy
+        minus = corr.evaluate(rotation_matrix(-d) @ rot, t).energy
         fd[a] = -(plus - minus) / (2 * eps)
-    assert np.linalg.norm(ev.torque - fd) < 0.02 * np.linalg.norm(fd)
-    # and the exact torque of the Gaussians lies just as close
+    return fd
+
+
+@pytest.mark.parametrize("which", ["full", "fast"])
+@pytest.mark.parametrize("rotvec", [(0.3, 0.5, -0.2), (0.0, 0.0, 0.0), (0.01, 0.0, 0.0)])
+def test_torque_is_central_difference_of_energy(request, which, rotvec):
+    """T = -dE/dtheta (R -> exp([theta]x) R) of the energy the correlator reports, to the
+    precision of the central difference: the torque differentiates the interpolant the
+    energy uses, so the field is conservative (and a free part keeps its energy)."""
+    corr = request.getfixturevalue(which)
+    rot = rotation_matrix(np.array(rotvec))
+    t = np.array([0.4, -0.3, 0.6])
+    ev = corr.evaluate(rot, t)
+    fd = _rotation_difference(corr, rot, t, 1e-4)
+    # float32 tables in the compiled kernel: about 1e-4 of the torque. At and near the
+    # identity the modes sit on lattice nodes, where the interpolant's gradient jumps by a
+    # term of third order in the lattice step (the central difference averages both sides).
+    tol = 2e-6 if which == "full" else 3e-4
+    if np.linalg.norm(rotvec) < 0.1:
+        tol = 2e-3
+    assert np.linalg.norm(ev.torque - fd) < tol * np.linalg.norm(fd)
+    # and the exact torque of the Gaussians lies close (the interpolation error)
     _, _, df_dth = closed_form(BLOBS1, BLOBS2, rot, t)
-    assert np.linalg.norm(fd - df_dth.real) < 0.02 * np.linalg.norm(fd)
+    if which == "full":
+        assert np.linalg.norm(fd - df_dth.real) < 0.02 * np.linalg.norm(fd)
 
 
 def test_invariant_under_moving_both_parts(full):
@@ -220,7 +239,10 @@ def test_rotation_near_identity_is_continuous(fast):
     for angle in (1e-12, 1e-9, 1e-6):
         ev = fast.evaluate(rotation_matrix(np.array([angle, -angle, angle])), t)
         assert ev.energy == pytest.approx(at_identity.energy, rel=1e-5)
-        np.testing.assert_allclose(ev.torque, at_identity.torque, rtol=1e-4, atol=1e-6)
+        # modes on lattice nodes may fall into the neighbouring cell, whose one-sided
+        # gradient differs by a third-order term: well under 1e-3 of the torque
+        scale = np.linalg.norm(at_identity.torque)
+        assert np.linalg.norm(ev.torque - at_identity.torque) < 1e-3 * scale
 
 
 @pytest.mark.parametrize("scale", [1e-4, 1e4])
@@ -265,27 +287,35 @@ def test_all_mode_counts_finite_and_converging(fast, full):
         assert np.all(np.isfinite(ev.torque))
         errors.append(abs(ev.energy - exact))
     fast.set_modes(16)
-    # full modes: only the interpolation error of the q lattice is left
-    assert errors[-1] < 0.01 * abs(exact)
+    # full modes: only the interpolation error of the q lattice is left (about 1e-5)
+    assert errors[-1] < 1e-4 * abs(exact)
     assert abs(fast.evaluate(rot, t).energy - full.evaluate(rot, t).energy) > 0
-    # K = 24 reads the refined table: truncation almost gone, interpolation error
-    # ~refine^-2 smaller than on the q lattice
-    assert errors[11] < 0.5 * errors[-1]
-    assert errors[0] > errors[7] > errors[11]
+    assert errors[0] > errors[7] > errors[11] > errors[-1]
 
 
-def test_refined_table_reduces_interpolation_error(fields):
+def test_interpolation_error_falls_with_refinement_and_gradients(fields):
+    """Rotated spectrum: the refined table and the gradient-enhanced interpolant (rotation
+    on) each cut the interpolation error; measured against a 4x refined table, so that the
+    closed form's own discretisation error (about 1e-5 here) does not hide it."""
     r1, r2 = fields
     rot = rotation_matrix(np.array([0.4, -0.3, 0.8]))
     t = np.array([0.3, 0.2, -0.4])
+    energy = {}
+    for rotation in (False, True):
+        for refine in (1, 2, 4):
+            corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=32,
+                              rotation=rotation, backend="numpy", refine=refine,
+                              fine_modes=32, use_cache=False)
+            energy[rotation, refine] = corr.evaluate(rot, t).energy
     exact = -closed_form(BLOBS1, BLOBS2, rot, t)[0].real
-    errors = {}
-    for refine in (1, 2, 3):
-        corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=32,
-                          backend="numpy", refine=refine, fine_modes=32, use_cache=False)
-        errors[refine] = abs(corr.evaluate(rot, t).energy - exact)
-    assert errors[2] < 0.4 * errors[1]
-    assert errors[3] < 0.6 * errors[2]
+    assert energy[True, 4] == pytest.approx(exact, rel=1e-4)
+    err = {key: abs(value - energy[True, 4]) for key, value in energy.items()}
+    # trilinear: second order (measured 7.9e-3, 2.0e-3); gradient-enhanced: third order or
+    # better (1.4e-5, 9e-7)
+    assert err[False, 2] < 0.4 * err[False, 1]
+    assert err[True, 2] < 0.2 * err[True, 1]
+    assert err[True, 1] < 0.01 * err[False, 1]
+    assert err[True, 2] < 0.01 * err[False, 2]
 
 
 def test_energy_smooth_along_a_path(fast):
@@ -338,10 +368,16 @@ def test_rotation_off_computes_no_moments(fields):
                              backend="numba", use_cache=False)
     ev2 = with_torque.evaluate(rotation_matrix(np.array([0.1, 0.2, 0.3])),
                                np.array([0.1, 0.0, 0.2]))
-    assert ev.energy == pytest.approx(ev2.energy, rel=1e-6)
-    np.testing.assert_allclose(ev.force, ev2.force, rtol=1e-6)
+    # rotation off interpolates trilinearly (no moment spectra), rotation on with the
+    # gradients: equal up to the trilinear error, and exactly equal at R = I
+    assert ev.energy == pytest.approx(ev2.energy, rel=1e-2)
+    t0 = np.array([0.1, 0.0, 0.2])
+    at_identity = corr.evaluate(np.eye(3), t0), with_torque.evaluate(np.eye(3), t0)
+    assert at_identity[0].energy == pytest.approx(at_identity[1].energy, rel=1e-6)
+    np.testing.assert_allclose(at_identity[0].force, at_identity[1].force, rtol=1e-6)
+    np.testing.assert_allclose(ev.force, ev2.force, rtol=1e-2)
     assert with_torque.stats["moment_spectra"] == 3
-    assert with_torque.stats["torque_sums"] == 1
+    assert with_torque.stats["torque_sums"] == 2
 
 
 @pytest.mark.parametrize("k", [2, 5, 16, 33])

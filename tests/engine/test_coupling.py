@@ -111,7 +111,8 @@ def test_rotation_locked_builds_no_torque_and_uses_landscape():
     c = made[0]
     assert c.rotation is False  # correlator built without torque spectra
     assert c.evaluations == 0 and c.torque_sums == 0  # no modal sum at all
-    assert c.landscapes == 1 and c.lookups == 100  # one landscape, looked up per step
+    # one landscape, looked up at the start pose and then once per step (velocity Verlet)
+    assert c.landscapes == 1 and c.lookups == 101
     np.testing.assert_allclose(sim.part_pose()[3:], 0.0)  # rotation stayed locked
 
 
@@ -122,7 +123,8 @@ def test_translation_plus_rotation_sums_torque():
     assert isinstance(fld, CorrelatorField)
     sim = make_sim(field=fld)
     sim.run(10)
-    assert made[0].rotation is True and made[0].torque_sums == 10
+    # the start pose, then one evaluation per step
+    assert made[0].rotation is True and made[0].torque_sums == 11
 
 
 def test_guidance_off_builds_nothing():

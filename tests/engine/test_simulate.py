@@ -182,10 +182,9 @@ def test_collision_only_pair_is_measured(name):
     assert guided["distance"] <= baseline["distance"] + guided["half_cell"]
 
 
-@pytest.mark.slow
-def test_energy_bounded_in_the_real_field_translation_only():
-    """Free part (no proxy, damping off) in the peg's real landscape: total energy stays
-    within a few percent of the kinetic energy it reaches, with no drift."""
+def free_energy_run(axes, start, steps=2000):
+    """Free part (no proxy, damping off) in the peg's real field at the default 1 ms step:
+    (total energy per step, its starting value, the largest kinetic energy)."""
     from dataclasses import replace
 
     from engine.api import open_scene
@@ -194,20 +193,39 @@ def test_energy_bounded_in_the_real_field_translation_only():
 
     handle = open_scene(PEG)
     cfg = handle.config
-    effects = replace(cfg.effects, damping=False, axes=("x", "y", "z"))
+    effects = replace(cfg.effects, damping=False, axes=axes)
     handle = replace(handle, config=replace(cfg, effects=effects),
-                     start_pose=np.array([0.3, 0.0, -12.0, 0.0, 0.0, 0.0]))
+                     start_pose=np.asarray(start, float))
     sim, _ = build_simulation(handle, prepare=True, coupled=False, modes=16)
     sim.evaluate_field()
     e0 = sim.total_energy()
     energy, kinetic = [], []
-    for _ in range(2000):
+    for _ in range(steps):
         sim.step()
-        sim.evaluate_field()
         energy.append(sim.total_energy())
         kinetic.append(kinetic_energy(sim.body, sim.state))
-    energy = np.asarray(energy)
-    scale = max(kinetic)
+    return np.asarray(energy), e0, max(kinetic)
+
+
+@pytest.mark.slow
+def test_energy_bounded_in_the_real_field_translation_only():
+    """Total energy stays within a few percent of the kinetic energy the part reaches, with
+    no drift (rotation locked: the landscape lookup)."""
+    energy, e0, scale = free_energy_run(("x", "y", "z"), [0.3, 0.0, -12.0, 0.0, 0.0, 0.0])
     assert scale > 1000.0  # it fell into the hole and moved
     assert np.max(np.abs(energy - e0)) < 0.1 * scale
     assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.05 * scale
+
+
+@pytest.mark.slow
+def test_energy_bounded_in_the_real_field_with_rotation():
+    """Rotation free: the torque is the derivative of the interpolated energy and the step
+    is velocity Verlet, so a tilted peg rattling in its hole for 2 s keeps its total energy
+    within a few percent of the kinetic energy (measured 5.6 % at most, 3 % drift; with the
+    moment-spectrum torque and symplectic Euler it was 18 % and 9 %)."""
+    energy, e0, scale = free_energy_run(
+        ("x", "y", "z", "rx", "ry", "rz"), [0.2, 0.0, -14.5, 0.02, 0.0, 0.0]
+    )
+    assert scale > 1000.0
+    assert np.max(np.abs(energy - e0)) < 0.1 * scale
+    assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.06 * scale
