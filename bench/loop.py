@@ -217,6 +217,7 @@ def _run_process(args, load):
         "fake": args.fake,
         "rate_hz": args.rate,
         "switch_interval": args.switch_interval,
+        "raise_priority": True,  # as the GUI's engine process (SKELASM_REALTIME=0: off)
     }
     engine = ProcessEngine(args.scene, options=options, keep_periods=True)
     engine.start()

@@ -510,8 +510,10 @@ def start_engine(
     if process:
         from engine.loop import ProcessEngine
 
+        # the process's loop thread asks for real-time scheduling where the OS allows it:
+        # beside a software-rendered window it otherwise waits for the render threads
         options = {"modes": modes, "backend": backend, "rate_hz": rate_hz,
-                   "realtime": realtime, "switch_interval": None}
+                   "realtime": realtime, "switch_interval": None, "raise_priority": realtime}
         engine = ProcessEngine(str(handle.path), options=options)
         engine.start()
         return EngineHandle(engine)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import collections
 import math
+import os
 import queue
 import sys
 import threading
@@ -301,6 +302,10 @@ class EngineLoop:
     switch_interval : float, optional
         If given, ``sys.setswitchinterval`` while the loop runs (how long another thread may
         hold the GIL before the loop gets it back); restored at the end.
+    raise_priority : bool
+        Ask the OS to run the loop thread ahead of other work (:func:`raise_thread_priority`:
+        real-time FIFO scheduling where allowed). What was granted is in
+        :attr:`scheduling`.
     """
 
     def __init__(
@@ -317,6 +322,7 @@ class EngineLoop:
         on_step: Callable[[Simulation, np.ndarray], None] | None = None,
         keep_periods: bool = False,
         switch_interval: float | None = None,
+        raise_priority: bool = False,
     ):
         self.sim = sim
         self.model = model
@@ -336,6 +342,8 @@ class EngineLoop:
         self.keep_periods = keep_periods
         self.periods = array("d")
         self.switch_interval = switch_interval
+        self.raise_priority = raise_priority
+        self.scheduling = "normal (not asked for)"
         self.frames_published = 0
         self.overruns = 0
         self.paused = False
@@ -406,6 +414,8 @@ class EngineLoop:
     def run(self, max_steps: int | None = None) -> int:
         """Step until Stop (or ``max_steps`` steps); returns the steps taken."""
         self.thread_name = threading.current_thread().name
+        if self.raise_priority:
+            self.scheduling = raise_thread_priority()
         old_switch = sys.getswitchinterval()
         if self.switch_interval is not None:
             sys.setswitchinterval(self.switch_interval)
@@ -837,7 +847,7 @@ class ProcessEngine:
     scene_path : str
     options : dict
         ``modes``, ``backend``, ``rate_hz``, ``realtime``, ``translation_only``, ``fake``,
-        ``switch_interval``.
+        ``switch_interval``, ``raise_priority`` (see :func:`raise_thread_priority`).
     keep_periods : bool
         The child returns every period at the end (:meth:`stop_and_collect`).
     """
@@ -959,6 +969,33 @@ class ProcessEngine:
         return self._result
 
 
+#: Real-time priority asked for by :func:`raise_thread_priority` (1-99; low, so that the
+#: kernel's own real-time threads still come first).
+REALTIME_PRIORITY = 10
+
+
+def raise_thread_priority() -> str:
+    """Run the calling thread ahead of ordinary work, as far as the OS allows.
+
+    Tries ``SCHED_FIFO`` at :data:`REALTIME_PRIORITY` (Linux: root, ``CAP_SYS_NICE`` or an
+    ``rtprio`` limit in ``/etc/security/limits.conf``); a woken FIFO thread preempts the
+    GUI's render threads at once instead of waiting for its turn. The loop sleeps most of
+    each period and the kernel caps real-time threads at 95 % of a CPU, so the rest of the
+    machine keeps running. ``SKELASM_REALTIME=0`` turns this off. Returns what was granted,
+    in words.
+    """
+    if os.environ.get("SKELASM_REALTIME", "1").strip() in ("0", "no", "off", "false"):
+        return "normal (SKELASM_REALTIME=0)"
+    if not hasattr(os, "sched_setscheduler"):
+        return "normal (no real-time scheduling on this OS)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+    except OSError as exc:
+        return (f"normal (real-time scheduling refused: {exc.strerror or exc}; allow it with "
+                "an rtprio limit or CAP_SYS_NICE)")
+    return f"real-time (SCHED_FIFO {REALTIME_PRIORITY})"
+
+
 def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, options: dict,
                   keep_periods: bool) -> None:
     """Entry point of the engine process."""
@@ -1029,6 +1066,7 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
             realtime=bool(options.get("realtime", True)), publish_every=1_000_000_000,
             on_step=on_step, keep_periods=keep_periods,
             switch_interval=options.get("switch_interval"),
+            raise_priority=bool(options.get("raise_priority", False)),
         )
 
         def forward_commands() -> None:
@@ -1057,7 +1095,8 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
             loop._thread.join(0.1)  # type: ignore[union-attr]
         fwd.join(1.0)
         eval_us = float(np.median(eval_log)) if eval_log else float("nan")
-        events.put(("result", (np.asarray(loop.periods), eval_us, field_name)))
+        described = f"{field_name}; engine thread scheduling: {loop.scheduling}"
+        events.put(("result", (np.asarray(loop.periods), eval_us, described)))
     except Exception as exc:
         events.put(api.ErrorEvent(_message(exc), type(exc).__name__, fatal=True))
     finally:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 
 import numpy as np
@@ -257,3 +259,42 @@ def test_device_maximum_clamps_the_rendered_force():
     assert loop.sim.limits.max_force == 0.25
     assert np.linalg.norm(dev.forces[-2]) == pytest.approx(0.25)  # the proxy is 0.1 away
     assert np.linalg.norm(dev.forces[-1]) == 0.0  # and the device is let go at the end
+
+
+def _in_thread(func):
+    out = []
+    worker = threading.Thread(target=lambda: out.append(func()))
+    worker.start()
+    worker.join()
+    return out[0]
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_raise_thread_priority_reports_what_the_os_granted(monkeypatch):
+    from engine.loop import REALTIME_PRIORITY, raise_thread_priority
+
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+
+    def ask():
+        said = raise_thread_priority()
+        return said, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+    said, policy, priority = _in_thread(ask)  # only that thread changes
+    if said.startswith("real-time"):
+        assert policy == os.SCHED_FIFO and priority == REALTIME_PRIORITY
+    else:
+        assert "refused" in said and policy == os.SCHED_OTHER
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the test's own thread is untouched
+    monkeypatch.setenv("SKELASM_REALTIME", "0")
+    said, policy, _ = _in_thread(ask)
+    assert said == "normal (SKELASM_REALTIME=0)" and policy == os.SCHED_OTHER
+
+
+def test_loop_asks_for_priority_only_when_told(monkeypatch):
+    monkeypatch.setenv("SKELASM_REALTIME", "0")
+    plain, _, _ = make_loop(realtime=False)
+    plain.run(max_steps=3)
+    assert plain.scheduling == "normal (not asked for)"
+    asked, _, _ = make_loop(realtime=False, raise_priority=True)
+    asked.run(max_steps=3)
+    assert asked.scheduling == "normal (SKELASM_REALTIME=0)"
