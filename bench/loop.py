@@ -195,6 +195,8 @@ def _report_from_frames(args, info) -> int:
     print(f"engine loop: {info['what']}, K = {args.modes} (m' = {args.modes ** 3}), "
           f"{info['field']}")
     print("mode: process, GUI running (figures from the engine's frames)")
+    if info.get("engine_note"):
+        print(info["engine_note"])
     print()
     print("| rate (Hz) | p99 (us) | eval median (us) | GUI fps | GUI latency p50/p99/max (ms) |")
     print("|---|---|---|---|---|")

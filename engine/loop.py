@@ -344,6 +344,7 @@ class EngineLoop:
         self.switch_interval = switch_interval
         self.raise_priority = raise_priority
         self.scheduling = "normal (not asked for)"
+        self.started = threading.Event()  # set once the loop runs (scheduling is known)
         self.frames_published = 0
         self.overruns = 0
         self.paused = False
@@ -416,6 +417,7 @@ class EngineLoop:
         self.thread_name = threading.current_thread().name
         if self.raise_priority:
             self.scheduling = raise_thread_priority()
+        self.started.set()
         old_switch = sys.getswitchinterval()
         if self.switch_interval is not None:
             sys.setswitchinterval(self.switch_interval)
@@ -1087,8 +1089,10 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
                 time.sleep(0.01)
 
         threading.Thread(target=forward_commands, daemon=True).start()
-        events.put(api.ReadyEvent((), field_name))
         loop.start()
+        loop.started.wait(5.0)
+        events.put(api.ReadyEvent((), field_name,
+                                  f"engine ready; its loop thread: {loop.scheduling}"))
         fwd = threading.Thread(target=forward_events, daemon=True)
         fwd.start()
         while loop.is_alive():

@@ -139,6 +139,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 "scene_name": str(getattr(handle.scene, "name", scene)),
                 "backend": win.readouts.text("backend"),
                 "engine": win.session.engine_name,
+                "engine_note": getattr(win, "engine_note", ""),
                 "guidance_ready": bool(ready),
                 "guidance_error": win.guidance_error,
                 "seconds": elapsed,
@@ -214,6 +215,7 @@ def run_loop_benchmark(args, load=None):
         "guidance_ready": r["guidance_ready"],
         "engine_rate_hz": r["engine_rate_hz"],
         "engine_p99_us": r["engine_p99_us"],
+        "engine_note": r["engine_note"],
     }
     return periods, info
 

@@ -107,6 +107,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.error_dialog: QtWidgets.QMessageBox | None = None
         self.latest_frame: api.Frame | None = None
         self.frames_received = 0
+        self.engine_note = ""  # the engine's ReadyEvent message (its loop's scheduling)
         self._landscape_pending = False
         self._force_scale = 0.0
         self._torque_scale = 0.0
@@ -545,6 +546,7 @@ class MainWindow(QtWidgets.QMainWindow):
                                                   self.params.penalty.value())
             self.readouts.set("backend", event.backend or "-")
             self.slice_view.set_descriptors(event.descriptors)
+            self.engine_note = event.message
             self.statusBar().showMessage(event.message or "engine ready", 4000)
         elif isinstance(event, api.DescriptorsSwapped):
             self.guidance_ready = bool(event.descriptors) or self.session.process

@@ -162,6 +162,9 @@ def test_engine_in_its_own_process_drives_the_same_views(make_window, small_scen
     win = make_window(small_scene, engine_kwargs={"process": True})
     assert win.session.engine_name == "engine process"
     wait_until(lambda: win.guidance_ready or win.guidance_error, 120000, "the engine process")
+    # the engine process says how its loop thread is scheduled (real-time where allowed)
+    assert "its loop thread: " in win.engine_note
+    assert "real-time (SCHED_FIFO" in win.engine_note or "normal (" in win.engine_note
     # the process sends no descriptors back: the window loads them for the views itself
     wait_until(lambda: len(win.slice_view._descriptors) == 2, 60000, "descriptors here")
     assert win.slice_view.canvas.field_rgb().std() > 5
