@@ -7,10 +7,10 @@ coupling (:class:`engine.coupling.HapticLimits`).
 Devices: :class:`MouseDevice` (fed by the GUI), :class:`TrajectoryDevice` (CSV
 ``t,tx,ty,tz,rx,ry,rz``, linearly interpolated, held after the last row),
 :class:`SpaceMouseDevice` (3D mouse via pyspacemouse or hidapi), :class:`OpenHapticsDevice`
-(via pyopenhaptics), :class:`UdpBridgeDevice` (pose in, force out over UDP for an external
-servo loop such as a CHAI3D program). A device that cannot be opened or goes away raises
-:class:`DeviceError` naming it and saying what to do; the engine then keeps running on the
-mouse.
+(via pyOpenHaptics, force sent from its own servo callback), :class:`UdpBridgeDevice` (pose
+in, force out over UDP for an external servo loop such as a CHAI3D program). A device that
+cannot be opened or goes away raises :class:`DeviceError` naming it and saying what to do;
+the engine then keeps running on the mouse.
 
 UDP bridge wire format (little-endian): the client sends ``<Q6d`` (sequence number, pose)
 to ``host:port``; the engine answers each step with ``<Q6d`` (sequence number of the newest
@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from engine.errors import InputError
+from engine.pose import rotation_matrix, rotation_vector
 
 __all__ = [
     "DeviceError",
@@ -319,67 +320,106 @@ class SpaceMouseDevice(Device):
 
 
 class OpenHapticsDevice(Device):
-    """A 3D Systems Touch / Phantom through pyopenhaptics (and the OpenHaptics libraries).
+    """A 3D Systems Touch / Phantom through pyOpenHaptics (and the OpenHaptics libraries).
 
-    The stylus position (mm) maps to the proxy as ``start + scale * (p - p0)``; the device
-    renders force only (3 DOF feedback), clamped to its nominal maximum.
+    OpenHaptics reads the stylus and renders force only inside its own servo loop (about
+    1 kHz, its scheduler thread, between ``hdBeginFrame`` and ``hdEndFrame``), so the device
+    runs a servo callback there (``pyOpenHaptics.hd_device.HapticDevice`` with an
+    ``hd_callback``): each tick it stores the stylus transform and sends the newest force
+    the engine wrote. The engine's own loop only reads and writes those two slots (single
+    assignments of new objects, so neither side ever sees a half-written value).
+
+    The stylus maps to the proxy as ``t = start + scale * (p - p0)`` and
+    ``R = (R_s R_s0^T) R_start`` (``p0``, ``R_s0``: the stylus at connect time). Force only
+    (3-DOF feedback), clamped by the coupling to the device's nominal maximum. A servo loop
+    that stops delivering samples for :attr:`stale_after` seconds (cable pulled, device
+    error) makes :meth:`read_pose` raise :class:`DeviceError`.
     """
 
     capabilities = DeviceCapabilities(
         "openhaptics", dof=6, force_feedback=True, max_force=3.3, rate_hz=1000.0
     )
 
+    #: Seconds without a new servo sample after which the device counts as lost.
+    stale_after = 0.25
+
     def __init__(self, start_pose: np.ndarray, *, scale: float = 1.0, name: str = "Default Device"):
         self.start = np.array(start_pose, dtype=float).reshape(6)
         self.scale = float(scale)
         self.device_name = name
         self._hd: Any = None
+        self._device: Any = None
+        self._servo: Any = None
+        self._sample: tuple[float, np.ndarray] | None = None  # (monotonic time, 4x4)
+        self._force: list[float] = [0.0, 0.0, 0.0]
         self._origin: np.ndarray | None = None
-        self._force = np.zeros(3)
 
     def connect(self) -> None:
         try:
             import pyOpenHaptics.hd as hd  # type: ignore[import-not-found]
-        except ImportError:
+            from pyOpenHaptics.hd_callback import hd_callback  # type: ignore[import-not-found]
+            from pyOpenHaptics.hd_device import HapticDevice  # type: ignore[import-not-found]
+        except (ImportError, OSError):  # OSError: the package is there, libHD.so is not
             raise DeviceError(
                 "openhaptics: pyOpenHaptics (and the OpenHaptics SDK libraries) are not "
                 "installed; install them from 3D Systems and pip, or pick the mouse"
             ) from None
-        try:
-            hd.init_device(self.device_name)
-        except Exception as exc:
-            raise DeviceError(f"openhaptics: could not open {self.device_name!r} ({exc}); check "
-                              "the cable and the Touch setup utility") from exc
         self._hd = hd
 
+        @hd_callback
+        def servo() -> None:  # runs in the OpenHaptics scheduler thread, inside a frame
+            self._sample = (time.monotonic(), np.asarray(hd.get_transform(), dtype=float))
+            hd.set_force(self._force)
+
+        self._servo = servo  # keep the C callback alive as long as the device
+        try:
+            device = HapticDevice(callback=servo, device_name=self.device_name,
+                                  scheduler_type="async")
+        except Exception as exc:
+            raise DeviceError(f"openhaptics: could not open {self.device_name!r} ({exc}); "
+                              "check the cable and the Touch setup utility") from exc
+        self._device = device
+        deadline = time.monotonic() + 1.0
+        while self._sample is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if self._sample is None:
+            self.disconnect()
+            raise DeviceError(f"openhaptics: {self.device_name!r} sent no data within 1 s; "
+                              "check the cable and the Touch setup utility, or pick the mouse")
+
     def disconnect(self) -> None:
-        if self._hd is not None:
+        if self._device is not None:
+            self._force = [0.0, 0.0, 0.0]
             try:
-                self._hd.close_device()
+                self._device.close()
             except Exception:
                 pass
-            self._hd = None
+            self._device = None
+        self._sample = None
 
     def read_pose(self, time_s: float) -> np.ndarray:
-        if self._hd is None:
+        sample = self._sample
+        if self._device is None or sample is None:
             raise DeviceError("openhaptics: not connected")
-        try:
-            m = np.asarray(self._hd.get_transform(), dtype=float).reshape(4, 4).T
-        except Exception as exc:
-            raise DeviceError(f"openhaptics: lost the device ({exc}); reconnect it") from exc
-        p = m[:3, 3]
+        stamp, transform = sample
+        if time.monotonic() - stamp > self.stale_after:
+            raise DeviceError(f"openhaptics: no data from {self.device_name!r} for "
+                              f"{self.stale_after:g} s (cable pulled or device error); "
+                              "reconnect it")
+        m = transform.reshape(4, 4).T  # OpenHaptics matrices are column-major
+        rot, p = m[:3, :3], m[:3, 3]
         if self._origin is None:
-            self._origin = p.copy()
+            self._origin = m.copy()
         pose = self.start.copy()
-        pose[:3] += self.scale * (p - self._origin)
+        pose[:3] += self.scale * (p - self._origin[:3, 3])
+        relative = rot @ self._origin[:3, :3].T
+        pose[3:] = rotation_vector(relative @ rotation_matrix(self.start[3:]))
         return pose
 
     def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
-        if self._hd is not None:
-            try:
-                self._hd.set_force(list(map(float, force)))
-            except Exception as exc:
-                raise DeviceError(f"openhaptics: could not send force ({exc})") from exc
+        if not np.all(np.isfinite(force)):
+            raise DeviceError("openhaptics: refusing to send a non-finite force")
+        self._force = [float(force[0]), float(force[1]), float(force[2])]
 
 
 # ---------------------------------------------------------------------------------------------

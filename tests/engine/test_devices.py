@@ -118,3 +118,116 @@ def test_udp_port_in_use_is_a_device_error():
             b.connect()
     finally:
         a.disconnect()
+
+
+# --------------------------------------------------------------------------------------------
+# OpenHaptics and the 3D mouse through stand-ins of their libraries (tests/engine/fake_device_libs)
+
+
+def _wait(pred, timeout=2.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.002)
+    return pred()
+
+
+def test_openhaptics_maps_the_stylus_and_renders_force_in_the_servo_loop(monkeypatch):
+    from fake_device_libs import FakeTouch, install_openhaptics
+
+    from engine.pose import rotation_matrix, rotation_vector
+
+    touch = FakeTouch()
+    install_openhaptics(monkeypatch, touch)
+    touch.move((10.0, 20.0, 30.0))  # the stylus where it rests when the session starts
+    start = np.array([1.0, 2.0, 3.0, 0.0, 0.2, 0.0])
+    dev = open_device("openhaptics", start, {"name": "Touch"})
+    try:
+        np.testing.assert_allclose(dev.read_pose(0.0), start, atol=1e-12)  # p0 = rest
+        turn = rotation_matrix(np.array([0.0, 0.0, 0.1]))
+        touch.move((12.0, 19.0, 30.5), turn)
+        time.sleep(0.01)  # a few servo ticks
+        pose = dev.read_pose(0.01)
+        np.testing.assert_allclose(pose[:3], [3.0, 1.0, 3.5], atol=1e-12)
+        expected = rotation_vector(turn @ rotation_matrix(start[3:]))
+        np.testing.assert_allclose(pose[3:], expected, atol=1e-12)
+        # force goes out from inside the servo callback (the fake refuses it elsewhere)
+        dev.write_force(np.array([0.5, -1.0, 2.0]), np.zeros(3))
+        assert _wait(lambda: touch.forces and touch.forces[-1] == [0.5, -1.0, 2.0])
+        with pytest.raises(DeviceError, match="non-finite"):
+            dev.write_force(np.array([np.nan, 0.0, 0.0]), np.zeros(3))
+        # the cable is pulled: the servo loop stops, and the device says so
+        touch.unplugged = True
+        time.sleep(dev.stale_after + 0.05)
+        with pytest.raises(DeviceError, match="no data from 'Touch'.*reconnect"):
+            dev.read_pose(1.0)
+    finally:
+        dev.disconnect()
+    assert touch.closed
+
+
+@pytest.mark.parametrize("trouble, message", [
+    ({"fail_open": True}, "could not open 'Default Device'.*cable"),
+    ({"sends": False}, "sent no data within 1 s"),
+])
+def test_openhaptics_open_failures_say_what_to_do(monkeypatch, trouble, message):
+    from fake_device_libs import FakeTouch, install_openhaptics
+
+    install_openhaptics(monkeypatch, FakeTouch(**trouble))
+    with pytest.raises(DeviceError, match=message):
+        OpenHapticsDevice(np.zeros(6)).connect()
+
+
+def test_spacemouse_is_rate_control_and_reports_unplugging(monkeypatch):
+    from fake_device_libs import FakeSpaceMouse, install_spacemouse
+
+    mouse = FakeSpaceMouse()
+    install_spacemouse(monkeypatch, mouse)
+    start = np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    dev = open_device("spacemouse", start,
+                      {"translation_speed": 20.0, "rotation_speed": 0.5})
+    np.testing.assert_allclose(dev.read_pose(0.0), start)  # the first read sets the clock
+    mouse.deflect(x=0.5, z=-1.0, yaw=1.0)
+    for k in range(1, 101):  # 0.1 s at 1 kHz
+        pose = dev.read_pose(k * 0.001)
+    np.testing.assert_allclose(pose, [1.0, 0.0, 3.0, 0.0, 0.0, 0.05], atol=1e-9)
+    mouse.deflect()
+    np.testing.assert_allclose(dev.read_pose(0.2), pose)  # released: the proxy stays
+    mouse.unplugged = True
+    with pytest.raises(DeviceError, match="spacemouse: the device stopped answering"):
+        dev.read_pose(0.3)
+    dev.disconnect()
+    assert mouse.closed
+    install_spacemouse(monkeypatch, FakeSpaceMouse(present=False))
+    with pytest.raises(DeviceError, match="no 3D mouse found"):
+        SpaceMouseDevice(np.zeros(6)).connect()
+
+
+def test_engine_renders_coupling_force_to_openhaptics_and_falls_back_when_unplugged(
+        monkeypatch):
+    from fake_device_libs import FakeTouch, install_openhaptics
+    from test_loop import make_loop
+
+    from engine import api
+
+    touch = FakeTouch()
+    install_openhaptics(monkeypatch, touch)
+    loop, _, _ = make_loop(realtime=True)
+    loop.device = open_device("openhaptics", loop.sim.proxy_pose)
+    loop.mouse = None
+    loop._apply_device_limits()
+    touch.move((0.3, 0.0, 0.0))  # pull the proxy 0.3 along x: the spring pulls the part
+    loop.start()
+    try:
+        assert _wait(lambda: touch.forces and abs(touch.forces[-1][0]) > 1e-3)
+        assert touch.forces[-1][0] < 0  # the user feels the part holding back
+        assert np.linalg.norm(touch.forces[-1]) <= OpenHapticsDevice.capabilities.max_force + 1e-9
+        touch.unplugged = True
+        assert _wait(lambda: loop.device.name == "mouse", timeout=3.0)
+        steps = loop.sim.steps
+        assert _wait(lambda: loop.sim.steps > steps + 10)  # and the scene runs on
+    finally:
+        loop.stop()
+    lost = [e for e in loop.poll_events() if isinstance(e, api.DeviceEvent)]
+    assert lost and lost[-1].fallback == "mouse" and "openhaptics" in lost[-1].message
