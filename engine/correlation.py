@@ -17,14 +17,19 @@ How it is evaluated
   two grid boxes overlap (``N h >= L1 + 2 r2 + 3 h``, ``r2`` the half-diagonal of part 2's
   grid box). Where the boxes cannot overlap, the result is exactly zero.
 * Spectra are centred on each grid's centre (:mod:`engine.spectrum`), so the rotated
-  spectrum of part 2 is smooth and interpolated trilinearly on a lattice ``q`` times finer
-  than part 1's (``q`` = ``oversample`` relative to part 2's extent, at least 1, so that at
-  ``R = I`` every needed sample lies on the lattice: no interpolation there). The centring
-  phases combine with ``exp(2 pi i w.t)`` into ``exp(2 pi i w.(t + R c2 - c1))``, which is
+  spectrum of part 2 is smooth and is interpolated on a lattice ``q`` times finer than part
+  1's (``q`` = ``oversample`` relative to part 2's extent, at least 1, so that at ``R = I``
+  every needed sample lies on the lattice: no interpolation there). The centring phases
+  combine with ``exp(2 pi i w.t)`` into ``exp(2 pi i w.(t + R c2 - c1))``, which is
   separable over the kept cube of modes: three tables of ``K`` values per call.
+* With rotation on, the interpolation is gradient-enhanced (:func:`_hermite`): the moment
+  spectra are the spectrum's derivatives, and trilinear interpolation plus a per-axis
+  correction from them is exact for quadratics. The torque sums differentiate this same
+  interpolant, so the torque is exactly ``-dE/dtheta`` of the reported energy (a
+  conservative field). Without rotation the interpolation is trilinear.
 * For ``K <= fine_modes`` (24) the interpolation reads a table ``refine`` (2) times finer
   still, tabulated exactly over the ball the kept modes reach
-  (:func:`engine.spectrum.refined_table`): the trilinear error drops about fourfold.
+  (:func:`engine.spectrum.refined_table`): the interpolation error drops about 15-fold.
 * The kept modes are the cube of the ``K`` lowest frequencies per axis (``m' = K^3``), or
   with ``selection="largest"`` the ``K^3`` largest by magnitude anywhere on the lattice.
   :meth:`Correlator.set_modes` only re-slices precomputed spectra.
@@ -150,8 +155,9 @@ class Correlator:
     refine : int
         For ``K <= fine_modes`` the rotated spectrum is interpolated on a lattice ``refine``
         times finer still, tabulated exactly (no interpolation) over the ball the kept
-        modes can reach (:func:`engine.spectrum.refined_table`): the trilinear error falls
-        as ``refine^-2`` for a table of a few tens of MB. 1 switches this off.
+        modes can reach (:func:`engine.spectrum.refined_table`): the interpolation error
+        falls as ``refine^-2`` (trilinear) or faster (gradient-enhanced, rotation on: about
+        15x at refine 2) for a table of a few tens of MB. 1 switches this off.
     fine_modes : int
         Largest ``K`` the refined table serves; larger ``K`` use the ``q`` lattice. The
         refined table is ``refine^3`` times larger for the same ``K``; at ``K = 32`` it no
@@ -417,7 +423,7 @@ class Correlator:
         """Part 2's spectrum at ``-R^T w`` and its lattice gradient (the reference).
 
         With rotation on (moment spectra present) the interpolant is the gradient-enhanced
-        one of :func:`_hermite_numpy`; without, plain trilinear.
+        one of :func:`_hermite`; without, plain trilinear.
 
         Parameters
         ----------
@@ -574,7 +580,8 @@ class Correlator:
 
         Returns ``[Re f, Im S_k (3), Im S_m (3)]`` where, over kept integer ``k``
         (``w = k / (N h)``), ``c = rho1c^(w) dw exp(2 pi i w.(t + R c2 - c1))``,
-        ``G = rho2c^(-R^T w)``, ``m = (moment spectra)(-R^T w)``:
+        ``G = rho2c^(-R^T w)`` (interpolated), ``m = (i a / 2 pi) dG/du`` the moment spectrum
+        the interpolant implies (``a`` from :meth:`_gradient_scale`):
         ``f = sum c G``, ``S_k = sum c G k``, ``S_m = sum Im(c m) x (R^T k)``.
         """
         n = self.size

@@ -206,8 +206,9 @@ def refined_table(
     The values at ``w = j / (refine * size * h)`` for ``j = -radius ... radius + 1`` per
     axis, computed exactly (no interpolation) from ``refine^3`` FFTs of size ``size`` of
     the field modulated by ``exp(-2 pi i s.n / (refine * size))``: sub-lattice ``s`` of the
-    fine lattice is the coarse lattice shifted by ``s / refine``. This is what trilinear
-    interpolation at rotated frequencies reads; its error falls as ``refine^-2``.
+    fine lattice is the coarse lattice shifted by ``s / refine``. This is what the
+    interpolation at rotated frequencies reads; its error falls as ``refine^-2`` for
+    trilinear interpolation and faster for the gradient-enhanced one.
 
     Parameters
     ----------
