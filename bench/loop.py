@@ -11,7 +11,8 @@ interpreter:
 - ``--load vtk``: a thread rendering an off-screen pyvista scene and reading it back (does
   VTK hold the GIL while it renders?);
 - ``--gui``: the real application window rendering beside the loop (``app.gui``, imported
-  only then; it needs a display: ``xvfb-run -a skelasm bench loop --gui``);
+  only then; without a screen a private Xvfb is started), with the engine in its own process
+  as ``skelasm gui`` runs it, or in a thread of the window's process with ``--thread``;
 - ``--process``: the loop in its own process (``engine.loop.ProcessEngine``) while the load
   runs in this one;
 - ``--switch-interval S``: ``sys.setswitchinterval`` while the loop runs (Python's default
@@ -50,7 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fake", action="store_true",
                         help="an analytic field instead of the correlator (measures the loop "
                         "alone)")
-    parser.add_argument("--gui", action="store_true", help="run the GUI beside the loop")
+    parser.add_argument("--gui", action="store_true",
+                        help="run the GUI beside the loop, with the engine in its own process "
+                             "as `skelasm gui` runs it")
+    parser.add_argument("--thread", action="store_true",
+                        help="with --gui: the engine in a thread of the window's process "
+                             "(`skelasm gui --engine thread`)")
     parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
 
 
@@ -92,8 +98,13 @@ def run(args: argparse.Namespace) -> int:
         load = threading.Thread(target=target, args=(stop, counter), name="bench-load",
                                 daemon=True)
 
+    if args.gui and args.thread and args.process:
+        print("--thread and --process exclude each other", file=sys.stderr)
+        return 2
+    if args.gui and not args.thread:
+        args.process = True  # what `skelasm gui` does
     if args.gui:
-        periods, info = _run_gui(args, load)  # a thread engine, or a process with --process
+        periods, info = _run_gui(args, load)  # a process engine, or a thread with --thread
     elif args.process:
         periods, info = _run_process(args, load)
     else:
