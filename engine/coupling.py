@@ -386,7 +386,7 @@ class Simulation:
         masks = {"translation_mask": self._tmask_opt, "rotation_mask": self._rmask_opt}
         force, torque = self._total_forces()
         kick(body, state, force, torque, half, **masks)
-        drift(body, state, self.dt, translation_mask=self._tmask_opt)
+        drift(body, state, self.dt, **masks)
         sample = self.evaluate_field()
         force, torque = self._total_forces()
         kick(body, state, force, torque, half, **masks)

@@ -386,6 +386,7 @@ class OpenHapticsDevice(Device):
             self.disconnect()
             raise DeviceError(f"openhaptics: {self.device_name!r} sent no data within 1 s; "
                               "check the cable and the Touch setup utility, or pick the mouse")
+        self._origin = self._sample[1].reshape(4, 4).T.copy()  # the stylus at connect time
 
     def disconnect(self) -> None:
         if self._device is not None:
@@ -396,6 +397,7 @@ class OpenHapticsDevice(Device):
                 pass
             self._device = None
         self._sample = None
+        self._origin = None
 
     def read_pose(self, time_s: float) -> np.ndarray:
         sample = self._sample
@@ -408,8 +410,7 @@ class OpenHapticsDevice(Device):
                               "reconnect it")
         m = transform.reshape(4, 4).T  # OpenHaptics matrices are column-major
         rot, p = m[:3, :3], m[:3, 3]
-        if self._origin is None:
-            self._origin = m.copy()
+        assert self._origin is not None
         pose = self.start.copy()
         pose[:3] += self.scale * (p - self._origin[:3, 3])
         relative = rot @ self._origin[:3, :3].T

@@ -9,7 +9,8 @@ world axes through part 2's origin) and are moved to the centre of mass here.
 Integrator pieces: :func:`kick` changes the velocities by an impulse, :func:`drift` moves
 the body at its velocities, orientation by the exact exponential of the angular step
 (``q <- exp(omega dt / 2) q``), renormalised; the gyroscopic term ``omega x (I omega)`` is
-explicit. :func:`step` is symplectic Euler (kick, then drift); the simulation composes them
+carried by the drift (torque-free motion at fixed angular momentum, midpoint rule), not by an
+explicit term. :func:`step` is symplectic Euler (kick, then drift); the simulation composes them
 as velocity Verlet (half kick, drift, new forces, half kick: second order, one field
 evaluation per step). For a conservative field with damping off the energy error stays
 bounded (no drift) for a step well inside the stability limit ``omega_max dt < 2``.
@@ -207,10 +208,10 @@ def kick(
     state.velocity = state.velocity + (dt / body.mass) * force
     if translation_mask is not None:
         state.velocity = state.velocity * translation_mask
-    i_world = R @ body.inertia @ R.T
+    # the impulse changes the angular momentum L = I_world omega by dt torque; the body does
+    # not turn during a kick, so no gyroscopic term here (the drift carries it, see there)
     inv_world = R @ body.inv_inertia @ R.T
-    gyro = cross3(state.omega, i_world @ state.omega)
-    state.omega = state.omega + dt * (inv_world @ (torque_com - gyro))
+    state.omega = state.omega + dt * (inv_world @ torque_com)
     if rotation_mask is not None:
         state.omega = state.omega * rotation_mask
 
@@ -221,18 +222,39 @@ def drift(
     dt: float,
     *,
     translation_mask: np.ndarray | None = None,
+    rotation_mask: np.ndarray | None = None,
 ) -> None:
-    """Move the body in place for ``dt`` at its current velocities.
+    """Move the body in place for ``dt`` free of forces.
 
-    A locked translation axis (``translation_mask`` 0) holds the part's *origin* coordinate:
-    rotation about an offset centre of mass would otherwise move it.
+    The centre of mass moves at its velocity. The rotation is the torque-free motion: the
+    world angular momentum ``L = I_world omega`` stays fixed while ``I_world`` turns with the
+    body, integrated by the midpoint rule (turn half a step at the starting ``omega``,
+    take ``omega = I_world^-1 L`` there, turn the whole step at it from the start, and end
+    with ``omega = I_world^-1 L``): second order, ``L`` exact, and the gyroscopic effect is
+    carried without an explicit ``omega x I omega`` term (an explicit one made the step first
+    order). A locked translation axis (``translation_mask`` 0) holds the part's *origin*
+    coordinate (rotation about an offset centre of mass would otherwise move it); locked
+    rotation axes (``rotation_mask`` 0) keep a zero angular velocity component.
     """
     locked_origin = None
     if translation_mask is not None and not translation_mask.all():
         locked_origin = state.com - state.rotation @ body.center
     state.com = state.com + dt * state.velocity
-    state.quat = quaternion_step(state.quat, state.omega, dt)
-    state._R = quaternion_to_matrix(state.quat)
+    omega = state.omega
+    if omega[0] != 0.0 or omega[1] != 0.0 or omega[2] != 0.0:
+        R0 = state.rotation
+        momentum = R0 @ (body.inertia @ (R0.T @ omega))
+        half = quaternion_to_matrix(quaternion_step(state.quat, omega, 0.5 * dt))
+        mid = half @ (body.inv_inertia @ (half.T @ momentum))
+        if rotation_mask is not None:
+            mid = mid * rotation_mask
+        state.quat = quaternion_step(state.quat, mid, dt)
+        state._R = quaternion_to_matrix(state.quat)
+        R1 = state._R
+        omega = R1 @ (body.inv_inertia @ (R1.T @ momentum))
+        if rotation_mask is not None:
+            omega = omega * rotation_mask
+        state.omega = omega
     if locked_origin is not None:
         assert translation_mask is not None
         origin = state.com - state._R @ body.center
@@ -256,4 +278,4 @@ def step(
     velocity Verlet instead (:meth:`engine.coupling.Simulation.step`)."""
     kick(body, state, force, torque, dt, translation_mask=translation_mask,
          rotation_mask=rotation_mask)
-    drift(body, state, dt, translation_mask=translation_mask)
+    drift(body, state, dt, translation_mask=translation_mask, rotation_mask=rotation_mask)

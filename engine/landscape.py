@@ -95,7 +95,13 @@ class Landscape:
         return energy, self.translations[axes[0]], self.translations[axes[1]]
 
     def lookup(self, translation: np.ndarray):
-        """Energy and force at one translation by trilinear interpolation.
+        """Energy and force at one translation.
+
+        With the force field present the energy is interpolated by the gradient-enhanced
+        scheme of :func:`engine.correlation._hermite` (the force is the energy's derivative
+        on the lattice) and the force returned is minus the gradient of that interpolant, so
+        a part moving in a locked-rotation scene sees a conservative field. Without it, the
+        energy is trilinear and the force zero.
 
         Parameters
         ----------
@@ -127,10 +133,11 @@ class Landscape:
             wz = np.array([1 - fr[2], fr[2]])
             weights = wx[:, None, None] * wy[None, :, None] * wz[None, None, :]  # (2, 2, 2)
             sl = (slice(i0[0], i0[0] + 2), slice(i0[1], i0[1] + 2), slice(i0[2], i0[2] + 2))
-            energy = float(np.sum(weights * self.energy[sl]))
             if self.force is not None:
-                force = np.array([float(np.sum(weights * self.force[a][sl])) for a in range(3)])
+                energy, force = _hermite_lookup(self.energy[sl], self.force[(slice(None),) + sl],
+                                                fr, self.spacing)
             else:
+                energy = float(np.sum(weights * self.energy[sl]))
                 force = np.zeros(3)
         return Evaluation(
             energy=energy,
@@ -139,3 +146,24 @@ class Landscape:
             microseconds=(time.perf_counter() - start) * 1e6,
             modes=self.modes,
         )
+
+
+def _hermite_lookup(
+    energy: np.ndarray, force: np.ndarray, frac: np.ndarray, spacing: float
+) -> tuple[float, np.ndarray]:
+    """Energy and ``-grad`` of the gradient-enhanced interpolant in one lattice cell.
+
+    ``energy`` (2, 2, 2) and ``force`` (3, 2, 2, 2) at the cell's corners, ``frac`` (3,) the
+    position in the cell. The corners become rows ``4 dx + 2 dy + dz`` of a table whose
+    columns are the energy and its lattice derivatives ``dE/du = -F h`` (the layout
+    :func:`engine.correlation._hermite` reads, imaginary columns zero).
+    """
+    from engine.correlation import _hermite, _python
+
+    table = np.zeros((8, 8))
+    table[:, 0] = energy.reshape(8)
+    for a in range(3):
+        table[:, 2 + 2 * a] = -spacing * force[a].reshape(8)
+    cell = (0, 2, 4, 6, float(frac[0]), float(frac[1]), float(frac[2]))
+    g, gx, gy, gz = _python(_hermite)(table, 0, cell)
+    return float(g), np.array([-gx, -gy, -gz]) / spacing

@@ -210,23 +210,25 @@ def free_energy_run(axes, start, steps=2000):
 
 @pytest.mark.slow
 def test_energy_bounded_in_the_real_field_translation_only():
-    """Total energy stays within a few percent of the kinetic energy the part reaches, with
-    no drift (rotation locked: the landscape lookup)."""
+    """Rotation locked (landscape lookup, force = -grad of the interpolated energy): the
+    total energy stays within a fraction of a percent of the kinetic energy the part
+    reaches (measured 0.33 % at most, 0.08 % drift; 5.4 % with trilinear lookup)."""
     energy, e0, scale = free_energy_run(("x", "y", "z"), [0.3, 0.0, -12.0, 0.0, 0.0, 0.0])
     assert scale > 1000.0  # it fell into the hole and moved
-    assert np.max(np.abs(energy - e0)) < 0.1 * scale
-    assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.05 * scale
+    assert np.max(np.abs(energy - e0)) < 0.02 * scale
+    assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.01 * scale
 
 
 @pytest.mark.slow
-def test_energy_bounded_in_the_real_field_with_rotation():
+@pytest.mark.parametrize("start", [[0.2, 0.0, -14.5, 0.02, 0.0, 0.0],
+                                   [0.3, 0.0, -12.0, 0.03, -0.02, 0.0]])
+def test_energy_bounded_in_the_real_field_with_rotation(start):
     """Rotation free: the torque is the derivative of the interpolated energy and the step
-    is velocity Verlet, so a tilted peg rattling in its hole for 2 s keeps its total energy
-    within a few percent of the kinetic energy (measured 5.6 % at most, 3 % drift; with the
-    moment-spectrum torque and symplectic Euler it was 18 % and 9 %)."""
-    energy, e0, scale = free_energy_run(
-        ("x", "y", "z", "rx", "ry", "rz"), [0.2, 0.0, -14.5, 0.02, 0.0, 0.0]
-    )
+    is velocity Verlet with a torque-free drift at fixed angular momentum, so a tilted peg
+    rattling in (or dropped into) its hole for 2 s keeps its total energy (measured 0.44 %
+    and 0.19 % of the kinetic energy at most; with the moment-spectrum torque and symplectic
+    Euler 18 % and 28 %, and 5.6 % and 20 % with an explicit gyroscopic term)."""
+    energy, e0, scale = free_energy_run(("x", "y", "z", "rx", "ry", "rz"), start)
     assert scale > 1000.0
-    assert np.max(np.abs(energy - e0)) < 0.1 * scale
-    assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.06 * scale
+    assert np.max(np.abs(energy - e0)) < 0.02 * scale
+    assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.01 * scale
