@@ -804,6 +804,14 @@ def _cell(ux, uy, uz, radius, side):
             ux - fx, uy - fy, uz - fz)
 
 
+def _bilinear(d00, d01, d10, d11, u, v):
+    """Bilinear interpolation of four corner values ``d[i][j]`` (``i`` along ``u``, ``j``
+    along ``v``) at ``(u, v)``, and its two derivatives: ``(value, d/du, d/dv)``."""
+    l0 = d00 + v * (d01 - d00)
+    l1 = d10 + v * (d11 - d10)
+    return l0 + u * (l1 - l0), l1 - l0, (d01 - d00) + u * ((d11 - d10) - (d01 - d00))
+
+
 def _lerp(table, col, cell):
     """Column ``col`` of the table, interpolated trilinearly in ``cell``."""
     b00, b01, b10, b11, tx, ty, tz = cell
@@ -811,9 +819,7 @@ def _lerp(table, col, cell):
     a01 = table[b01, col] + tz * (table[b01 + 1, col] - table[b01, col])
     a10 = table[b10, col] + tz * (table[b10 + 1, col] - table[b10, col])
     a11 = table[b11, col] + tz * (table[b11 + 1, col] - table[b11, col])
-    a0 = a00 + ty * (a01 - a00)
-    a1 = a10 + ty * (a11 - a10)
-    return a0 + tx * (a1 - a0)
+    return _bilinear(a00, a01, a10, a11, tx, ty)[0]
 
 
 def _hermite(table, col, cell):
@@ -832,8 +838,8 @@ def _hermite(table, col, cell):
     is the derivative of the energy that is reported.
     """
     b00, b01, b10, b11, tx, ty, tz = cell
-    sx = 1.0 - tx
-    # trilinear part and its gradient
+    # trilinear part: along z first, then bilinear over (x, y); its z-derivative is the
+    # bilinear interpolation of the z differences
     v000 = table[b00, col]
     v010 = table[b01, col]
     v100 = table[b10, col]
@@ -842,59 +848,39 @@ def _hermite(table, col, cell):
     e01 = table[b01 + 1, col] - v010
     e10 = table[b10 + 1, col] - v100
     e11 = table[b11 + 1, col] - v110
-    a00 = v000 + tz * e00
-    a01 = v010 + tz * e01
-    a10 = v100 + tz * e10
-    a11 = v110 + tz * e11
-    a0 = a00 + ty * (a01 - a00)
-    a1 = a10 + ty * (a11 - a10)
-    g = a0 + tx * (a1 - a0)
-    gx = a1 - a0
-    gy = sx * (a01 - a00) + tx * (a11 - a10)
-    ez0 = e00 + ty * (e01 - e00)
-    gz = ez0 + tx * (e10 + ty * (e11 - e10) - ez0)
-    # x: drop d(y, z) = X(0, y, z) - X(1, y, z), bilinear over (y, z)
+    g, gx, gy = _bilinear(v000 + tz * e00, v010 + tz * e01, v100 + tz * e10, v110 + tz * e11,
+                          tx, ty)
+    gz = _bilinear(e00, e01, e10, e11, tx, ty)[0]
+    # x: drop X(0, y, z) - X(1, y, z), bilinear over (y, z)
     c = col + 2
-    d00 = table[b00, c] - table[b10, c]
-    d01 = table[b00 + 1, c] - table[b10 + 1, c]
-    d10 = table[b01, c] - table[b11, c]
-    d11 = table[b01 + 1, c] - table[b11 + 1, c]
-    l0 = d00 + tz * (d01 - d00)
-    l1 = d10 + tz * (d11 - d10)
-    b = l0 + ty * (l1 - l0)
-    p = 0.5 * tx * sx
+    b, by, bz = _bilinear(table[b00, c] - table[b10, c], table[b00 + 1, c] - table[b10 + 1, c],
+                          table[b01, c] - table[b11, c], table[b01 + 1, c] - table[b11 + 1, c],
+                          ty, tz)
+    p = 0.5 * tx * (1.0 - tx)
     g += p * b
     gx += (0.5 - tx) * b
-    gy += p * (l1 - l0)
-    gz += p * ((d01 - d00) + ty * ((d11 - d10) - (d01 - d00)))
-    # y: drop d(x, z) = Y(x, 0, z) - Y(x, 1, z), bilinear over (x, z)
+    gy += p * by
+    gz += p * bz
+    # y: drop Y(x, 0, z) - Y(x, 1, z), bilinear over (x, z)
     c = col + 4
-    d00 = table[b00, c] - table[b01, c]
-    d01 = table[b00 + 1, c] - table[b01 + 1, c]
-    d10 = table[b10, c] - table[b11, c]
-    d11 = table[b10 + 1, c] - table[b11 + 1, c]
-    l0 = d00 + tz * (d01 - d00)
-    l1 = d10 + tz * (d11 - d10)
-    b = l0 + tx * (l1 - l0)
+    b, bx, bz = _bilinear(table[b00, c] - table[b01, c], table[b00 + 1, c] - table[b01 + 1, c],
+                          table[b10, c] - table[b11, c], table[b10 + 1, c] - table[b11 + 1, c],
+                          tx, tz)
     p = 0.5 * ty * (1.0 - ty)
     g += p * b
     gy += (0.5 - ty) * b
-    gx += p * (l1 - l0)
-    gz += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)))
-    # z: drop d(x, y) = Z(x, y, 0) - Z(x, y, 1), bilinear over (x, y)
+    gx += p * bx
+    gz += p * bz
+    # z: drop Z(x, y, 0) - Z(x, y, 1), bilinear over (x, y)
     c = col + 6
-    d00 = table[b00, c] - table[b00 + 1, c]
-    d01 = table[b01, c] - table[b01 + 1, c]
-    d10 = table[b10, c] - table[b10 + 1, c]
-    d11 = table[b11, c] - table[b11 + 1, c]
-    l0 = d00 + ty * (d01 - d00)
-    l1 = d10 + ty * (d11 - d10)
-    b = l0 + tx * (l1 - l0)
+    b, bx, by = _bilinear(table[b00, c] - table[b00 + 1, c], table[b01, c] - table[b01 + 1, c],
+                          table[b10, c] - table[b10 + 1, c], table[b11, c] - table[b11 + 1, c],
+                          tx, ty)
     p = 0.5 * tz * (1.0 - tz)
     g += p * b
     gz += (0.5 - tz) * b
-    gx += p * (l1 - l0)
-    gy += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)))
+    gx += p * bx
+    gy += p * by
     return g, gx, gy, gz
 
 
@@ -1125,7 +1111,7 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
 
     ``kind`` is "cube" (separable phases over the kept cube) or "list" (any mode list).
     """
-    global prange, _finish_sums, _sum_partials, _cell, _lerp, _hermite, _mode_terms
+    global prange, _finish_sums, _sum_partials, _cell, _bilinear, _lerp, _hermite, _mode_terms
     key = (parallel, kind)
     if key not in _NUMBA_FUNCS:
         import numba
@@ -1136,7 +1122,8 @@ def _numba_function(parallel: bool, kind: str = "cube") -> Any:
             _sum_partials = numba.njit(fastmath=True, cache=True, nogil=True)(_sum_partials)
         if not hasattr(_cell, "py_func"):
             inline = numba.njit(inline="always", fastmath=True, cache=True, nogil=True)
-            _cell, _lerp, _hermite = inline(_cell), inline(_lerp), inline(_hermite)
+            _cell, _bilinear = inline(_cell), inline(_bilinear)
+            _lerp, _hermite = inline(_lerp), inline(_hermite)
             _mode_terms = inline(_mode_terms)
         source = _pose_kernel if kind == "cube" else _pose_kernel_list
         # A distinct function object (own name) per variant, so the compiled versions get

@@ -32,6 +32,17 @@ typedef float acc_t;
 #define NSUM 7
 
 #if CHANNELS == 8
+/* Bilinear interpolation of d[i][j] (i along u, j along v) at (u, v); *du, *dv get its
+   derivatives (engine.correlation._bilinear). */
+inline float2 bilinear(const float2 d00, const float2 d01, const float2 d10, const float2 d11,
+                       const float u, const float v, float2 *du, float2 *dv)
+{
+    const float2 l0 = d00 + v * (d01 - d00), l1 = d10 + v * (d11 - d10);
+    *du = l1 - l0;
+    *dv = (d01 - d00) + u * ((d11 - d10) - (d01 - d00));
+    return l0 + u * (l1 - l0);
+}
+
 /* Gradient-enhanced interpolation (engine.correlation._hermite), real and imaginary parts
    together. Table row: value, then dG/du along x, y, z (float2 each). out: value, d/dx,
    d/dy, d/dz. */
@@ -43,40 +54,28 @@ inline void hermite(__global const float *table, const int b00, const int b01,
     const float8 c010 = vload8(b01, table), c011 = vload8(b01 + 1, table);
     const float8 c100 = vload8(b10, table), c101 = vload8(b10 + 1, table);
     const float8 c110 = vload8(b11, table), c111 = vload8(b11 + 1, table);
-    const float sx = 1.0f - tx;
     const float2 e00 = c001.s01 - c000.s01, e01 = c011.s01 - c010.s01;
     const float2 e10 = c101.s01 - c100.s01, e11 = c111.s01 - c110.s01;
-    const float2 a00 = c000.s01 + tz * e00, a01 = c010.s01 + tz * e01;
-    const float2 a10 = c100.s01 + tz * e10, a11 = c110.s01 + tz * e11;
-    const float2 a0 = a00 + ty * (a01 - a00), a1 = a10 + ty * (a11 - a10);
-    float2 g = a0 + tx * (a1 - a0);
-    float2 gx = a1 - a0;
-    float2 gy = sx * (a01 - a00) + tx * (a11 - a10);
-    const float2 ez0 = e00 + ty * (e01 - e00);
-    float2 gz = ez0 + tx * (e10 + ty * (e11 - e10) - ez0);
-    float2 d00, d01, d10, d11, l0, l1, b;
+    float2 gx, gy, gz, unused, da, db, b;
     float p;
+    float2 g = bilinear(c000.s01 + tz * e00, c010.s01 + tz * e01, c100.s01 + tz * e10,
+                        c110.s01 + tz * e11, tx, ty, &gx, &gy);
+    gz = bilinear(e00, e01, e10, e11, tx, ty, &unused, &unused);
     /* x: drop X(0, y, z) - X(1, y, z), bilinear over (y, z) */
-    d00 = c000.s23 - c100.s23;  d01 = c001.s23 - c101.s23;
-    d10 = c010.s23 - c110.s23;  d11 = c011.s23 - c111.s23;
-    l0 = d00 + tz * (d01 - d00);  l1 = d10 + tz * (d11 - d10);
-    b = l0 + ty * (l1 - l0);  p = 0.5f * tx * sx;
-    g += p * b;  gx += (0.5f - tx) * b;  gy += p * (l1 - l0);
-    gz += p * ((d01 - d00) + ty * ((d11 - d10) - (d01 - d00)));
+    b = bilinear(c000.s23 - c100.s23, c001.s23 - c101.s23, c010.s23 - c110.s23,
+                 c011.s23 - c111.s23, ty, tz, &da, &db);
+    p = 0.5f * tx * (1.0f - tx);
+    g += p * b;  gx += (0.5f - tx) * b;  gy += p * da;  gz += p * db;
     /* y: drop Y(x, 0, z) - Y(x, 1, z), bilinear over (x, z) */
-    d00 = c000.s45 - c010.s45;  d01 = c001.s45 - c011.s45;
-    d10 = c100.s45 - c110.s45;  d11 = c101.s45 - c111.s45;
-    l0 = d00 + tz * (d01 - d00);  l1 = d10 + tz * (d11 - d10);
-    b = l0 + tx * (l1 - l0);  p = 0.5f * ty * (1.0f - ty);
-    g += p * b;  gy += (0.5f - ty) * b;  gx += p * (l1 - l0);
-    gz += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)));
+    b = bilinear(c000.s45 - c010.s45, c001.s45 - c011.s45, c100.s45 - c110.s45,
+                 c101.s45 - c111.s45, tx, tz, &da, &db);
+    p = 0.5f * ty * (1.0f - ty);
+    g += p * b;  gy += (0.5f - ty) * b;  gx += p * da;  gz += p * db;
     /* z: drop Z(x, y, 0) - Z(x, y, 1), bilinear over (x, y) */
-    d00 = c000.s67 - c001.s67;  d01 = c010.s67 - c011.s67;
-    d10 = c100.s67 - c101.s67;  d11 = c110.s67 - c111.s67;
-    l0 = d00 + ty * (d01 - d00);  l1 = d10 + ty * (d11 - d10);
-    b = l0 + tx * (l1 - l0);  p = 0.5f * tz * (1.0f - tz);
-    g += p * b;  gz += (0.5f - tz) * b;  gx += p * (l1 - l0);
-    gy += p * ((d01 - d00) + tx * ((d11 - d10) - (d01 - d00)));
+    b = bilinear(c000.s67 - c001.s67, c010.s67 - c011.s67, c100.s67 - c101.s67,
+                 c110.s67 - c111.s67, tx, ty, &da, &db);
+    p = 0.5f * tz * (1.0f - tz);
+    g += p * b;  gz += (0.5f - tz) * b;  gx += p * da;  gy += p * db;
     out[0] = g;  out[1] = gx;  out[2] = gy;  out[3] = gz;
 }
 #endif
