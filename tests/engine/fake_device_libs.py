@@ -9,6 +9,7 @@ Tests install them with :func:`install` (``monkeypatch.setitem(sys.modules, ...)
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 import types
@@ -94,7 +95,7 @@ def install_openhaptics(monkeypatch, touch: FakeTouch) -> None:
     for name, module in (("pyOpenHaptics", package), ("pyOpenHaptics.hd", hd),
                          ("pyOpenHaptics.hd_callback", callback),
                          ("pyOpenHaptics.hd_device", device)):
-        monkeypatch.setitem(__import__("sys").modules, name, module)
+        monkeypatch.setitem(sys.modules, name, module)
 
 
 SpaceState = namedtuple("SpaceState", "t x y z roll pitch yaw buttons")
@@ -127,4 +128,4 @@ class FakeSpaceMouse:
 def install_spacemouse(monkeypatch, mouse: FakeSpaceMouse) -> None:
     module = types.ModuleType("pyspacemouse")
     module.open, module.read, module.close = mouse.open, mouse.read, mouse.close
-    monkeypatch.setitem(__import__("sys").modules, "pyspacemouse", module)
+    monkeypatch.setitem(sys.modules, "pyspacemouse", module)
