@@ -1,0 +1,101 @@
+"""The installed Qt binding keeps Python's ``None`` alive while our widgets paint.
+
+PySide6 6.12.0 on Python 3.10 and 3.11 drops one reference to ``None`` on every call of a
+Qt method that returns nothing (``update``, ``setPen``, ``drawLine``, ``setText``...). A
+repaint of the strip chart does about ten such calls; after some minutes the count reaches
+zero, Python frees ``None`` and aborts with "Fatal Python error: none_dealloc". pyproject.toml
+excludes that release for those Pythons; these tests catch a binding with the same fault.
+
+From Python 3.12 ``None`` is immortal and its reference count never moves, so there the
+tests pass whatever the binding does, which is right: it cannot crash.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from app.gui import colormap
+from app.gui.canvas import FieldCanvas, Marker
+from app.gui.strip_chart import StripChart
+
+REPAINTS = 300
+#: A sound binding moves the count by a few at most (objects holding None made or freed
+#: meanwhile); the faulty one loses at least one per repaint.
+TOLERANCE = 10
+
+
+def none_references_lost(widget, repaints: int = REPAINTS) -> int:
+    """How many references to None ``repaints`` synchronous repaints of ``widget`` dropped."""
+    widget.repaint()  # first paint builds caches that may hold None for good
+    before = sys.getrefcount(None)
+    for _ in range(repaints):
+        widget.repaint()
+    return before - sys.getrefcount(None)
+
+
+@pytest.fixture
+def shown(qtbot):
+    def show(widget):
+        qtbot.addWidget(widget)
+        widget.resize(420, 300)
+        widget.show()
+        qtbot.waitExposed(widget)
+        return widget
+
+    return show
+
+
+def test_a_label_keeps_none_alive(shown):
+    """The issue's ten-second reproduction, as a test: setText returns nothing."""
+    from PySide6 import QtWidgets
+
+    label = shown(QtWidgets.QLabel("a"))
+    before = sys.getrefcount(None)
+    for i in range(REPAINTS):
+        label.setText(str(i))
+    assert before - sys.getrefcount(None) < TOLERANCE
+
+
+def test_strip_chart_repaints_keep_none_alive(shown):
+    chart = shown(StripChart(seconds=10.0))
+    t = np.linspace(0.0, 9.0, 400)
+    for ti in t:
+        chart.add(float(ti), float(np.sin(ti)), float(abs(np.cos(ti))))
+    assert len(chart.samples()[0]) == len(t)
+    assert none_references_lost(chart) < TOLERANCE
+
+
+def test_field_canvas_repaints_keep_none_alive(shown):
+    canvas = shown(FieldCanvas())
+    u, v = np.meshgrid(np.linspace(-1, 1, 40), np.linspace(-1, 1, 30), indexing="ij")
+    canvas.set_field(np.exp(-(u**2 + v**2)), (-1, 1, -1, 1), 0.0, 1.0,
+                     colormap.table("sequential"), axis_names=("x", "y"), bar_label="rho")
+    canvas.set_segments(np.array([[[-0.5, -0.5], [0.5, 0.5]], [[-0.5, 0.5], [0.5, -0.5]]]))
+    canvas.set_markers([Marker(0.0, 0.0, "cross", "white", "minimum"),
+                        Marker(0.3, -0.2, "star", "yellow", "part"),
+                        Marker(-0.3, 0.2, "circle", "black")])
+    assert canvas.field_rgb() is not None
+    assert none_references_lost(canvas) < TOLERANCE
+
+
+def test_window_views_keep_none_alive(make_window, small_scene, wait_until, qtbot):
+    """The whole window with the engine running: slice view, landscape view, strip chart
+    and readouts repaint and update from live frames without losing references to None."""
+    win = make_window(small_scene)
+    wait_until(lambda: win.guidance_ready or win.guidance_error, 120000,
+               "the engine's descriptors and correlator")
+    assert win.guidance_error is None, win.guidance_error
+    win.dock_slice.show()
+    win.dock_landscape.show()
+    qtbot.wait(500)
+    for widget in (win.slice_view, win.slice_view.canvas, win.landscape_view,
+                   win.landscape_view.canvas, win.chart):
+        assert none_references_lost(widget) < TOLERANCE, type(widget).__name__
+    frames = win.frames_received
+    before = sys.getrefcount(None)
+    qtbot.wait(1500)  # live frames: readouts' setText, chart updates, view repaints
+    assert win.frames_received > frames
+    assert before - sys.getrefcount(None) < TOLERANCE
