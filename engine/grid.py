@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Default padding around a part, in grid cells.
-DEFAULT_PADDING = 4.0
+from engine.params import DEFAULT_PADDING
 
 
 @dataclass(frozen=True)

@@ -34,14 +34,21 @@ from typing import Any, overload
 import numpy as np
 
 from engine.errors import InputError
+from engine.params import (
+    DEFAULT_GRID,
+    DEFAULT_MODES,
+    DEFAULT_PADDING,
+    LENGTH_UNITS,
+    DescriptorParams,
+)
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
-#: Length units a scene may declare, in metres.
-UNITS = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "in": 0.0254, "um": 1e-6}
+#: Length units a scene may declare, in metres (one table for the whole engine).
+UNITS = LENGTH_UNITS
 
 #: Top-level keys and tables of a scene file.
 TOP_KEYS = ("name", "units", "assembled_pose", "insertion_axis", "descriptor", "correlation",
@@ -56,11 +63,6 @@ CORRELATION_KEYS = ("modes",)
 PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance")
 #: Keys of a ``[[part]]`` kept raw in ``PartSpec.extras`` for the simulation.
 PART_EXTRA_KEYS = ("mass", "density", "inertia", "center_of_mass")
-
-#: Defaults of ``[descriptor]`` and ``[correlation]``.
-DEFAULT_GRID = 64
-DEFAULT_PADDING = 6.0
-DEFAULT_MODES = 16
 
 
 class SceneError(InputError):
@@ -119,37 +121,6 @@ class PartSpec:
         object.__setattr__(self, "file", Path(self.file))
 
 
-@dataclass(frozen=True)
-class DescriptorSettings:
-    """The ``[descriptor]`` table: descriptor parameters and grid.
-
-    Attributes
-    ----------
-    sigma, penalty, lambda_out : float
-        As ``engine.descriptor.DescriptorParams``.
-    grid : int or None
-        Samples along the longest side of the largest part (None when ``spacing`` is set).
-    spacing : float or None
-        Grid spacing in scene units (None when ``grid`` is set).
-    padding : float
-        Free cells around each part.
-    """
-
-    sigma: float = 0.5
-    penalty: float = 3.0
-    lambda_out: float = 1.0
-    grid: int | None = DEFAULT_GRID
-    spacing: float | None = None
-    padding: float = DEFAULT_PADDING
-
-    def params(self):
-        """The ``engine.descriptor.DescriptorParams`` of these settings."""
-        from engine.descriptor import DescriptorParams
-
-        return DescriptorParams(sigma=self.sigma, penalty=self.penalty,
-                                lambda_out=self.lambda_out)
-
-
 @dataclass(frozen=True, eq=False)
 class Scene:
     """A parsed scene file.
@@ -167,7 +138,7 @@ class Scene:
         Part 2 relative to part 1 when assembled (read-only).
     insertion_axis : (3,) float64 or None
         Unit direction part 2 travels to seat, in part 1's frame.
-    descriptor : DescriptorSettings
+    descriptor : DescriptorParams
     modes : int
         Retained modes per axis K (m' = K^3).
     sections : dict
@@ -180,7 +151,7 @@ class Scene:
     parts: tuple[PartSpec, ...]
     assembled_pose: np.ndarray
     insertion_axis: np.ndarray | None = None
-    descriptor: DescriptorSettings = field(default_factory=DescriptorSettings)
+    descriptor: DescriptorParams = field(default_factory=DescriptorParams)
     modes: int = DEFAULT_MODES
     sections: dict[str, Any] = field(default_factory=dict)
 
@@ -190,11 +161,6 @@ class Scene:
         object.__setattr__(self, "assembled_pose", _readonly(self.assembled_pose, 6))
         if self.insertion_axis is not None:
             object.__setattr__(self, "insertion_axis", _readonly(self.insertion_axis, 3))
-
-    @property
-    def params(self):
-        """``engine.descriptor.DescriptorParams`` of the scene."""
-        return self.descriptor.params()
 
     @property
     def fixed_part(self) -> PartSpec:
@@ -403,7 +369,7 @@ def _parse(p: Path, text: str, data: dict[str, Any]) -> Scene:
         raise d.fail("spacing", "give grid or spacing in [descriptor], not both")
     spacing = d.number("spacing", None, positive=True)
     grid = d.integer("grid", None if spacing is not None else DEFAULT_GRID, minimum=4)
-    descriptor = DescriptorSettings(
+    descriptor = DescriptorParams(
         sigma=d.number("sigma", 0.5, positive=True),
         penalty=d.number("penalty", 3.0, positive=True),
         lambda_out=d.number("lambda_out", 1.0, positive=True),

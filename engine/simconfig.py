@@ -28,216 +28,34 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from engine.errors import InputError
+from engine.params import (
+    AXES,
+    DEVICE_OPTIONS,
+    DEVICES,
+    GUIDANCE,
+    CouplingParams,
+    DeviceConfig,
+    Effects,
+    MassSpec,
+    Physics,
+    SimConfig,
+    SimulationParams,
+    gravity_vector,
+)
 
-#: Degrees of freedom, in part 1's frame: three translations, three rotations.
-AXES = ("x", "y", "z", "rx", "ry", "rz")
-GUIDANCE = ("skeletal", "collision", "none")
-DEVICES = ("mouse", "trajectory", "spacemouse", "openhaptics", "udp")
-
-#: Length of one scene unit in metres (for gravity).
-UNIT_METRES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "um": 1e-6, "in": 0.0254, "ft": 0.3048}
-
+__all__ = [
+    "AXES", "DEVICES", "GUIDANCE", "CouplingParams", "DeviceConfig", "Effects", "MassSpec",
+    "Physics", "SimConfig", "SimConfigError", "SimulationParams", "mass_properties",
+    "parse_simconfig", "resolve_physics", "simconfig_from_scene",
+]
 
 class SimConfigError(InputError):
     """A bad key or value in a scene's simulation tables; the message names the line."""
-
-
-@dataclass(frozen=True)
-class SimulationParams:
-    """The ``[simulation]`` table.
-
-    Attributes
-    ----------
-    rate_hz : float
-        Engine rate; the fixed time step is ``1 / rate_hz`` seconds.
-    kappa : float or None
-        Geometric force gain ``E = -kappa Re f``; ``None``: the scale-invariant default.
-    guidance_gain : float
-        Dimensionless factor in the default kappa (see the module docstring). 0.2: on the
-        peg in hole, the seated part holds a 3 degree / 3 % misaligned proxy to 0.05 degree
-        and 0.01 mm, and the part is drawn in a few millimetres ahead of the proxy rather
-        than snapping in from its start (gain 1 pulls it 18 mm in 0.2 s).
-    body_damping_ratio : float
-        Viscous damping of the free body (relative to its coupling frequency), applied when
-        effects.damping is on; keeps the body from ringing inside a stiff geometric well.
-    seconds : float
-        Default duration of a headless run.
-    """
-
-    rate_hz: float = 1000.0
-    kappa: float | None = None
-    guidance_gain: float = 0.2
-    body_damping_ratio: float = 0.5
-    seconds: float = 5.0
-
-    @property
-    def dt(self) -> float:
-        """Fixed time step in seconds."""
-        return 1.0 / self.rate_hz
-
-
-@dataclass(frozen=True)
-class CouplingParams:
-    """The ``[coupling]`` table: six-axis spring-damper between proxy and part.
-
-    Absolute gains (``stiffness`` in force/length, ``angular_stiffness`` in torque/radian,
-    ``damping``, ``angular_damping``) override the scale-free ``frequency_hz`` /
-    ``damping_ratio`` defaults.
-    """
-
-    frequency_hz: float = 10.0
-    damping_ratio: float = 1.0
-    stiffness: float | None = None
-    angular_stiffness: float | None = None
-    damping: float | None = None
-    angular_damping: float | None = None
-
-
-@dataclass(frozen=True)
-class Effects:
-    """The ``[effects]`` table: what the simulation computes. Switched-off work is skipped.
-
-    Attributes
-    ----------
-    guidance : {"skeletal", "collision", "none"}
-        Skeletal densities (geometric guidance), the collision-only indicator density (the
-        paper's baseline) or no geometric force at all (no correlator is built).
-    axes : tuple of str
-        Free degrees of freedom among ``x y z rx ry rz`` (part 1's frame). No rotational axis:
-        rotation is locked, no torque is computed and the translational landscape is looked
-        up instead of summing modes.
-    damping : bool
-        Coupling and body damping on; off conserves energy (for tests).
-    gravity : tuple of 3 float or None
-        Gravity acceleration in scene units per second squared, part 1's frame.
-    """
-
-    guidance: str = "skeletal"
-    axes: tuple[str, ...] = AXES
-    damping: bool = True
-    gravity: tuple[float, float, float] | None = None
-
-    def __post_init__(self) -> None:
-        if self.guidance not in GUIDANCE:
-            raise ValueError(
-                f"guidance must be one of {', '.join(GUIDANCE)}; got {self.guidance!r}"
-            )
-        bad = [a for a in self.axes if a not in AXES]
-        if bad:
-            raise ValueError(f"unknown axes {bad}; valid axes are {', '.join(AXES)}")
-        object.__setattr__(self, "axes", tuple(a for a in AXES if a in self.axes))
-
-    @property
-    def rotation(self) -> bool:
-        """True when any rotational axis is free."""
-        return any(a.startswith("r") for a in self.axes)
-
-    @property
-    def translation_mask(self) -> np.ndarray:
-        """(3,) float64: 1 for free translation axes, 0 for locked ones."""
-        return np.array([float(a in self.axes) for a in AXES[:3]])
-
-    @property
-    def rotation_mask(self) -> np.ndarray:
-        """(3,) float64: 1 for free rotation axes, 0 for locked ones."""
-        return np.array([float(a in self.axes) for a in AXES[3:]])
-
-
-@dataclass(frozen=True)
-class DeviceConfig:
-    """The ``[device]`` table: which input drives the proxy and how force is rendered.
-
-    Attributes
-    ----------
-    kind : {"mouse", "trajectory", "spacemouse", "openhaptics", "udp"}
-    max_force : float or None
-        Clamp of the rendered force norm (device units); None: the device's own maximum.
-    force_scale : float
-        Device force per simulation force.
-    options : tuple of (str, value)
-        Device-specific keys (``file`` for a trajectory, ``port``/``host`` for udp, ...).
-    """
-
-    kind: str = "mouse"
-    max_force: float | None = None
-    force_scale: float = 1.0
-    options: tuple[tuple[str, Any], ...] = ()
-
-    def __post_init__(self) -> None:
-        if self.kind not in DEVICES:
-            raise ValueError(f"device must be one of {', '.join(DEVICES)}; got {self.kind!r}")
-
-    def option(self, key: str, default: Any = None) -> Any:
-        """A device-specific option."""
-        return dict(self.options).get(key, default)
-
-
-@dataclass(frozen=True)
-class MassSpec:
-    """Per-part ``mass``, ``density``, ``inertia`` (3x3 or 3 principal) and ``center_of_mass``."""
-
-    mass: float | None = None
-    density: float | None = None
-    inertia: tuple[tuple[float, ...], ...] | None = None
-    center_of_mass: tuple[float, float, float] | None = None
-
-
-@dataclass(frozen=True)
-class SimConfig:
-    """All simulation settings of a scene (validated, defaults not yet resolved)."""
-
-    simulation: SimulationParams = field(default_factory=SimulationParams)
-    coupling: CouplingParams = field(default_factory=CouplingParams)
-    effects: Effects = field(default_factory=Effects)
-    device: DeviceConfig = field(default_factory=DeviceConfig)
-    masses: tuple[MassSpec, ...] = ()
-    units: str = "mm"
-
-
-@dataclass(frozen=True)
-class Physics:
-    """Resolved constants of the moving body and its coupling (MuJoCo's "model").
-
-    Attributes
-    ----------
-    mass : float
-    inertia : (3, 3) float64
-        Inertia tensor about the centre of mass, in the part's own frame.
-    center : (3,) float64
-        Centre of mass in the part's own frame.
-    length : float
-        The part's characteristic length L (largest bounding-box side).
-    k_lin, c_lin, k_rot, c_rot : float
-        Coupling stiffness/damping (force/length, force*time/length, torque/rad, ...).
-    body_c_lin, body_c_rot : float
-        Viscous damping of the body against the world (0 with damping off).
-    kappa : float
-        Geometric force gain.
-    gravity : (3,) float64
-        Gravity acceleration (zeros when off).
-    dt : float
-        Fixed time step in seconds.
-    """
-
-    mass: float
-    inertia: np.ndarray
-    center: np.ndarray
-    length: float
-    k_lin: float
-    c_lin: float
-    k_rot: float
-    c_rot: float
-    body_c_lin: float
-    body_c_rot: float
-    kappa: float
-    gravity: np.ndarray
-    dt: float
 
 
 # ---------------------------------------------------------------------------------------------
@@ -451,13 +269,14 @@ def parse_simconfig(
     if gvalue is False:
         gravity = None
     elif gvalue is True:
-        if units not in UNIT_METRES:
-            raise eff.fail("gravity", f"unit {units!r} unknown; give gravity as [gx, gy, gz]")
-        norm = float(np.linalg.norm(direction))
-        if norm == 0:
+        if float(np.linalg.norm(direction)) == 0:
             raise eff.fail("gravity_direction", "must not be the zero vector")
-        g = 9.81 / UNIT_METRES[units]
-        gravity = tuple(float(g * d / norm) for d in direction)  # type: ignore[assignment]
+        try:
+            gravity = gravity_vector(units, direction)
+        except InputError:
+            raise eff.fail(
+                "gravity", f"unit {units!r} unknown; give gravity as [gx, gy, gz]"
+            ) from None
     else:
         gravity = eff.vector("gravity", None)
     eff.finish()
@@ -467,13 +286,7 @@ def parse_simconfig(
     kind = dev.choice("kind", "mouse", DEVICES)
     max_force = dev.number("max_force", None, positive=True, allow_none=True)
     force_scale = dev.number("force_scale", 1.0, positive=True)
-    per_kind = {
-        "mouse": (),
-        "trajectory": ("file",),
-        "spacemouse": ("translation_speed", "rotation_speed"),
-        "openhaptics": ("name",),
-        "udp": ("host", "port", "reply_port", "timeout"),
-    }[kind]
+    per_kind = DEVICE_OPTIONS[kind]
     options = tuple((k, dev.table[k]) for k in per_kind if k in dev.table)
     dev.used.update(per_kind)
     dev.finish()

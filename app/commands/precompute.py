@@ -177,7 +177,7 @@ def _describe(rec: dict) -> str:
 
 def _run_part(args: argparse.Namespace, path: Path) -> int:
     from engine.loading import load_part
-    from engine.scene import DEFAULT_PADDING
+    from engine.params import DEFAULT_PADDING
     from engine.store import descriptor_for_part, grid_for_part
 
     part = load_part(path, tolerance=args.tolerance, body=args.body)

@@ -137,9 +137,9 @@ class ParamsPanel(QtWidgets.QWidget):
         self.kappa.setEnabled(kappa is not None)
         if kappa is not None:
             self.kappa.setValueSilently(kappa)
-        from engine.simconfig import UNIT_METRES
+        from engine.params import gravity_vector
 
-        self._gravity_vector = (0.0, 0.0, -9.81 / UNIT_METRES.get(config.units, 1.0))
+        self._gravity_vector = gravity_vector(config.units)
         self.set_effects(config.effects, emit=False)
         self.set_progress(None)
 
