@@ -157,7 +157,7 @@ def _sim_and_model(args: argparse.Namespace):
     from dataclasses import replace
 
     from engine.api import open_scene
-    from engine.loop import build_simulation
+    from engine.sim import build_simulation
 
     handle = open_scene(args.scene)
     effects = handle.config.effects
@@ -165,8 +165,8 @@ def _sim_and_model(args: argparse.Namespace):
         effects = replace(effects, axes=("x", "y", "z"))
     handle = replace(handle, config=replace(handle.config, effects=effects))
     if args.fake:
-        from engine.coupling import CorrelatorField
         from engine.loop import AnalyticWell
+        from engine.sim import CorrelatorField
 
         sim, model = build_simulation(handle, prepare=False)
         sim.set_field(CorrelatorField(AnalyticWell(), sim.physics.kappa))

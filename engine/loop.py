@@ -21,7 +21,6 @@ two steps.
 from __future__ import annotations
 
 import collections
-import math
 import os
 import queue
 import sys
@@ -37,17 +36,11 @@ from typing import Any
 import numpy as np
 
 from engine import api
-from engine.coupling import (
-    HapticLimits,
-    NullField,
-    Simulation,
-    field_for_effects,
-)
 from engine.devices import Device, DeviceError, MouseDevice, open_device
-from engine.dynamics import RigidBody
-from engine.errors import Cancelled, InputError
+from engine.errors import Cancelled
+from engine.params import Physics
 from engine.pose import rotation_matrix
-from engine.simconfig import CouplingParams, Effects, Physics, resolve_physics
+from engine.sim import CorrelatorField, SceneModel, Simulation, build_simulation
 
 #: Seconds before a deadline at which the loop stops sleeping and spins.
 SPIN_MARGIN = 0.0003
@@ -78,196 +71,6 @@ def period_stats(periods_s: np.ndarray) -> api.PeriodStats:
         max_us=float(us.max()),
         window=int(len(p)),
     )
-
-
-# ---------------------------------------------------------------------------------------------
-# what a scene needs to (re)build its simulation
-
-
-class SceneModel:
-    """Builds physics and geometric fields for a loaded scene (constant data, no state).
-
-    Parameters
-    ----------
-    handle : engine.api.SceneHandle
-    modes : int, optional
-        K (default: the scene's ``[correlation] modes`` or 16).
-    backend : str
-        Per-pose backend for the correlator.
-    """
-
-    def __init__(self, handle: Any, *, modes: int | None = None, backend: str = "auto"):
-        self.handle = handle
-        self.config = handle.config
-        self.scene = handle.scene
-        self.moving = handle.parts[1] if len(handle.parts) > 1 else handle.parts[0]
-        self.has_pair = len(handle.parts) > 1
-        self.modes = int(modes or getattr(self.scene, "modes", None) or 16)
-        self.backend = backend
-        self.start_pose = np.asarray(handle.start_pose, float)
-
-    def physics(
-        self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
-    ) -> Physics:
-        config = self.config if coupling is None else replace(self.config, coupling=coupling)
-        return resolve_physics(
-            config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa
-        )
-
-    def body(self, physics: Physics) -> RigidBody:
-        return RigidBody(physics.mass, physics.inertia, physics.center)
-
-    def descriptors(
-        self,
-        effects: Effects,
-        *,
-        sigma: float | None = None,
-        penalty: float | None = None,
-        progress: Callable[[float], None] | None = None,
-        cancel: Callable[[], bool] | None = None,
-    ) -> tuple[Any, Any]:
-        """The two descriptors for ``effects.guidance`` (skeletal or collision-only)."""
-        scene = self.scene
-        if sigma is not None or penalty is not None:
-            scene = _scene_with_params(scene, sigma, penalty)
-        try:
-            from engine.store import descriptors_for_scene
-        except ImportError:  # store not installed yet: same grids, computed here
-            d1, d2 = _fallback_descriptors(scene, self.handle.parts, progress, cancel)
-        else:
-            parts = list(self.handle.parts)
-            try:
-                descs = descriptors_for_scene(
-                    scene, parts=parts, backend=None, progress=progress, cancel=cancel
-                )
-            except (Cancelled, InputError):
-                raise
-            except Exception:
-                # the picked compute backend failed (an OpenCL driver that cannot build the
-                # kernels, say): the numpy/numba reference path computes the same values
-                descs = descriptors_for_scene(
-                    scene, parts=parts, backend="numpy", progress=progress, cancel=cancel
-                )
-            d1, d2 = descs[0], descs[1]
-        if effects.guidance == "collision":
-            from engine.collision import collision_descriptor
-
-            d1 = collision_descriptor(d1, self.handle.parts[0])
-            d2 = collision_descriptor(d2, self.handle.parts[1])
-        return d1, d2
-
-    def field(
-        self,
-        effects: Effects,
-        kappa: float,
-        locked_rotation: np.ndarray,
-        *,
-        sigma: float | None = None,
-        penalty: float | None = None,
-        modes: int | None = None,
-        progress: Callable[[float], None] | None = None,
-        cancel: Callable[[], bool] | None = None,
-    ) -> tuple[Any, tuple[Any, ...]]:
-        """(field, descriptors) for ``effects``; nothing is built that effects switch off."""
-        if effects.guidance == "none" or not self.has_pair:
-            return NullField(), ()
-        from engine.correlation import Correlator
-
-        def stage(lo: float, hi: float) -> Callable[[float], None] | None:
-            if progress is None:
-                return None
-            return lambda f: progress(lo + (hi - lo) * float(f))
-
-        d1, d2 = self.descriptors(
-            effects, sigma=sigma, penalty=penalty, progress=stage(0.0, 0.9), cancel=cancel
-        )
-        if cancel is not None and cancel():
-            raise Cancelled("recompute cancelled")
-        k = int(modes or self.modes)
-
-        def make(rotation: bool) -> Any:
-            return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend, kappa=1.0)
-
-        field = field_for_effects(effects, make, kappa=kappa, locked_rotation=locked_rotation)
-        if progress is not None:
-            progress(1.0)
-        return field, (d1, d2)
-
-
-def _fallback_descriptors(scene: Any, parts: Any, progress: Any, cancel: Any) -> tuple[Any, Any]:
-    """Descriptors of both parts on one spacing (the rule of engine.store), cached."""
-    from types import SimpleNamespace
-
-    from engine.cache import load_or_compute
-    from engine.descriptor import DescriptorParams, compute_descriptor
-    from engine.grid import grid_for_bounds
-
-    ds = scene.descriptor
-    params = DescriptorParams(sigma=ds.sigma, penalty=ds.penalty, lambda_out=ds.lambda_out)
-    longest = max(float(np.max(np.ptp(p.vertices, axis=0))) for p in parts[:2])
-    h = ds.spacing if ds.spacing else longest / float(ds.grid)
-    out = []
-    for i, part in enumerate(parts[:2]):
-        v = np.asarray(part.vertices, float)
-        grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), spacing=h, padding=ds.padding)
-
-        def sub(f: float, i: int = i) -> None:
-            if progress is not None:
-                progress(0.5 * i + 0.5 * f)
-
-        key = {"vertices": v, "faces": np.asarray(part.faces, np.int64),
-               "grid": [list(grid.origin), grid.spacing, list(grid.shape)],
-               "params": [params.sigma, params.penalty, params.lambda_out], "version": 1}
-        arrays, _ = load_or_compute(
-            "sim-descriptor", key,
-            lambda v=v, part=part, grid=grid, sub=sub: {  # type: ignore[misc]
-                "rho": compute_descriptor(v, part.faces, grid, params, backend="numpy",
-                                          progress=sub, cancel=cancel)
-            },
-        )
-        out.append(SimpleNamespace(rho=arrays["rho"], grid=grid, params=params))
-    return out[0], out[1]
-
-
-def _scene_with_params(scene: Any, sigma: float | None, penalty: float | None) -> Any:
-    """A copy of the scene with new descriptor sigma / penalty (frozen dataclass replace)."""
-    changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty)) if v is not None}
-    params = getattr(scene, "descriptor", None) or getattr(scene, "descriptor_params", None)
-    if params is not None:
-        name = "descriptor" if hasattr(scene, "descriptor") else "descriptor_params"
-        return replace(scene, **{name: replace(params, **changes)})
-    return replace(scene, **changes)
-
-
-def build_simulation(
-    handle: Any,
-    *,
-    modes: int | None = None,
-    backend: str = "auto",
-    prepare: bool = True,
-    coupled: bool = True,
-) -> tuple[Simulation, SceneModel]:
-    """Simulation of a scene handle.
-
-    With ``prepare=True`` the descriptors and correlator are built now (blocking); with
-    False the field starts as :class:`NullField` and :class:`EngineLoop` builds it in its
-    worker (``EngineLoop(..., model=model)``).
-    """
-    model = SceneModel(handle, modes=modes, backend=backend)
-    effects = handle.config.effects
-    physics = model.physics(effects)
-    body = model.body(physics)
-    dev = handle.config.device
-    limits = HapticLimits(
-        force_scale=dev.force_scale,
-        max_force=dev.max_force if dev.max_force is not None else math.inf,
-    )
-    field: Any = NullField()
-    if prepare:
-        field, _ = model.field(effects, physics.kappa, rotation_matrix(model.start_pose[3:]))
-    sim = Simulation(body, physics, effects, field, model.start_pose, limits=limits,
-                     coupled=coupled)
-    return sim, model
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1019,8 +822,6 @@ def _process_main(scene_path: str, shm_name: str, commands: Any, events: Any, op
             prepare=not fake,
         )
         if fake:
-            from engine.coupling import CorrelatorField
-
             sim.set_field(CorrelatorField(AnalyticWell(), sim.physics.kappa))
         field_name = _backend_name(sim.field)
         eval_log: list[float] = []

@@ -2,25 +2,10 @@
 ``[device]`` tables and the per-part ``mass`` / ``density`` / ``inertia`` keys.
 
 The scene loader (``engine.scene``) hands the raw tables over in ``Scene.sections``; this
-module validates them into frozen parameter dataclasses (:class:`SimConfig`) and, once the
-moving part's mesh is known, resolves the defaults that scale with the part's size
-(:func:`resolve_physics` -> :class:`Physics`).
-
-Scale invariance. Every default is tied to the moving part's length ``L`` (largest side of
-its bounding box) and to its mass, so that the same pair drawn in metres and in millimetres
-moves alike:
-
-- mass: ``mass`` if given, else ``density * volume`` if ``density`` is given, else 1 (a
-  dimensionless unit mass); inertia from the mesh with the same density.
-- coupling: a spring-damper with natural frequency ``frequency_hz`` (default 10 Hz) and
-  damping ratio ``damping_ratio`` (1) for the body's mass and mean inertia, so the stiffness
-  in force per length is ``m (2 pi f)^2`` whatever the length unit.
-- kappa (geometric force gain): the correlation energy is an integral over volume of two
-  dimensionless densities, so its gradient scales with an area ``L^2``; the default
-  ``kappa = guidance_gain * k / L`` (``k`` the linear coupling stiffness) makes the ratio of
-  geometric to coupling force independent of the unit.
-- gravity: off by default; ``gravity = true`` means 9.81 m/s^2 converted to the scene's unit
-  along ``gravity_direction`` (part 1's frame), the only physical, not scaled, default.
+module validates them into frozen parameter dataclasses (:class:`SimConfig`); the defaults
+that scale with the moving part's size are resolved by ``engine.sim.resolve_physics``.
+Gravity is off by default; ``gravity = true`` means 9.81 m/s^2 converted to the scene's unit
+along ``gravity_direction`` (part 1's frame), the only physical, not scaled, default.
 """
 
 from __future__ import annotations
@@ -50,8 +35,8 @@ from engine.params import (
 
 __all__ = [
     "AXES", "DEVICES", "GUIDANCE", "CouplingParams", "DeviceConfig", "Effects", "MassSpec",
-    "Physics", "SimConfig", "SimConfigError", "SimulationParams", "mass_properties",
-    "parse_simconfig", "resolve_physics", "simconfig_from_scene",
+    "Physics", "SimConfig", "SimConfigError", "SimulationParams",
+    "parse_simconfig", "simconfig_from_scene",
 ]
 
 class SimConfigError(InputError):
@@ -340,122 +325,4 @@ def simconfig_from_scene(scene: Any) -> SimConfig:
         units=str(getattr(scene, "units", "mm")),
         path=path,
         text=text,
-    )
-
-
-# ---------------------------------------------------------------------------------------------
-# resolving size-dependent defaults
-
-
-def mass_properties(
-    vertices: np.ndarray, faces: np.ndarray, spec: MassSpec
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, (3, 3) inertia about the centre of mass, (3,) centre, from a mesh and a MassSpec.
-
-    Parameters
-    ----------
-    vertices : (n, 3) float64
-    faces : (m, 3) int64
-    spec : MassSpec
-
-    Notes
-    -----
-    Uses trimesh's mass properties (exact for a closed mesh). A mesh that is not closed or
-    whose volume comes out non-positive falls back to its bounding box, uniformly filled.
-    Without density or mass the density is chosen so the mass is 1.
-    """
-    import trimesh
-
-    mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces), process=False)
-    volume = float(mesh.volume) if len(faces) else 0.0
-    if volume > 0 and mesh.is_watertight:
-        center = np.asarray(mesh.center_mass, float)
-        unit_inertia = np.asarray(mesh.moment_inertia, float) / volume  # per unit mass
-    else:
-        lo, hi = np.min(vertices, axis=0), np.max(vertices, axis=0)
-        size = np.maximum(hi - lo, 1e-12)
-        volume = float(np.prod(size))
-        center = 0.5 * (lo + hi)
-        unit_inertia = np.diag(
-            [(size[1] ** 2 + size[2] ** 2), (size[0] ** 2 + size[2] ** 2),
-             (size[0] ** 2 + size[1] ** 2)]
-        ) / 12.0
-    if spec.mass is not None:
-        mass = spec.mass
-    elif spec.density is not None:
-        mass = spec.density * volume
-    else:
-        mass = 1.0
-    inertia = mass * unit_inertia
-    if spec.inertia is not None:
-        inertia = np.asarray(spec.inertia, float)
-    if spec.center_of_mass is not None:
-        center = np.asarray(spec.center_of_mass, float)
-    return float(mass), inertia, center
-
-
-def resolve_physics(
-    config: SimConfig,
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    *,
-    part_index: int = 1,
-    effects: Effects | None = None,
-    kappa: float | None = None,
-) -> Physics:
-    """Scale the defaults to the moving part.
-
-    Parameters
-    ----------
-    config : SimConfig
-    vertices : (n, 3) float64
-        The moving part's mesh, in its own frame.
-    faces : (m, 3) int64
-    part_index : int
-        Which MassSpec applies (the moving part is 1).
-    effects : Effects, optional
-        Overrides ``config.effects`` (live changes from the GUI).
-    kappa : float, optional
-        Overrides the scene's / the default kappa.
-    """
-    effects = effects or config.effects
-    spec = config.masses[part_index] if len(config.masses) > part_index else MassSpec()
-    mass, inertia, center = mass_properties(vertices, faces, spec)
-    v = np.asarray(vertices, float)
-    length = float(np.max(np.ptp(v, axis=0))) if len(v) else 1.0
-    length = length if length > 0 else 1.0
-    i_mean = float(np.trace(inertia) / 3.0)
-    omega = 2 * math.pi * config.coupling.frequency_hz
-    zeta = config.coupling.damping_ratio
-    c = config.coupling
-    k_lin = c.stiffness if c.stiffness is not None else mass * omega**2
-    k_rot = c.angular_stiffness if c.angular_stiffness is not None else i_mean * omega**2
-    c_lin = c.damping if c.damping is not None else 2 * zeta * math.sqrt(k_lin * mass)
-    c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
-        k_rot * i_mean
-    )
-    zb = config.simulation.body_damping_ratio
-    body_c_lin = 2 * zb * math.sqrt(k_lin * mass)
-    body_c_rot = 2 * zb * math.sqrt(k_rot * i_mean)
-    if not effects.damping:
-        c_lin = c_rot = body_c_lin = body_c_rot = 0.0
-    if kappa is None:
-        kappa = config.simulation.kappa
-    if kappa is None:
-        kappa = config.simulation.guidance_gain * k_lin / length
-    gravity = np.zeros(3) if effects.gravity is None else np.asarray(effects.gravity, float)
-    return Physics(
-        mass=mass,
-        inertia=inertia,
-        center=center,
-        length=length,
-        k_lin=float(k_lin),
-        c_lin=float(c_lin),
-        k_rot=float(k_rot),
-        c_rot=float(c_rot),
-        body_c_lin=float(body_c_lin),
-        body_c_rot=float(body_c_rot),
-        kappa=float(kappa),
-        gravity=gravity,
-        dt=config.simulation.dt,
     )

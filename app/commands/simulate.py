@@ -45,9 +45,10 @@ def run(args: argparse.Namespace) -> int:
 
     from engine.api import open_scene
     from engine.devices import DeviceError, MouseDevice, TrajectoryDevice, open_device
-    from engine.loop import EngineLoop, build_simulation, period_stats
+    from engine.loop import EngineLoop, period_stats
     from engine.pose import relative_pose
     from engine.recording import Recorder
+    from engine.sim import build_simulation
 
     handle = open_scene(args.scene)
     if args.guidance:

@@ -9,21 +9,15 @@ does, so tests can check that switched-off work is not done.
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class FakeEvaluation:
-    energy: float
-    force: np.ndarray
-    torque: np.ndarray | None
-    microseconds: float
-    modes: int
+from engine.correlation import Evaluation
 
 
 class FakeLandscape:
+    """The spring field at one locked rotation, looked up per translation."""
+
     def __init__(self, owner, rotation):
         self.owner = owner
         self.rotation = np.array(rotation)
@@ -31,7 +25,7 @@ class FakeLandscape:
     def lookup(self, t):
         self.owner.lookups += 1
         e, f, _ = self.owner._field(self.rotation, np.asarray(t, float), torque=False)
-        return e, f
+        return Evaluation(e, f, None, 1.0, self.owner.modes)
 
 
 class SpringCorrelator:
@@ -69,7 +63,7 @@ class SpringCorrelator:
         if want_torque:
             self.torque_sums += 1
         e, f, tq = self._field(np.asarray(R, float), np.asarray(t, float), want_torque)
-        return FakeEvaluation(e, f, tq, 1.0, self.modes)
+        return Evaluation(e, f, tq, 1.0, self.modes)
 
     def set_modes(self, k):
         self.modes = int(k)

@@ -9,20 +9,19 @@ import numpy as np
 import pytest
 from sim_fakes import well
 
-from engine.coupling import (
+from engine.params import Effects, HapticLimits, Physics, SimConfig
+from engine.pose import rotvec_to_quaternion
+from engine.sim import (
     CorrelatorField,
-    CouplingGains,
-    HapticLimits,
     LandscapeField,
     NullField,
+    RigidBody,
     Simulation,
     clamp_norm,
     coupling_wrench,
     field_for_effects,
+    resolve_physics,
 )
-from engine.dynamics import RigidBody
-from engine.pose import rotation_matrix
-from engine.simconfig import Effects, SimConfig, resolve_physics
 
 
 def box_mesh(size=(1.0, 1.0, 2.0)):
@@ -39,13 +38,14 @@ def make_sim(scale=1.0, field=None, effects=None, limits=None, **cfg):
     phys = resolve_physics(config, v, f)
     body = RigidBody(phys.mass, phys.inertia, phys.center)
     return Simulation(body, phys, config.effects, field or NullField(), np.zeros(6),
-                      limits=limits)
+                      dt=config.simulation.dt, limits=limits)
 
 
 def test_wrench_signs():
-    gains = CouplingGains(10.0, 0.0, 2.0, 0.0)
-    f, t = coupling_wrench(gains, np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3),
-                           np.array([0.0, 0.0, 1.0]), rotation_matrix([0, 0, 0.1]))
+    gains = Physics(k_lin=10.0, c_lin=0.0, k_rot=2.0, c_rot=0.0)
+    identity = np.array([1.0, 0.0, 0.0, 0.0])
+    f, t = coupling_wrench(gains, np.zeros(3), identity, np.zeros(3), np.zeros(3),
+                           np.array([0.0, 0.0, 1.0]), rotvec_to_quaternion([0, 0, 0.1]))
     np.testing.assert_allclose(f, [0, 0, 10.0])
     np.testing.assert_allclose(t, [0, 0, 0.2], atol=1e-12)
 
@@ -145,7 +145,7 @@ def test_gravity_sags_by_g_over_omega_squared():
 def _free_energy_error(dt, seconds=2.0, integrator="verlet"):
     """Largest |E - E0| of a free part (no proxy, no damping) released off-centre and
     tilted in an analytic 6-DOF well, over ``seconds``."""
-    from engine.dynamics import step as euler_step
+    from engine.sim.body import step as euler_step
 
     sim = make_sim(field=CorrelatorField(well(stiffness=50.0), 1.0),
                    effects=Effects(damping=False))
@@ -158,7 +158,7 @@ def _free_energy_error(dt, seconds=2.0, integrator="verlet"):
     for _ in range(int(round(seconds / dt))):
         if integrator == "verlet":
             sim.step()
-        else:  # the symplectic Euler of engine.dynamics.step, same forces
+        else:  # the symplectic Euler of engine.sim.body.step, same forces
             sample = sim.evaluate_field()
             euler_step(sim.body, sim.state, sample.force, sample.torque, dt)
             sim.evaluate_field()

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from sim_fakes import well
 
-from engine.coupling import CorrelatorField, Simulation
-from engine.dynamics import BodyState, RigidBody, kinetic_energy, quaternion_step, step
+from engine.params import Effects, SimConfig
 from engine.pose import quaternion_to_matrix, rotation_vector
-from engine.simconfig import Effects, SimConfig, resolve_physics
+from engine.sim import CorrelatorField, Simulation, resolve_physics
+from engine.sim.body import BodyState, RigidBody, kinetic_energy, quaternion_step, step
 
 
 def box_body(mass=2.0, size=(1.0, 2.0, 3.0), center=(0.1, -0.2, 0.3)):
@@ -108,7 +108,6 @@ def test_damping_dissipates():
     body = box_body()
     sim = _free_sim(well(stiffness=50.0), body, np.array([0.2, -0.1, 0.15, 0.1, -0.2, 0.05]),
                     damping=True)
-    sim.physics = sim.physics  # body damping is set by resolve_physics when damping is on
     assert sim.physics.body_c_lin > 0
     sim.evaluate_field()
     e0 = sim.total_energy()

@@ -11,12 +11,11 @@ import pytest
 from sim_fakes import well
 
 from engine import api
-from engine.coupling import CorrelatorField, Simulation
 from engine.devices import Device, DeviceCapabilities, DeviceError
-from engine.dynamics import RigidBody
 from engine.errors import Cancelled
 from engine.loop import EngineLoop, period_stats
-from engine.simconfig import Effects, SimConfig, resolve_physics
+from engine.params import Effects, SimConfig
+from engine.sim import CorrelatorField, RigidBody, Simulation, resolve_physics
 
 
 def tetra():

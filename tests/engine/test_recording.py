@@ -6,13 +6,12 @@ import numpy as np
 import pytest
 from sim_fakes import well
 
-from engine.coupling import CorrelatorField, Simulation
 from engine.devices import TrajectoryDevice
-from engine.dynamics import RigidBody
 from engine.errors import InputError
 from engine.loop import EngineLoop
+from engine.params import Effects, SimConfig
 from engine.recording import COLUMNS, Recorder, load_recording, replay_device
-from engine.simconfig import Effects, SimConfig, resolve_physics
+from engine.sim import CorrelatorField, RigidBody, Simulation, resolve_physics
 
 
 def make_sim():

@@ -104,8 +104,9 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
 
     from engine.api import open_scene
     from engine.devices import TrajectoryDevice
-    from engine.loop import EngineLoop, build_simulation
+    from engine.loop import EngineLoop
     from engine.pose import relative_pose
+    from engine.sim import build_simulation
 
     handle = open_scene(ROOT / "assets" / name / "scene.toml")
     cfg = handle.config
@@ -189,8 +190,7 @@ def free_energy_run(axes, start, steps=2000):
     from dataclasses import replace
 
     from engine.api import open_scene
-    from engine.dynamics import kinetic_energy
-    from engine.loop import build_simulation
+    from engine.sim import build_simulation, kinetic_energy
 
     handle = open_scene(PEG)
     cfg = handle.config

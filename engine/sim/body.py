@@ -1,4 +1,4 @@
-"""Rigid-body dynamics of the moving part: state, fixed-step symplectic integration.
+"""Rigid body of the moving part: constant properties, mutable state, integrator pieces.
 
 Works on one rigid body in part 1's frame ("world" below): centre-of-mass position (3,),
 orientation as a unit quaternion (w, x, y, z) (4,), linear velocity of the centre of mass
@@ -82,7 +82,13 @@ class BodyState:
 
     __slots__ = ("com", "quat", "velocity", "omega", "_R")
 
-    def __init__(self, com, quat, velocity=None, omega=None):
+    def __init__(
+        self,
+        com: np.ndarray,
+        quat: np.ndarray,
+        velocity: np.ndarray | None = None,
+        omega: np.ndarray | None = None,
+    ):
         self.com = np.array(com, dtype=np.float64).reshape(3)
         self.quat = np.array(quat, dtype=np.float64).reshape(4)
         self.quat /= np.linalg.norm(self.quat)
@@ -116,6 +122,7 @@ class BodyState:
         return self.velocity - cross3(self.omega, self._R @ body.center)
 
     def copy(self) -> BodyState:
+        """An independent copy of the state."""
         return BodyState(self.com.copy(), self.quat.copy(), self.velocity.copy(), self.omega.copy())
 
 
@@ -275,7 +282,7 @@ def step(
 ) -> None:
     """Advance ``state`` in place by one symplectic Euler step: :func:`kick` by ``dt``, then
     :func:`drift` by ``dt`` (arguments as there). The simulation composes the two as
-    velocity Verlet instead (:meth:`engine.coupling.Simulation.step`)."""
+    velocity Verlet instead (:meth:`engine.sim.Simulation.step`)."""
     kick(body, state, force, torque, dt, translation_mask=translation_mask,
          rotation_mask=rotation_mask)
     drift(body, state, dt, translation_mask=translation_mask, rotation_mask=rotation_mask)

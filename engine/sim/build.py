@@ -1,0 +1,356 @@
+"""Building a :class:`~engine.sim.Simulation` from a loaded scene: the moving part's mass
+properties, the physics constants scaled to its size, the geometric field the effects ask
+for, and the simulation itself.
+
+Data: the moving part's mesh (vertices (n, 3) float64, faces (m, 3) int64, own frame), the
+scene's validated simulation settings, and poses (6,) float64 relative to part 1.
+
+Scale invariance. Every default is tied to the moving part's length ``L`` (largest side of
+its bounding box) and to its mass, so that the same pair drawn in metres and in millimetres
+moves alike:
+
+- mass: ``mass`` if given, else ``density * volume`` if ``density`` is given, else 1 (a
+  dimensionless unit mass); inertia from the mesh with the same density.
+- coupling: a spring-damper with natural frequency ``frequency_hz`` and damping ratio
+  ``damping_ratio`` for the body's mass and mean inertia, so the stiffness in force per
+  length is ``m (2 pi f)^2`` whatever the length unit.
+- kappa (geometric force gain): the correlation energy is an integral over volume of two
+  dimensionless densities, so its gradient scales with an area ``L^2``; the default
+  ``kappa = guidance_gain * k / L`` (``k`` the linear coupling stiffness) makes the ratio of
+  geometric to coupling force independent of the unit.
+- gravity: as the effects give it (already in scene units), not scaled.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from engine.errors import Cancelled
+from engine.loading import Part
+from engine.params import CouplingParams, Effects, HapticLimits, MassSpec, Physics, SimConfig
+from engine.pose import rotation_matrix
+from engine.sim.body import RigidBody
+from engine.sim.fields import GeometricField, NullField, field_for_effects
+from engine.sim.simulation import Simulation
+
+if TYPE_CHECKING:
+    from engine.correlation import Correlator
+
+
+class LoadedScene(Protocol):
+    """What building a simulation reads of a loaded scene (the runtime's scene handle)."""
+
+    @property
+    def scene(self) -> Any: ...  # engine.scene.Scene
+
+    @property
+    def config(self) -> SimConfig: ...
+
+    @property
+    def parts(self) -> Sequence[Part]: ...
+
+    @property
+    def start_pose(self) -> np.ndarray: ...  # (6,) float64
+
+
+# ---------------------------------------------------------------------------------------------
+# physics constants of the moving part
+
+
+def mass_properties(
+    vertices: np.ndarray, faces: np.ndarray, spec: MassSpec
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, (3, 3) inertia about the centre of mass, (3,) centre, from a mesh and a MassSpec.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    spec : MassSpec
+
+    Notes
+    -----
+    Uses trimesh's mass properties (exact for a closed mesh). A mesh that is not closed or
+    whose volume comes out non-positive falls back to its bounding box, uniformly filled.
+    Without density or mass the density is chosen so the mass is 1.
+    """
+    import trimesh
+
+    mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces), process=False)
+    volume = float(mesh.volume) if len(faces) else 0.0
+    if volume > 0 and mesh.is_watertight:
+        center = np.asarray(mesh.center_mass, float)
+        unit_inertia = np.asarray(mesh.moment_inertia, float) / volume  # per unit mass
+    else:
+        lo, hi = np.min(vertices, axis=0), np.max(vertices, axis=0)
+        size = np.maximum(hi - lo, 1e-12)
+        volume = float(np.prod(size))
+        center = 0.5 * (lo + hi)
+        unit_inertia = np.diag(
+            [(size[1] ** 2 + size[2] ** 2), (size[0] ** 2 + size[2] ** 2),
+             (size[0] ** 2 + size[1] ** 2)]
+        ) / 12.0
+    if spec.mass is not None:
+        mass = spec.mass
+    elif spec.density is not None:
+        mass = spec.density * volume
+    else:
+        mass = 1.0
+    inertia = mass * unit_inertia
+    if spec.inertia is not None:
+        inertia = np.asarray(spec.inertia, float)
+    if spec.center_of_mass is not None:
+        center = np.asarray(spec.center_of_mass, float)
+    return float(mass), inertia, center
+
+
+def resolve_physics(
+    config: SimConfig,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    part_index: int = 1,
+    effects: Effects | None = None,
+    kappa: float | None = None,
+) -> Physics:
+    """Scale the defaults to the moving part.
+
+    Parameters
+    ----------
+    config : SimConfig
+    vertices : (n, 3) float64
+        The moving part's mesh, in its own frame.
+    faces : (m, 3) int64
+    part_index : int
+        Which MassSpec applies (the moving part is 1).
+    effects : Effects, optional
+        Overrides ``config.effects`` (live changes from the GUI).
+    kappa : float, optional
+        Overrides the scene's / the default kappa.
+    """
+    effects = effects or config.effects
+    spec = config.mass_spec(part_index)
+    mass, inertia, center = mass_properties(vertices, faces, spec)
+    v = np.asarray(vertices, float)
+    length = float(np.max(np.ptp(v, axis=0))) if len(v) else 1.0
+    length = length if length > 0 else 1.0
+    i_mean = float(np.trace(inertia) / 3.0)
+    omega = 2 * math.pi * config.coupling.frequency_hz
+    zeta = config.coupling.damping_ratio
+    c = config.coupling
+    k_lin = c.stiffness if c.stiffness is not None else mass * omega**2
+    k_rot = c.angular_stiffness if c.angular_stiffness is not None else i_mean * omega**2
+    c_lin = c.damping if c.damping is not None else 2 * zeta * math.sqrt(k_lin * mass)
+    c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
+        k_rot * i_mean
+    )
+    zb = config.simulation.body_damping_ratio
+    body_c_lin = 2 * zb * math.sqrt(k_lin * mass)
+    body_c_rot = 2 * zb * math.sqrt(k_rot * i_mean)
+    if not effects.damping:
+        c_lin = c_rot = body_c_lin = body_c_rot = 0.0
+    if kappa is None:
+        kappa = config.simulation.kappa
+    if kappa is None:
+        kappa = config.simulation.guidance_gain * k_lin / length
+    gravity = np.zeros(3) if effects.gravity is None else np.asarray(effects.gravity, float)
+    return Physics(
+        mass=mass,
+        inertia=inertia,
+        center=center,
+        length=length,
+        k_lin=float(k_lin),
+        c_lin=float(c_lin),
+        k_rot=float(k_rot),
+        c_rot=float(c_rot),
+        body_c_lin=float(body_c_lin),
+        body_c_rot=float(body_c_rot),
+        kappa=float(kappa),
+        gravity=gravity,
+        dt=config.simulation.dt,
+    )
+
+
+def rigid_body(physics: Physics) -> RigidBody:
+    """The moving part's constant properties."""
+    return RigidBody(physics.mass, physics.inertia, physics.center)
+
+
+# ---------------------------------------------------------------------------------------------
+# geometric fields of a scene
+
+
+class SceneModel:
+    """Builds the physics and geometric fields of a loaded scene (constant data, no state);
+    the engine loop keeps one to rebuild them when the user changes effects, coupling,
+    kappa or descriptor parameters.
+
+    Parameters
+    ----------
+    handle : LoadedScene
+    modes : int, optional
+        K (default: the scene's ``[correlation] modes``).
+    backend : str
+        Per-pose backend for the correlator.
+    """
+
+    def __init__(self, handle: LoadedScene, *, modes: int | None = None,
+                 backend: str = "auto"):
+        self.handle = handle
+        self.config = handle.config
+        self.scene = handle.scene
+        self.parts = tuple(handle.parts)
+        self.moving = self.parts[1] if len(self.parts) > 1 else self.parts[0]
+        self.has_pair = len(self.parts) > 1
+        self.modes = int(modes or self.scene.modes)
+        self.backend = backend
+        self.start_pose = np.array(handle.start_pose, np.float64).reshape(6)
+
+    def physics(
+        self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
+    ) -> Physics:
+        """Physics constants for ``effects`` (and a changed coupling or kappa)."""
+        config = self.config if coupling is None else replace(self.config, coupling=coupling)
+        return resolve_physics(
+            config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa
+        )
+
+    def descriptors(
+        self,
+        effects: Effects,
+        *,
+        sigma: float | None = None,
+        penalty: float | None = None,
+        progress: Callable[[float], None] | None = None,
+        cancel: Callable[[], bool] | None = None,
+    ) -> tuple[Any, Any]:
+        """The two descriptors for ``effects.guidance`` (skeletal or collision-only)."""
+        from engine.descriptor.collision import collision_descriptor
+        from engine.descriptor.store import descriptors_for_scene
+        from engine.errors import InputError
+
+        scene = self.scene
+        if sigma is not None or penalty is not None:
+            changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
+                       if v is not None}
+            scene = replace(scene, descriptor=replace(scene.descriptor, **changes))
+        parts = list(self.parts)
+        try:
+            descs = descriptors_for_scene(
+                scene, parts=parts, backend=None, progress=progress, cancel=cancel
+            )
+        except (Cancelled, InputError):
+            raise
+        except Exception:
+            # the picked compute backend failed (an OpenCL driver that cannot build the
+            # kernels, say): the reference path computes the same values
+            descs = descriptors_for_scene(
+                scene, parts=parts, backend="numpy", progress=progress, cancel=cancel
+            )
+        d1, d2 = descs[0], descs[1]
+        if effects.guidance == "collision":
+            d1 = collision_descriptor(d1, self.parts[0])
+            d2 = collision_descriptor(d2, self.parts[1])
+        return d1, d2
+
+    def field(
+        self,
+        effects: Effects,
+        kappa: float,
+        locked_rotation: np.ndarray,
+        *,
+        sigma: float | None = None,
+        penalty: float | None = None,
+        modes: int | None = None,
+        progress: Callable[[float], None] | None = None,
+        cancel: Callable[[], bool] | None = None,
+    ) -> tuple[GeometricField, tuple[Any, ...]]:
+        """(field, descriptors) for ``effects``; nothing is built that effects switch off.
+
+        Parameters
+        ----------
+        effects : Effects
+        kappa : float
+        locked_rotation : (3, 3) float64
+            The part's rotation, used when the effects lock rotation.
+        sigma, penalty : float, optional
+            Descriptor parameters replacing the scene's.
+        modes : int, optional
+            K (default: this model's).
+        progress, cancel : callable, optional
+            Fraction done 0..1; True to stop (raises ``engine.errors.Cancelled``).
+        """
+        if effects.guidance == "none" or not self.has_pair:
+            return NullField(), ()
+        from engine.correlation import Correlator
+
+        def stage(lo: float, hi: float) -> Callable[[float], None] | None:
+            if progress is None:
+                return None
+            return lambda f: progress(lo + (hi - lo) * float(f))
+
+        d1, d2 = self.descriptors(
+            effects, sigma=sigma, penalty=penalty, progress=stage(0.0, 0.9), cancel=cancel
+        )
+        if cancel is not None and cancel():
+            raise Cancelled("recompute cancelled")
+        k = int(modes or self.modes)
+
+        def make(rotation: bool) -> Correlator:
+            return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend, kappa=1.0)
+
+        field = field_for_effects(effects, make, kappa=kappa, locked_rotation=locked_rotation)
+        if progress is not None:
+            progress(1.0)
+        return field, (d1, d2)
+
+
+def build_simulation(
+    handle: LoadedScene,
+    *,
+    modes: int | None = None,
+    backend: str = "auto",
+    rate_hz: float | None = None,
+    prepare: bool = True,
+    coupled: bool = True,
+) -> tuple[Simulation, SceneModel]:
+    """The simulation of a loaded scene, and the model that rebuilds its parts.
+
+    Parameters
+    ----------
+    handle : LoadedScene
+        The scene, its validated settings, the part meshes and the start pose.
+    modes : int, optional
+        K (default: the scene's).
+    backend : str
+        Per-pose evaluator of the correlator.
+    rate_hz : float, optional
+        Overrides ``[simulation] rate_hz``: the simulation's time step is ``1 / rate_hz``
+        and stays so through every later change of physics, effects or field.
+    prepare : bool
+        True: the descriptors and correlator are built now (blocking). False: the field
+        starts as :class:`NullField`; build it later with ``model.field(...)`` (the engine
+        loop does so in its worker) and hand it over with ``sim.set_field``.
+    coupled : bool
+        False: no proxy and no coupling (a free part, for energy checks).
+
+    Returns
+    -------
+    (Simulation, SceneModel)
+    """
+    model = SceneModel(handle, modes=modes, backend=backend)
+    effects = handle.config.effects
+    physics = model.physics(effects)
+    rate = handle.config.simulation.rate_hz if rate_hz is None else float(rate_hz)
+    field: GeometricField = NullField()
+    if prepare:
+        field, _ = model.field(effects, physics.kappa, rotation_matrix(model.start_pose[3:]))
+    limits = HapticLimits.from_device(handle.config.device)
+    sim = Simulation(rigid_body(physics), physics, effects, field, model.start_pose,
+                     dt=1.0 / rate, limits=limits, coupled=coupled)
+    return sim, model

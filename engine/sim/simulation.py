@@ -1,0 +1,203 @@
+"""The coupled system: input proxy -- spring-damper -- rigid part, with the geometric force
+field of the correlation engine acting on the part, stepped at a fixed time step.
+
+Data: poses (6,) float64 relative to part 1 (translation, rotation vector), forces and
+torques (3,) float64 in part 1's frame, torques about world axes through part 2's origin.
+The simulation owns its time step ``dt``: nothing else sets it, and changing the physics,
+the effects or the field keeps it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from engine.correlation import Evaluation
+from engine.params import Effects, HapticLimits, Physics, SimulationParams
+from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
+from engine.sim.body import BodyState, RigidBody, drift, kick, kinetic_energy
+from engine.sim.coupling import coupling_energy, coupling_wrench, haptic_reaction
+from engine.sim.fields import ZERO_EVALUATION, GeometricField
+
+_ZERO3 = np.zeros(3)
+_ZERO3.setflags(write=False)
+
+
+class Simulation:
+    """Proxy, coupling, rigid part and geometric field, stepped at a fixed ``dt``.
+
+    Owned by one thread (the engine loop); other threads see only the frames it publishes.
+
+    Parameters
+    ----------
+    body : RigidBody
+    physics : Physics
+        Resolved gains, kappa and gravity (its ``dt`` is not read: the step is ``dt``).
+    effects : Effects
+    field : GeometricField
+    start_pose : (6,) float64
+        Part and proxy start here, at rest.
+    dt : float, optional
+        Fixed time step in seconds (default: that of the default rate). Only :attr:`dt`
+        changes it later.
+    limits : HapticLimits
+    coupled : bool
+        False: no proxy, no coupling (free body in the field; for energy tests).
+    """
+
+    def __init__(
+        self,
+        body: RigidBody,
+        physics: Physics,
+        effects: Effects,
+        field: GeometricField,
+        start_pose: np.ndarray,
+        *,
+        dt: float | None = None,
+        limits: HapticLimits | None = None,
+        coupled: bool = True,
+    ):
+        self.body = body
+        self.effects = effects
+        self.field = field
+        self.limits = limits or HapticLimits()
+        self.coupled = coupled
+        self.start_pose = np.array(start_pose, np.float64).reshape(6)
+        self.dt = SimulationParams().dt if dt is None else dt
+        self.set_effects(effects, physics)
+        self.reset()
+
+    # -- parameters ---------------------------------------------------------------------------
+    @property
+    def dt(self) -> float:
+        """Fixed time step in seconds; the one place it is kept."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, value: float) -> None:
+        value = float(value)
+        if not (value > 0 and math.isfinite(value)):
+            raise ValueError(f"the time step must be positive and finite, got {value!r}")
+        self._dt = value
+
+    def set_physics(self, physics: Physics) -> None:
+        """New gains, kappa and gravity (the time step is kept)."""
+        self.physics = physics
+        self._gravity_force = self.body.mass * np.asarray(physics.gravity, np.float64)
+        self.field.kappa = physics.kappa
+        self._sample_fresh = False  # kappa may have changed
+
+    def set_effects(self, effects: Effects, physics: Physics | None = None) -> None:
+        """New effects (free axes, damping, gravity) and, with them, the physics resolved for
+        them (the time step is kept)."""
+        self.effects = effects
+        tmask = effects.translation_mask
+        rmask = effects.rotation_mask
+        self._tmask = None if tmask.all() else tmask
+        self._rmask = None if rmask.all() else rmask
+        self.set_physics(self.physics if physics is None else physics)
+
+    def set_field(self, field: GeometricField) -> None:
+        """Swap in a new geometric field (scaled by the current kappa)."""
+        field.kappa = self.physics.kappa
+        self.field = field
+        self.field_changed()
+
+    def field_changed(self) -> None:
+        """Say that the field changed (new modes, new descriptors): the next step evaluates it
+        afresh instead of reusing the sample from the end of the last step."""
+        self._sample_fresh = False
+
+    # -- state ----------------------------------------------------------------------------------
+    def reset(self, pose: np.ndarray | None = None) -> None:
+        """Part and proxy at ``pose`` (default: the start pose), at rest; time zero."""
+        pose = self.start_pose if pose is None else np.asarray(pose, np.float64).reshape(6)
+        self.state = BodyState.at_pose(self.body, pose)
+        self.time = 0.0
+        self.step_time = 0.0
+        self.steps = 0
+        self.set_proxy(pose)
+        self.sample: Evaluation = ZERO_EVALUATION
+        self._sample_fresh = False  # the field at the current pose is yet to be evaluated
+        self.coupling_force = _ZERO3
+        self.coupling_torque = _ZERO3
+        self.haptic_force = _ZERO3
+        self.haptic_torque = _ZERO3
+
+    def set_proxy(self, pose: np.ndarray) -> None:
+        """Move the proxy to ``pose`` (6,)."""
+        p = np.asarray(pose, np.float64).reshape(6)
+        self.proxy_pose = p.copy()
+        self._proxy_t = p[:3].copy()
+        self._proxy_q = rotvec_to_quaternion(p[3:])
+        self._proxy_R = quaternion_to_matrix(self._proxy_q)
+
+    def part_pose(self) -> np.ndarray:
+        """(6,) current pose of the part relative to part 1."""
+        return self.state.pose(self.body)
+
+    def total_energy(self) -> float:
+        """Kinetic plus geometric plus gravity (plus coupling spring) energy."""
+        e = kinetic_energy(self.body, self.state) + self.sample.energy
+        e -= float(self._gravity_force @ self.state.com)
+        if self.coupled:
+            e += coupling_energy(self.physics, self.state.origin(self.body), self.state.quat,
+                                 self._proxy_t, self._proxy_q)
+        return e
+
+    def evaluate_field(self) -> Evaluation:
+        """Evaluate the geometric field at the current pose (stores it in ``sample``)."""
+        self.sample = self.field.evaluate(self.state.rotation, self.state.origin(self.body))
+        return self.sample
+
+    # -- stepping -------------------------------------------------------------------------------
+    def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Force and torque on the part at its current state: the stored field sample,
+        gravity, the coupling to the proxy (sets the coupling and haptic outputs) and body
+        damping."""
+        state, body, sample, p = self.state, self.body, self.sample, self.physics
+        force = sample.force + self._gravity_force
+        torque = sample.torque if sample.torque is not None else _ZERO3
+        if self.coupled:
+            fc, tc = coupling_wrench(
+                p, state.origin(body), state.quat, state.origin_velocity(body), state.omega,
+                self._proxy_t, self._proxy_q,
+            )
+            self.coupling_force, self.coupling_torque = fc, tc
+            self.haptic_force, self.haptic_torque = haptic_reaction(fc, tc, self.limits)
+            force = force + fc
+            torque = torque + tc
+        if p.body_c_lin:
+            force = force - p.body_c_lin * state.velocity
+        if p.body_c_rot:
+            torque = torque - p.body_c_rot * state.omega
+        return force, torque
+
+    def step(self) -> Evaluation:
+        """One fixed step, velocity Verlet: half a kick with the forces at the current pose
+        (the field sample from the end of the last step, the coupling to the proxy as it is
+        now), a drift, the field at the new pose, half a kick with the new forces. One field
+        evaluation per step; second order, so a free part keeps its energy far better than
+        with symplectic Euler at the same step. Returns the field sample at the new pose
+        (also in :attr:`sample`)."""
+        state, body, dt = self.state, self.body, self._dt
+        if not self._sample_fresh:
+            self.evaluate_field()
+            self._sample_fresh = True
+        tmask, rmask = self._tmask, self._rmask
+        force, torque = self._total_forces()
+        kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
+        drift(body, state, dt, translation_mask=tmask, rotation_mask=rmask)
+        sample = self.evaluate_field()
+        force, torque = self._total_forces()
+        kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
+        self.step_time = self.time
+        self.time += dt
+        self.steps += 1
+        return sample
+
+    def run(self, steps: int) -> None:
+        """Step ``steps`` times (no proxy input)."""
+        for _ in range(steps):
+            self.step()
