@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -48,3 +49,74 @@ def test_damping_off_zeroes_every_damper():
     v, f = box()
     p = resolve_physics(SimConfig(effects=Effects(damping=False)), v, f)
     assert p.c_lin == p.c_rot == p.body_c_lin == p.body_c_rot == 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# the time step is owned by the simulation and holds through every change
+
+
+def _box_scene(tmp_path, rate_hz=1000):
+    """A two-box scene on disk, loaded the way the engine loads it."""
+    import trimesh
+
+    from engine.scene import load_scene, load_scene_parts, relative_start_pose
+    from engine.simconfig import simconfig_from_scene
+
+    trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
+    trimesh.creation.box(extents=(1.0, 1.0, 3.0)).export(tmp_path / "peg.stl")
+    (tmp_path / "scene.toml").write_text(
+        'units = "mm"\nassembled_pose = [0, 0, 0, 0, 0, 0]\n\n'
+        f"[simulation]\nrate_hz = {rate_hz}\n\n"
+        '[[part]]\nname = "base"\nfile = "base.stl"\npose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n'
+        '[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, 4, 0, 0, 0]\n'
+    )
+    scene = load_scene(tmp_path / "scene.toml")
+    return LoadedBoxes(scene, simconfig_from_scene(scene), tuple(load_scene_parts(scene)),
+                       relative_start_pose(scene))
+
+
+@dataclass(frozen=True)
+class LoadedBoxes:
+    scene: object
+    config: SimConfig
+    parts: tuple
+    start_pose: np.ndarray
+
+
+def test_rate_override_holds_through_every_change(tmp_path):
+    """A 250 Hz override steps 4 ms of physics, and keeps doing so after the changes the
+    engine makes on SetKappa, SetCoupling, SetEffects and at the field handover (each used
+    to put the scene's 1 ms step back)."""
+    from engine.params import CouplingParams
+    from engine.sim import NullField, build_simulation
+
+    handle = _box_scene(tmp_path, rate_hz=1000)
+    sim, model = build_simulation(handle, rate_hz=250.0, prepare=False)
+    assert sim.dt == pytest.approx(1 / 250)
+    effects = handle.config.effects
+    changes = [
+        lambda: sim.set_effects(effects, model.physics(effects, kappa=3.0)),  # SetKappa
+        lambda: sim.set_effects(effects, model.physics(
+            effects, CouplingParams(frequency_hz=5.0))),  # SetCoupling
+        lambda: sim.set_effects(replace(effects, damping=False),
+                                model.physics(replace(effects, damping=False))),  # SetEffects
+        lambda: sim.set_physics(model.physics(effects)),
+        lambda: sim.set_field(NullField()),  # the handover of a new field
+        lambda: sim.reset(),
+    ]
+    for change in changes:
+        change()
+        t0, n0 = sim.time, sim.steps
+        sim.run(10)
+        assert sim.dt == pytest.approx(1 / 250)
+        assert sim.time - t0 == pytest.approx((sim.steps - n0) * 0.004)
+
+
+def test_scene_rate_sets_the_step_and_bad_steps_are_refused(tmp_path):
+    from engine.sim import build_simulation
+
+    sim, _ = build_simulation(_box_scene(tmp_path, rate_hz=500), prepare=False)
+    assert sim.dt == pytest.approx(0.002)
+    for bad in (0.0, -1e-3, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="time step"):
+            sim.dt = bad
