@@ -77,7 +77,7 @@ def _synthetic_pairs() -> list[tuple[str, object, object, np.ndarray, float]]:
 
 def _scene_pairs(paths: list[str]) -> list[tuple[str, object, object, np.ndarray, float]]:
     from engine.scene import load_scene
-    from engine.store import descriptors_for_scene
+    from engine.descriptor import descriptors_for_scene
 
     pairs = []
     for path in paths:

@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--triangles", type=int, nargs="+", default=[1000, 20000, 200000],
                         help="approximate triangle counts of the test tori")  # fmt: skip
     parser.add_argument("--backends", nargs="+", default=None,
-                        help="numpy and/or opencl (default: all that work here)")  # fmt: skip
+                        help="numba and/or opencl (default: all that work here)")  # fmt: skip
     parser.add_argument("--sample", type=int, default=1000,
                         help="points compared with brute force per case (0: skip)")  # fmt: skip
     parser.add_argument("--quick", action="store_true",
@@ -63,33 +63,31 @@ def cubic_grid(vertices: np.ndarray, n: int, padding: int = 3) -> Grid:
 
 def _usable_backends() -> list[str]:
     from engine.backend import available_backends, get_backend
+    from engine.descriptor.opencl_kernels import kernel_builds
 
-    names = ["numpy"]
-    if "opencl" in available_backends():
-        from engine.descriptor_cl import kernel_builds
-
-        if kernel_builds(get_backend("opencl")):
-            names.append("opencl")
+    names = ["numba"]
+    if "opencl" in available_backends() and kernel_builds(get_backend("opencl")):
+        names.append("opencl")
     return names
 
 
 def _sample_error(vertices, faces, grid, rho, backend, sample, rng) -> float:
     """Relative L2 error of ``rho`` against brute force on ``sample`` random grid points."""
-    from engine import descriptor as d
+    from engine.descriptor import compute as d
+    from engine.params import DescriptorParams
 
     flat = rho.reshape(-1)
     idx = rng.choice(flat.size, size=min(sample, flat.size), replace=False)
     points = grid.points().reshape(-1, 3)[idx]
     local = d._localise(vertices[faces], grid.center, grid.spacing, False)
-    out = d._run(local, (points - grid.center) / grid.spacing, 2, d.DescriptorParams(), backend)
+    out = d._run(local, (points - grid.center) / grid.spacing, 2, DescriptorParams(), backend)
     ref = out[:, 0] + 1j * out[:, 1]
     return float(np.linalg.norm(flat[idx] - ref) / np.linalg.norm(ref))
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark; print the table, write the plot."""
-    from engine.backend import get_backend
-    from engine.descriptor import compute_descriptor
+    from engine.descriptor import compute_descriptor, resolve_backend
 
     grids = [16, 32] if args.quick else args.grids
     tris = [1000, 20000] if args.quick else args.triangles
@@ -97,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(0)
     rows = []
     for name in backends:
-        backend = get_backend(name)
+        backend = resolve_backend(name)
         # Warm up: numba compilation / OpenCL build are not part of a part's cost.
         v, f = torus(1000)
         compute_descriptor(v, f, cubic_grid(v, 8), backend=backend)

@@ -10,7 +10,8 @@ the scene's ``[descriptor]`` values), one ``<scene>-<part>.npz`` per part in the
 ``-o`` (default: the current directory); this also fills the cache the GUI and
 ``skelasm simulate`` read.
 
-Results are cached (see ``engine.store``): a second run with the same inputs only loads.
+Results are cached (see ``engine.descriptor.store``): a second run with the same inputs only
+loads.
 """
 
 from __future__ import annotations
@@ -81,9 +82,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "of the part's bounding-box diagonal)")
     parser.add_argument("--body", metavar="NAME",
                         help="which solid of a multi-body STEP file")
-    parser.add_argument("--backend", choices=("numpy", "opencl"),
+    parser.add_argument("--backend", choices=("numba", "opencl", "auto"),
                         help="compute backend (default: SKELASM_BACKEND, else OpenCL when a "
-                        "device is there, else numpy)")
+                        "device is there, else numba)")
     parser.add_argument("--device", metavar="D",
                         help="OpenCL device: part of its name, or PLATFORM:DEVICE indices")
     parser.add_argument("--method", choices=("tree", "brute"), default="tree",
@@ -132,10 +133,13 @@ def _progress(args: argparse.Namespace, label: str):
 
 
 def _params(args: argparse.Namespace, base=None):
-    from engine.descriptor import DescriptorParams
+    from dataclasses import replace
+
+    from engine.params import DescriptorParams
 
     base = base or DescriptorParams()
-    return DescriptorParams(
+    return replace(
+        base,
         sigma=args.sigma if args.sigma is not None else base.sigma,
         penalty=args.penalty if args.penalty is not None else base.penalty,
         lambda_out=args.lambda_out if args.lambda_out is not None else base.lambda_out,
@@ -176,9 +180,9 @@ def _describe(rec: dict) -> str:
 
 
 def _run_part(args: argparse.Namespace, path: Path) -> int:
+    from engine.descriptor import descriptor_for_part, grid_for_part
     from engine.loading import load_part
     from engine.params import DEFAULT_PADDING
-    from engine.store import descriptor_for_part, grid_for_part
 
     part = load_part(path, tolerance=args.tolerance, body=args.body)
     if args.output:
@@ -218,8 +222,8 @@ def _run_part(args: argparse.Namespace, path: Path) -> int:
 def _run_scene(args: argparse.Namespace, path: Path) -> int:
     from dataclasses import replace
 
+    from engine.descriptor import descriptors_for_scene, scene_spacing
     from engine.scene import load_scene, load_scene_parts
-    from engine.store import descriptors_for_scene, scene_spacing
 
     if args.body is not None or args.tolerance is not None:
         raise ValueError("--body and --tolerance apply to part files; a scene sets them per "
@@ -230,8 +234,7 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
         d = replace(d, grid=args.grid, spacing=None)
     if args.spacing is not None:
         d = replace(d, grid=None, spacing=args.spacing)
-    params = _params(args, d.params())
-    d = replace(d, sigma=params.sigma, penalty=params.penalty, lambda_out=params.lambda_out)
+    d = _params(args, d)
     if args.padding is not None:
         d = replace(d, padding=args.padding)
     scene = replace(scene, descriptor=d)

@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from engine.correlation import Correlator
     from engine.pose import rotation_matrix
     from engine.scene import load_scene, load_scene_parts
-    from engine.store import descriptors_for_scene
+    from engine.descriptor import descriptors_for_scene
 
     scene = load_scene(args.scene)
     if len(scene.parts) < 2:

@@ -118,7 +118,7 @@ class Session(QtCore.QObject):
                 from dataclasses import replace
 
                 from engine.correlation import Correlator
-                from engine.store import descriptors_for_scene
+                from engine.descriptor import descriptors_for_scene
 
                 scene = handle.scene
                 changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
@@ -128,7 +128,7 @@ class Session(QtCore.QObject):
                 descs = descriptors_for_scene(scene, parts=handle.parts)
                 d1, d2 = descs[0], descs[1]
                 if handle.config.effects.guidance == "collision":
-                    from engine.collision import collision_descriptor
+                    from engine.descriptor import collision_descriptor
 
                     d1 = collision_descriptor(d1, handle.parts[0])
                     d2 = collision_descriptor(d2, handle.parts[1])

@@ -15,7 +15,7 @@ def _opencl_problem() -> str | None:
     if "opencl" not in available_backends():
         return "no OpenCL device"
     from engine.backend import BackendError
-    from engine.descriptor_cl import build_program
+    from engine.descriptor.opencl_kernels import build_program
 
     try:
         build_program(get_backend("opencl").context)
@@ -24,14 +24,16 @@ def _opencl_problem() -> str | None:
     return None
 
 
-@pytest.fixture(params=["numpy", "opencl"])
+@pytest.fixture(params=["numba", "opencl"])
 def descriptor_backend(request):
     """Each compute backend usable for the descriptor (OpenCL skipped when absent/broken)."""
+    from engine.descriptor import resolve_backend
+
     if request.param == "opencl":
         problem = _opencl_problem()
         if problem:
             pytest.skip(problem)
-    return get_backend(request.param)
+    return resolve_backend(request.param)
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from app.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 SLIDE = ROOT / "assets" / "dovetail" / "slide.step"  # 28 triangles: fast
-SMALL = ["--grid", "8", "--padding", "1", "--backend", "numpy"]
+SMALL = ["--grid", "8", "--padding", "1", "--backend", "numba"]
 
 
 @pytest.fixture(autouse=True)
@@ -34,7 +34,7 @@ def test_json_and_output_file(tmp_path, capfd):
     for key in ("grid", "spacing", "triangles", "seconds", "backend", "output"):
         assert key in rec
     assert rec["output"] == str(out) and out.is_file()
-    assert rec["triangles"] == 28 and rec["backend"] == "numpy" and rec["unit"] == "mm"
+    assert rec["triangles"] == 28 and rec["backend"] == "numba" and rec["unit"] == "mm"
     assert rec["from_cache"] is False
     # --grid 8: 8 samples along the longest side (30 mm), one cell of padding each side
     assert rec["spacing"] == pytest.approx(30 / 8)

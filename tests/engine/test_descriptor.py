@@ -9,7 +9,6 @@ import pytest
 import trimesh
 
 from engine.descriptor import (
-    DescriptorParams,
     compute_descriptor,
     descriptor_at_points,
     signed_distance,
@@ -17,6 +16,7 @@ from engine.descriptor import (
 )
 from engine.errors import Cancelled, InputError, ResourceError
 from engine.grid import Grid, grid_for_bounds
+from engine.params import DescriptorParams
 
 
 def _box(extents=(2.0, 2.0, 2.0)):
@@ -32,7 +32,7 @@ def _rel_l2(a, b):
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
-# Known values from DESIGN.md (independent brute-force quadrature converged to about 0.5%):
+# Known values (docs/descriptor.md; an independent brute-force quadrature converged to about 0.5%):
 # box 2 x 2 x 2 at the origin, sigma 0.5, lambda_in 3, lambda_out 1.
 BOX_POINTS = np.array(
     [(0, 0, 0), (0.5, 0.2, 0.1), (0.13, 0.21, 0.9), (1.5, 0, 0), (3, 0.2, 0.3), (1.4, 1.3, 0.2)],
@@ -64,7 +64,7 @@ def test_box_known_values(descriptor_backend, method):
 
 
 def test_face_limit_is_reached_near_a_face(descriptor_backend):
-    # DESIGN.md: at (0.13, 0.21, 1 -/+ d) rho stays at -0.83+3.17i inside and
+    # docs/descriptor.md: at (0.13, 0.21, 1 -/+ d) rho stays at -0.83+3.17i inside and
     # -0.276-1.056i outside for d from 0.3 down to 0.003: adaptive subdivision, no cap.
     v, f = _box()
     d = np.array([0.3, 0.03, 0.003, 3e-4])
@@ -85,7 +85,7 @@ def test_sphere_centre_closed_form(sigma):
     # to first order with eta/|xi| - 1 (about 3x that with a flat g): 1% tolerance.
     v, f = _mesh(trimesh.creation.icosphere(subdivisions=4))
     params = DescriptorParams(sigma=sigma)
-    rho = descriptor_at_points(v, f, np.zeros((1, 3)), params, spacing=0.1, backend="numpy")[0]
+    rho = descriptor_at_points(v, f, np.zeros((1, 3)), params, spacing=0.1, backend="numba")[0]
     expected = 1j * params.lambda_in * math.sqrt(2 * math.pi) / sigma
     assert abs(rho - expected) < 0.01 * abs(expected)
 
@@ -128,8 +128,8 @@ def test_tree_matches_brute_force(name):
     v, f = MESHES[name]()
     lo, hi = v.min(axis=0), v.max(axis=0)
     grid = grid_for_bounds(lo, hi, samples=10, padding=2)
-    brute = compute_descriptor(v, f, grid, backend="numpy", method="brute")
-    tree = compute_descriptor(v, f, grid, backend="numpy", method="tree")
+    brute = compute_descriptor(v, f, grid, backend="numba", method="brute")
+    tree = compute_descriptor(v, f, grid, backend="numba", method="tree")
     assert _rel_l2(tree, brute) <= 1e-3
 
 
@@ -143,7 +143,7 @@ def test_opencl_matches_numpy(opencl_backend):
         v, f = MESHES[name]()
         grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=10, padding=2)
         for method in ("tree", "brute"):
-            ref = compute_descriptor(v, f, grid, backend="numpy", method=method)
+            ref = compute_descriptor(v, f, grid, backend="numba", method=method)
             got = compute_descriptor(v, f, grid, backend=opencl_backend, method=method)
             assert got.dtype == np.complex64 and got.shape == grid.shape
             assert _rel_l2(got, ref) <= 1e-3, (name, method)
@@ -153,16 +153,17 @@ def test_opencl_matches_numpy(opencl_backend):
 def test_opencl_float_accumulation_matches_numpy(opencl_backend):
     # GPUs without cl_khr_fp64 accumulate in float: a few thousand terms per point lose
     # ~1e-6 relative each, well inside the 1e-3 budget.
-    from engine import descriptor as d
-    from engine.descriptor_cl import OpenCLDescriptor
+    from engine.descriptor import compute as d
+    from engine.descriptor.opencl_kernels import OpenCLDescriptor
 
     v, f = MESHES["icosphere"]()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=8, padding=2)
     local = d._localise(v[f], grid.center, grid.spacing, True)
     points = (grid.points().reshape(-1, 3) - grid.center) / grid.spacing
-    ref = d._run(local, points, 2, DescriptorParams(), d._resolve_backend("numpy"))
+    params = DescriptorParams()
+    ref = d._run(local, points, 2, params, d.resolve_backend("numba"))
     evaluate = OpenCLDescriptor(opencl_backend, double=False).prepare(
-        local.tri, local.tree, DescriptorParams()
+        local.tri, local.tree, params.sigma, params.lambda_in, params.lambda_out
     )
     got = evaluate(points, 2)
     np.testing.assert_allclose(got[:, 2], ref[:, 2], atol=1e-4)  # xi
@@ -177,7 +178,7 @@ def test_sign_and_size_inside_and_outside(descriptor_backend):
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=12, padding=2)
     rho = compute_descriptor(v, f, grid, backend=descriptor_backend)
     pts = grid.points().reshape(-1, 3)
-    sd = signed_distance(v, f, pts, backend="numpy")
+    sd = signed_distance(v, f, pts, backend="numba")
     im = rho.reshape(-1).imag
     clear = np.abs(sd) > 0.5 * grid.spacing
     assert np.all(im[clear & (sd < 0)] > 0)
@@ -195,8 +196,8 @@ def test_moving_the_mesh_moves_rho():
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=10, padding=2)
     shift = np.array([123.4, -56.7, 8.9])
     moved = Grid(tuple(np.asarray(grid.origin) + shift), grid.spacing, grid.shape)
-    a = compute_descriptor(v, f, grid, backend="numpy")
-    b = compute_descriptor(v + shift, f, moved, backend="numpy")
+    a = compute_descriptor(v, f, grid, backend="numba")
+    b = compute_descriptor(v + shift, f, moved, backend="numba")
     # Same local coordinates up to rounding of the shift (1e-14), which can still flip a
     # split decision sitting on its threshold: a few 1e-5, far below the 1e-3 error budget.
     assert _rel_l2(b, a) < 1e-4
@@ -205,7 +206,7 @@ def test_moving_the_mesh_moves_rho():
 def test_mirror_symmetric_part_gives_mirror_symmetric_rho():
     v, f = MESHES["annulus"]()  # symmetric under z -> -z
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=10, padding=2)
-    rho = compute_descriptor(v, f, grid, backend="numpy")
+    rho = compute_descriptor(v, f, grid, backend="numba")
     assert _rel_l2(rho[:, :, ::-1], rho) < 1e-3
 
 
@@ -217,7 +218,7 @@ def test_scale_and_far_coordinates_change_nothing(descriptor_backend, scale, off
     # centre) keep float32 accurate for parts at 1e-3 mm or 1e4 mm.
     v, f = _box((2.0, 1.0, 0.6))
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=8, padding=2)
-    ref = compute_descriptor(v, f, grid, backend="numpy")
+    ref = compute_descriptor(v, f, grid, backend="numba")
     g2 = Grid(tuple(np.asarray(grid.origin) * scale + offset), grid.spacing * scale, grid.shape)
     got = compute_descriptor(v * scale + offset, f, g2, backend=descriptor_backend)
     assert np.all(np.isfinite(got))
@@ -260,24 +261,24 @@ def test_mesh_with_a_small_hole():
     v, f = _mesh(m)
     holed = f[1:]  # one triangle missing
     pts = np.array([[0, 0, 0], [0.3, -0.2, 0.1], [1.5, 0, 0], [0, -2, 0.5]])
-    w = winding_number(v, holed, pts, backend="numpy")
+    w = winding_number(v, holed, pts, backend="numba")
     assert np.all((w > 0.5) == np.array([True, True, False, False]))
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=8, padding=1)
-    closed = compute_descriptor(v, f, grid, backend="numpy")
-    rho = compute_descriptor(v, holed, grid, backend="numpy")
+    closed = compute_descriptor(v, f, grid, backend="numba")
+    rho = compute_descriptor(v, holed, grid, backend="numba")
     assert np.all(np.isfinite(rho))
     assert _rel_l2(rho, closed) < 0.05
 
 
 def test_large_sigma_limit():
-    # DESIGN.md: sigma -> infinity flattens g, so sqrt(2 pi) sigma rho tends to the
+    # docs/descriptor.md: sigma -> infinity flattens g, so sqrt(2 pi) sigma rho tends to the
     # sigma-free c(p) * sum zeta^-2 dA_perp, with an O(1/sigma^2) remainder.
     v, f = MESHES["box"]()
     pts = np.array([[0.3, 0.1, 0.05], [1.4, 0.2, 0.1]])
 
     def scaled(sigma):
         rho = descriptor_at_points(v, f, pts, DescriptorParams(sigma=sigma), spacing=0.1,
-                                   backend="numpy")  # fmt: skip
+                                   backend="numba")  # fmt: skip
         return math.sqrt(2 * math.pi) * sigma * rho
 
     s10, s20, s40 = scaled(10.0), scaled(20.0), scaled(40.0)
@@ -306,13 +307,13 @@ def test_bad_inputs_have_messages():
 
 
 def test_progress_and_cancel(monkeypatch):
-    import engine.descriptor as d
+    import engine.descriptor.constants as c
 
-    monkeypatch.setattr(d, "CHUNK_POINTS", 100)
+    monkeypatch.setattr(c, "CHUNK_POINTS", 100)
     v, f = _box()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=6, padding=1)
     seen: list[float] = []
-    compute_descriptor(v, f, grid, backend="numpy", progress=seen.append)
+    compute_descriptor(v, f, grid, backend="numba", progress=seen.append)
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == math.ceil(grid.size / 100)
     calls = []
 
@@ -321,4 +322,4 @@ def test_progress_and_cancel(monkeypatch):
         return len(calls) > 2
 
     with pytest.raises(Cancelled):
-        compute_descriptor(v, f, grid, backend="numpy", cancel=cancel)
+        compute_descriptor(v, f, grid, backend="numba", cancel=cancel)

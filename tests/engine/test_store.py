@@ -8,19 +8,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import engine.descriptor as descriptor_module
-from engine.descriptor import DescriptorParams
-from engine.errors import InputError
-from engine.grid import Grid
-from engine.loading import load_part, part_from_mesh
-from engine.scene import load_scene, load_scene_parts
-from engine.store import (
+import engine.descriptor.store as store_module
+from engine.descriptor import (
     Descriptor,
     descriptor_for_part,
     descriptors_for_scene,
     grid_for_part,
     scene_spacing,
 )
+from engine.errors import InputError
+from engine.grid import Grid
+from engine.loading import load_part, part_from_mesh
+from engine.params import DescriptorParams
+from engine.scene import load_scene, load_scene_parts
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -47,7 +47,7 @@ def fake_compute(monkeypatch):
             progress(1.0)
         return value.astype(np.complex64)
 
-    monkeypatch.setattr(descriptor_module, "compute_descriptor", compute)
+    monkeypatch.setattr(store_module, "compute_descriptor", compute)
     return calls
 
 
@@ -62,31 +62,31 @@ def box_part(size=2.0, shift=0.0):
 def test_cache_hit_and_miss(fake_compute, private_cache):
     part = box_part()
     grid = grid_for_part(part, samples=8, padding=2)
-    first = descriptor_for_part(part, grid, DescriptorParams(), backend="numpy")
+    first = descriptor_for_part(part, grid, DescriptorParams(), backend="numba")
     assert not first.from_cache and len(fake_compute) == 1
-    assert first.backend == "numpy" and first.triangles == 12 and first.name == "box"
+    assert first.backend == "numba" and first.triangles == 12 and first.name == "box"
     assert list(private_cache.rglob("*.npz"))
-    second = descriptor_for_part(part, grid, DescriptorParams(), backend="numpy")
+    second = descriptor_for_part(part, grid, DescriptorParams(), backend="numba")
     assert second.from_cache and len(fake_compute) == 1
     np.testing.assert_array_equal(second.rho, first.rho)
     assert second.rho.dtype == np.complex64 and second.grid == grid
     assert second.seconds < 0.5
     # any changed input recomputes
-    descriptor_for_part(part, grid, DescriptorParams(sigma=0.6), backend="numpy")
-    descriptor_for_part(part, grid, DescriptorParams(penalty=2.0), backend="numpy")
-    descriptor_for_part(part, grid_for_part(part, samples=9, padding=2), backend="numpy")
-    descriptor_for_part(box_part(shift=1e-9), grid, backend="numpy")
-    descriptor_for_part(part, grid, method="brute", backend="numpy")
+    descriptor_for_part(part, grid, DescriptorParams(sigma=0.6), backend="numba")
+    descriptor_for_part(part, grid, DescriptorParams(penalty=2.0), backend="numba")
+    descriptor_for_part(part, grid_for_part(part, samples=9, padding=2), backend="numba")
+    descriptor_for_part(box_part(shift=1e-9), grid, backend="numba")
+    descriptor_for_part(part, grid, method="brute", backend="numba")
     assert len(fake_compute) == 6
     # and the originals still hit
-    assert descriptor_for_part(part, grid, DescriptorParams(), backend="numpy").from_cache
+    assert descriptor_for_part(part, grid, DescriptorParams(), backend="numba").from_cache
 
 
 def test_no_cache(fake_compute, private_cache):
     part = box_part()
     grid = grid_for_part(part, samples=6, padding=1)
-    a = descriptor_for_part(part, grid, use_cache=False, backend="numpy")
-    b = descriptor_for_part(part, grid, use_cache=False, backend="numpy")
+    a = descriptor_for_part(part, grid, use_cache=False, backend="numba")
+    b = descriptor_for_part(part, grid, use_cache=False, backend="numba")
     assert not a.from_cache and not b.from_cache and len(fake_compute) == 2
     assert not private_cache.exists() or not list(private_cache.rglob("*.npz"))
 
@@ -101,7 +101,7 @@ def test_save_and_load_round_trip(tmp_path):
     grid = Grid((1.0, -2.0, 0.5), 0.25, (3, 4, 5))
     rho = (np.arange(60).reshape(3, 4, 5) * (1 - 2j)).astype(np.complex64)
     d = Descriptor(rho=rho, grid=grid, params=DescriptorParams(0.7, 2.5, 1.5), triangles=12,
-                   backend="numpy", seconds=1.0, name="peg", compute_seconds=1.0)
+                   backend="numba", seconds=1.0, name="peg", compute_seconds=1.0)
     path = d.save(tmp_path / "peg")
     assert path.name == "peg.npz"
     with np.load(path) as raw:
@@ -114,7 +114,7 @@ def test_save_and_load_round_trip(tmp_path):
     back = Descriptor.load(path)
     np.testing.assert_array_equal(back.rho, rho)
     assert back.grid == grid and back.params == d.params
-    assert back.triangles == 12 and back.backend == "numpy" and back.name == "peg"
+    assert back.triangles == 12 and back.backend == "numba" and back.name == "peg"
 
 
 def test_load_errors(tmp_path):
@@ -133,7 +133,7 @@ def test_load_errors(tmp_path):
 def test_rho_shape_must_match_grid():
     with pytest.raises(ValueError, match="shape"):
         Descriptor(rho=np.zeros((2, 2, 2), np.complex64), grid=Grid((0, 0, 0), 1.0, (2, 2, 3)),
-                   params=DescriptorParams(), triangles=0, backend="numpy", seconds=0.0)
+                   params=DescriptorParams(), triangles=0, backend="numba", seconds=0.0)
 
 
 def test_scene_spacing_and_grids(fake_compute):
@@ -142,7 +142,7 @@ def test_scene_spacing_and_grids(fake_compute):
     # the block is 40 mm wide, the peg 30 mm long: h = 40 / grid
     assert scene_spacing(scene, parts) == pytest.approx(40.0 / scene.descriptor.grid)
     seen = []
-    out = descriptors_for_scene(scene, parts=parts, backend="numpy", progress=seen.append)
+    out = descriptors_for_scene(scene, parts=parts, backend="numba", progress=seen.append)
     assert [d.name for d in out] == ["block", "peg"]
     h = 40.0 / scene.descriptor.grid
     for d, part in zip(out, parts, strict=True):
@@ -169,7 +169,7 @@ def test_real_descriptor_is_cached_and_loads_fast(private_cache):
     """The real kernel on a coarse grid: +i inside, -i outside, and a fast second load."""
     part = load_part(ROOT / "assets" / "dovetail" / "slide.step")
     grid = grid_for_part(part, samples=8, padding=1)
-    first = descriptor_for_part(part, grid, backend="numpy")
+    first = descriptor_for_part(part, grid, backend="numba")
     assert not first.from_cache and first.rho.shape == grid.shape
     assert np.all(np.isfinite(first.rho))
     # the slide's cap, a 20 x 30 x 5 slab, holds the point (0, -15, 2.5)
@@ -177,19 +177,18 @@ def test_real_descriptor_is_cached_and_loads_fast(private_cache):
     assert first.rho[index].imag > 0
     assert first.rho[0, 0, 0].imag < 0  # a corner of the padded box is outside
     t0 = time.perf_counter()
-    second = descriptor_for_part(part, grid, backend="numpy")
+    second = descriptor_for_part(part, grid, backend="numba")
     assert time.perf_counter() - t0 < 0.5
     assert second.from_cache
     np.testing.assert_array_equal(second.rho, first.rho)
 
 
 def test_changed_descriptor_code_recomputes(fake_compute, monkeypatch):
-    import engine.store as store
-
+    store = store_module
     part = box_part()
     grid = grid_for_part(part, samples=6, padding=1)
-    descriptor_for_part(part, grid, backend="numpy")
-    assert descriptor_for_part(part, grid, backend="numpy").from_cache
+    descriptor_for_part(part, grid, backend="numba")
+    assert descriptor_for_part(part, grid, backend="numba").from_cache
     monkeypatch.setattr(store, "_CODE_DIGEST", "a different kernel")
-    assert not descriptor_for_part(part, grid, backend="numpy").from_cache
+    assert not descriptor_for_part(part, grid, backend="numba").from_cache
     assert len(fake_compute) == 2

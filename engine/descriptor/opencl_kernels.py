@@ -1,23 +1,27 @@
 """OpenCL kernels of the skeletal density descriptor (pyopencl; any device).
 
-Works on the packed triangle and hierarchy arrays of :mod:`engine.bvh` (sent as float32 in
-local units: grid cells about the grid centre) and query points ``(k, 3)`` in the same
-units. One work-item evaluates one point: winding number, exact nearest distance, then
-the boundary sum, with the same rules, constants and traversal order as the numba
-reference in :mod:`engine.descriptor`, so both agree to float32 precision. Accumulators
-are double where the device has ``cl_khr_fp64`` (PoCL does; many GPUs do not), else float.
-Subdivision and traversal use explicit private stacks (no recursion in OpenCL C).
+Works on the packed triangle and hierarchy arrays of :mod:`engine.descriptor.tree` (sent
+as float32 in local units: grid cells about the grid centre) and query points ``(k, 3)``
+in the same units. One work-item evaluates one point: winding number, exact nearest
+distance, then the boundary sum, with the same rules, constants and traversal order as
+the numba reference in :mod:`engine.descriptor.numba_kernels`, so both agree to float32
+precision. Accumulators are double where the device has ``cl_khr_fp64`` (PoCL does; many
+GPUs do not), else float. Subdivision and traversal use explicit private stacks (no
+recursion in OpenCL C).
 """
 
 from __future__ import annotations
 
 import threading
 import weakref
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from engine import descriptor as _d
+import engine.descriptor.constants as _c
+from engine.backend import Backend, BackendError
+from engine.descriptor.tree import TriangleTree
 
 KERNEL_SOURCE = r"""
 #ifdef USE_DOUBLE
@@ -507,34 +511,30 @@ def build_program(context: Any, *, double: bool | None = None) -> Any:
         prog = _programs.setdefault(context, {}).get(double)
         if prog is None:
             options = [
-                f"-DPIECE_STACK={_d.PIECE_STACK}",
-                f"-DNODE_STACK={_d.NODE_STACK}",
-                f"-DMAX_LEVEL={_d.MAX_LEVEL}",
-                f"-DTIE={_d.TIE!r}f",
-                f"-DMAX_NORMALS={_d.MAX_NORMALS}",
+                f"-DPIECE_STACK={_c.PIECE_STACK}",
+                f"-DNODE_STACK={_c.NODE_STACK}",
+                f"-DMAX_LEVEL={_c.MAX_LEVEL}",
+                f"-DTIE={_c.TIE!r}f",
+                f"-DMAX_NORMALS={_c.MAX_NORMALS}",
             ]
             if double:
                 options.append("-DUSE_DOUBLE")
             try:
                 prog = cl.Program(context, KERNEL_SOURCE).build(options=options)
             except (cl.Error, RuntimeError) as exc:
-                from engine.backend import BackendError
-
                 lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower()]
                 why = lines[-1] if lines else str(exc).splitlines()[0]
                 raise BackendError(
                     f"the OpenCL device {dev.name.strip()} ({dev.platform.name.strip()}) cannot "
-                    f"compile the descriptor kernel ({why}); use --backend numpy, or pick "
+                    f"compile the descriptor kernel ({why}); use --backend numba, or pick "
                     "another device with --device / SKELASM_DEVICE"
                 ) from exc
             _programs[context][double] = prog
         return prog
 
 
-def kernel_builds(backend: Any) -> bool:
+def kernel_builds(backend: Backend) -> bool:
     """Whether the descriptor kernel compiles on this OpenCL backend."""
-    from engine.backend import BackendError
-
     try:
         build_program(backend.context)
     except BackendError:
@@ -545,7 +545,7 @@ def kernel_builds(backend: Any) -> bool:
 class OpenCLDescriptor:
     """The compiled kernel on one backend (context and queue)."""
 
-    def __init__(self, backend: Any, *, double: bool | None = None) -> None:
+    def __init__(self, backend: Backend, *, double: bool | None = None) -> None:
         self.backend = backend
         self.program = build_program(backend.context, double=double)
         self.kernel = self.program.skeletal
@@ -553,7 +553,7 @@ class OpenCLDescriptor:
     _instances: dict[int, OpenCLDescriptor] = {}
 
     @classmethod
-    def for_backend(cls, backend: Any) -> OpenCLDescriptor:
+    def for_backend(cls, backend: Backend) -> OpenCLDescriptor:
         """Shared instance per backend."""
         key = id(backend.context)
         inst = cls._instances.get(key)
@@ -562,7 +562,8 @@ class OpenCLDescriptor:
             cls._instances[key] = inst
         return inst
 
-    def prepare(self, tri: np.ndarray, tree: Any, params: Any):
+    def prepare(self, tri: np.ndarray, tree: TriangleTree | None, sigma: float,
+                lambda_in: float, lambda_out: float) -> Callable[[np.ndarray, int], np.ndarray]:
         """Upload one mesh; returns ``evaluate(points (k, 3) float, mode) -> (k, 4) float64``.
 
         Parameters
@@ -571,7 +572,8 @@ class OpenCLDescriptor:
             Packed triangles (tree order).
         tree : TriangleTree or None
             None for brute force.
-        params : DescriptorParams
+        sigma, lambda_in, lambda_out : float
+            The descriptor's parameters.
         """
         import pyopencl as cl
 
@@ -592,15 +594,15 @@ class OpenCLDescriptor:
         nidx_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=nidx)
         m = np.int32(tri32.shape[0])
         scalars = [
-            np.float32(params.sigma),
-            np.float32(params.lambda_in),
-            np.float32(params.lambda_out),
-            np.float32(_d.THETA),
-            np.float32(_d.THETA_NODE),
-            np.float32(_d.THETA_WINDING),
-            np.float32(_d.EPS_FLOOR),
-            np.float32(_d.GAUSS_CUTOFF),
-            np.float32(_d.SIGMA_RESOLUTION),
+            np.float32(sigma),
+            np.float32(lambda_in),
+            np.float32(lambda_out),
+            np.float32(_c.THETA),
+            np.float32(_c.THETA_NODE),
+            np.float32(_c.THETA_WINDING),
+            np.float32(_c.EPS_FLOOR),
+            np.float32(_c.GAUSS_CUTOFF),
+            np.float32(_c.SIGMA_RESOLUTION),
         ]
         kernel = self.kernel
 

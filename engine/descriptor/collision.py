@@ -17,16 +17,18 @@ collision-only runs differ by the guidance, not by a gain.
 from __future__ import annotations
 
 import dataclasses
-from types import SimpleNamespace
-from typing import Any
 
 import numpy as np
 
 from engine.cache import load_or_compute
+from engine.descriptor.compute import winding_number
+from engine.descriptor.store import Descriptor
+from engine.grid import Grid
+from engine.loading import Part
 
 
 def collision_density(
-    vertices: np.ndarray, faces: np.ndarray, grid: Any, lambda_in: float
+    vertices: np.ndarray, faces: np.ndarray, grid: Grid, lambda_in: float
 ) -> np.ndarray:
     """(nx, ny, nz) complex64 collision-only density on ``grid``.
 
@@ -37,30 +39,28 @@ def collision_density(
     grid : engine.grid.Grid
     lambda_in : float
     """
-    from engine.descriptor import winding_number
-
     points = grid.points().reshape(-1, 3)
     w = np.clip(winding_number(vertices, faces, points), 0.0, 1.0)
     return (1j * lambda_in * w).astype(np.complex64).reshape(grid.shape)
 
 
-def collision_descriptor(descriptor: Any, part: Any) -> Any:
+def collision_descriptor(descriptor: Descriptor, part: Part) -> Descriptor:
     """The collision-only counterpart of a skeletal descriptor (same grid, cached).
 
     Parameters
     ----------
-    descriptor : engine.store.Descriptor
+    descriptor : Descriptor
         Supplies the grid and ``params.lambda_in``.
     part : engine.loading.Part
         The mesh.
 
     Returns
     -------
-    A descriptor of the same type whose ``rho`` is :func:`collision_density`.
+    Descriptor
+        ``descriptor`` with ``rho`` replaced by :func:`collision_density`.
     """
     grid = descriptor.grid
-    params = getattr(descriptor, "params", None)
-    lam = float(getattr(params, "lambda_in", 3.0))
+    lam = float(descriptor.params.lambda_in)
     key = {
         "vertices": np.asarray(part.vertices, np.float64),
         "faces": np.asarray(part.faces, np.int64),
@@ -72,10 +72,4 @@ def collision_descriptor(descriptor: Any, part: Any) -> Any:
         "collision", key,
         lambda: {"rho": collision_density(part.vertices, part.faces, grid, lam)},
     )
-    rho = arrays["rho"]
-    if dataclasses.is_dataclass(descriptor):
-        try:
-            return dataclasses.replace(descriptor, rho=rho)  # type: ignore[type-var]
-        except TypeError:
-            pass
-    return SimpleNamespace(rho=rho, grid=grid, params=params)
+    return dataclasses.replace(descriptor, rho=arrays["rho"])

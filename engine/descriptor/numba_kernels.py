@@ -1,160 +1,20 @@
-"""Skeletal density descriptor of a closed triangle mesh, sampled on a regular grid.
+"""Numba kernels of the skeletal density (the "numba" backend; float64).
 
-Works on a mesh given as ``vertices (n, 3) float64`` and ``faces (m, 3) int64`` (outward
-oriented) and a :class:`engine.grid.Grid`. For a query point ``p`` (../shared/DESIGN.md
-section 1)::
-
-    rho(p) = c(p) * sum over the boundary of  zeta^-2 * g_sigma(eta/|xi| - 1) * dA_perp
-
-with ``xi`` the exact signed closest-point distance (+ outside), ``eta = |q - p|``,
-``zeta = xi + i eta``, ``dA_perp = n.(q - p)/eta dA``, ``g_sigma`` the normal density and
-``c = +lambda_in`` inside, ``-lambda_out`` outside. Membership is the winding number
-thresholded at 0.5.
-
-How it is computed
-------------------
-All geometry is moved to *local units*: coordinates relative to the grid centre divided by
-the spacing ``h``. ``rho`` and the winding number are scale-free, so nothing else changes,
-and float32 is then accurate for parts at 1e4 mm or 1e-3 mm alike.
-
-Quadrature. The surface integral is a sum over pieces of triangles, each lumped at its
-centroid (area vector at the centroid) with a second-order correction: eta is taken at
-its mean over the piece and the complex factor ``1 + (w''/w) u.Q.u / 2`` accounts for
-``w(eta) = zeta^-2 g`` varying across it (``Q`` the piece's second moment). A piece of
-radius ``r`` (about its centroid) at centroid distance ``d`` is cut in two at the
-midpoint of its longest edge (so slivers are cut along their length only) while::
-
-    r > THETA * max(d, EPS_FLOOR)   or   r > THETA * min(sigma, 0.5) * |xi| * tail(x)
-
-The first test keeps the solid angle of every piece small; the second resolves the
-Gaussian, which varies over a piece through ``eta/|xi|``, and is relaxed in its tail
-(``tail(x) = exp(x^2/(4 sigma^2)) / max(1, x/sigma)`` at the piece's nearest possible
-point, which keeps the expected error at the level of the peak's). The refinement is per
-query point, so only pieces near ``p`` are split: the cost grows like
-``log(size / |xi|)``. Pieces whose nearest possible point is farther than
-``(1 + GAUSS_CUTOFF * sigma) |xi|`` are skipped: there
-``g < exp(-GAUSS_CUTOFF^2 / 2) g(0) = 1.5e-8 g(0)``. With THETA = 0.35 the box values of
-DESIGN.md are reproduced within 0.4% (the reference itself is good to about 0.5%).
-
-Acceleration (``method="tree"``). A bounding-volume hierarchy over the triangles
-(:mod:`engine.bvh`) serves three traversals per point: the exact nearest distance (box
-pruning), the winding number (Barnes-Hut: a cluster with radius below ``THETA_WINDING``
-times its distance counts as a dipole, near triangles get their exact Van
-Oosterom-Strackee solid angle) and the ``rho`` sum, where a whole cluster is skipped
-beyond the Gaussian cut-off, lumped into one term when it passes the same two size tests
-as a piece (``THETA_NODE`` in place of ``THETA``), and otherwise opened; its triangles
-then get the adaptive quadrature above. A lumped cluster uses its summed area vector at
-its area-weighted centroid, its first moment ``S = sum N_i (g_i - c)^T`` (which removes
-the first-order error of clusters whose normals differ: edges, corners, thin walls) and
-its second moment (the same correction as a piece). ``method="brute"`` runs the same
-quadrature on every triangle with no clusters: the reference the tree is tested against
-(relative L2 difference below 1e-3; 3e-4 to 6e-4 measured on spheres and tori).
-
-Regularisation. Let ``eps = EPS_FLOOR * h`` (1e-3 of a grid cell). A query point closer
-than ``eps`` to the boundary (on it, or within a hair) takes its side from its height
-above the nearest boundary point along the *boundary normal* (the sum of the distinct unit
-normals of the triangles within ``TIE`` of the nearest distance: the face normal on a
-face, the bisector on an edge or corner, whatever the triangulation), a point on the
-boundary counting as inside; it is then evaluated at distance ``eps`` from its nearest
-boundary point along that normal, on its side, and ``|xi|`` is floored at ``eps``. So
-``zeta`` never vanishes, refinement stops at pieces of size ``THETA * eps``, the value on
-a face is the one-sided limit the smooth formula has there, and on an edge a bounded
-value between the faces' limits. Pieces are capped at ``MAX_LEVEL`` bisections, which the
-floor never reaches for triangles smaller than about ``2^(MAX_LEVEL/2) * THETA * eps``.
-Degenerate triangles have a zero area vector and contribute nothing (they still count
-for the distance). Thin walls need nothing special: the distance and the quadrature are
-exact per point and the tree's clusters carry their first moment.
-
-Numbers used by both implementations (numba here, OpenCL in
-:mod:`engine.descriptor_cl`) are module constants below, so they agree to float32
-precision.
+Work on the packed triangles and hierarchy of :mod:`engine.descriptor.tree` in local units
+(grid cells about the grid centre) and query points ``(k, 3) float64`` in the same units.
+One call of :func:`evaluate` fills, per point, the winding number, the signed distance and
+the boundary sum of the skeletal density (docs/descriptor.md gives the mathematics). The
+OpenCL source in :mod:`engine.descriptor.opencl_kernels` mirrors these functions line by
+line. Every quadrature constant arrives in a :class:`engine.descriptor.constants.KernelConstants`
+argument ``kc``: numba freezes globals into its on-disk cache, arguments it cannot.
 """
 
 from __future__ import annotations
 
-import logging
 import math
-import os
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
 
 import numba
 import numpy as np
-
-from engine.bvh import TriangleTree, build_tree
-from engine.errors import Cancelled, InputError, ResourceError
-from engine.grid import Grid
-
-#: Floor on |xi| and the normal push distance, in grid cells.
-EPS_FLOOR = 1e-3
-#: Largest piece radius / distance (and / sigma |xi|) before a piece is split.
-THETA = 0.35
-#: Largest cluster radius / distance (and / sigma |xi|) for a lumped cluster.
-THETA_NODE = 0.35
-#: The Gaussian size test uses min(sigma, SIGMA_RESOLUTION): a wide Gaussian still gets
-#: pieces no coarser than at the default sigma (the 1/r^2-like kernel needs them anyway).
-SIGMA_RESOLUTION = 0.5
-#: Barnes-Hut opening ratio for the winding number.
-THETA_WINDING = 0.5
-#: Pieces and clusters beyond (1 + GAUSS_CUTOFF * sigma) |xi| are skipped.
-GAUSS_CUTOFF = 6.0
-#: Distances within TIE (grid cells) count as equal when picking the nearest triangle.
-TIE = 1e-4
-#: Most distinct face normals summed into the boundary normal at an edge or corner.
-MAX_NORMALS = 8
-#: Deepest subdivision of one triangle (bisections; a piece's area is 2^-level of it).
-MAX_LEVEL = 90
-#: Explicit stack sizes (pieces: one per level + 1; nodes: tree depth + 1).
-PIECE_STACK = 96
-NODE_STACK = 64
-
-_log = logging.getLogger(__name__)
-
-METHODS = ("tree", "brute")
-#: Points evaluated between progress reports / cancel checks.
-CHUNK_POINTS = 32768
-
-
-@dataclass(frozen=True)
-class DescriptorParams:
-    """Parameters of the skeletal density.
-
-    Attributes
-    ----------
-    sigma : float
-        Width of the Gaussian on ``eta/|xi| - 1`` (dimensionless).
-    penalty : float
-        ``P = lambda_in / lambda_out``.
-    lambda_out : float
-        Weight outside the part (``c = -lambda_out`` there).
-    """
-
-    sigma: float = 0.5
-    penalty: float = 3.0
-    lambda_out: float = 1.0
-
-    def __post_init__(self) -> None:
-        for name in ("sigma", "penalty", "lambda_out"):
-            value = getattr(self, name)
-            try:
-                ok = math.isfinite(float(value)) and float(value) > 0
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise InputError(
-                    f"descriptor parameter {name} must be a positive finite number, got {value!r}"
-                )
-            object.__setattr__(self, name, float(value))
-
-    @property
-    def lambda_in(self) -> float:
-        """Weight inside the part: ``penalty * lambda_out``."""
-        return self.penalty * self.lambda_out
-
-
-# --------------------------------------------------------------------------------------
-# Geometry kernels (numba, float64). The OpenCL source mirrors these line by line.
 
 
 @numba.njit(cache=True, inline="always")
@@ -298,7 +158,7 @@ def _tri_solid_angle(px, py, pz, tri, k):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover - compiled
+def _nearest(px, py, pz, tri, node, nidx, use_tree, tie, stack):  # pragma: no cover - compiled
     """(distance, triangle index) of the nearest triangle.
 
     Triangles within TIE of the best distance count as tied and the lowest index wins, so
@@ -309,7 +169,7 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover 
     if not use_tree:
         for k in range(tri.shape[0]):
             d = math.sqrt(_tri_dist2(px, py, pz, tri, k))
-            if d < best - TIE or (d <= best + TIE and k < best_k):
+            if d < best - tie or (d <= best + tie and k < best_k):
                 if d < best or k < best_k:
                     best_k = k
                 best = min(best, d)
@@ -330,13 +190,13 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover 
                 bd += (lo - v) ** 2
             elif v > hi:
                 bd += (v - hi) ** 2
-        if bd > (best + TIE) * (best + TIE):
+        if bd > (best + tie) * (best + tie):
             continue
         left = nidx[nd, 0]
         if left < 0:
             for k in range(nidx[nd, 2], nidx[nd, 2] + nidx[nd, 3]):
                 d = math.sqrt(_tri_dist2(px, py, pz, tri, k))
-                if d < best - TIE or (d <= best + TIE and k < best_k):
+                if d < best - tie or (d <= best + tie and k < best_k):
                     if d < best or k < best_k:
                         best_k = k
                     best = min(best, d)
@@ -358,15 +218,16 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, stack):  # pragma: no cover 
 
 
 @numba.njit(cache=True)
-def _boundary_normal(px, py, pz, tri, node, nidx, use_tree, best, stack):  # pragma: no cover
+def _boundary_normal(px, py, pz, tri, node, nidx, use_tree, best, tie, max_normals,
+                     stack):  # pragma: no cover  # fmt: skip
     """Sum of the distinct unit normals of the triangles within TIE of the nearest distance.
 
     At a face this is the face normal; on an edge or a corner it points between the faces
     that meet there, whichever way they are triangulated (equal normals count once).
     """
-    normals = np.zeros((MAX_NORMALS, 3))
+    normals = np.zeros((max_normals, 3))
     count = 0
-    lim = best + TIE
+    lim = best + tie
     sp = 0
     stack[0] = 0
     sp = 1
@@ -406,7 +267,7 @@ def _boundary_normal(px, py, pz, tri, node, nidx, use_tree, best, stack):  # pra
             for j in range(count):
                 if nx * normals[j, 0] + ny * normals[j, 1] + nz * normals[j, 2] > 1.0 - 1e-4:
                     seen = True
-            if not seen and count < MAX_NORMALS:
+            if not seen and count < max_normals:
                 normals[count, 0] = nx
                 normals[count, 1] = ny
                 normals[count, 2] = nz
@@ -570,7 +431,8 @@ def _tail(dc, r, axi, inv_axi, inv2s2, inv_sigma):  # pragma: no cover - compile
 
 
 @numba.njit(cache=True)
-def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, eps, stack):
+def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, eps, max_level,
+            stack):  # fmt: skip
     """(re, im) of one triangle's contribution with per-point adaptive subdivision.
 
     A piece is split in two at the midpoint of its longest edge, so slivers are cut
@@ -632,8 +494,8 @@ def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, ep
                 r > theta * max(dc, eps)
                 or r > gauss_size * _tail(dc, r, axi, inv_axi, inv2s2, inv_sigma)
             )
-            and level < MAX_LEVEL
-            and sp + 2 <= PIECE_STACK
+            and level < max_level
+            and sp + 2 <= stack.shape[0]
         ):
             # Longest edge (i, j), opposite corner o.
             best = -1.0
@@ -691,14 +553,17 @@ def _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_size, ep
 
 
 @numba.njit(cache=True)
-def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node, eps, cut_k,
-             nstack, pstack):  # fmt: skip
-    """(re, im) of the boundary sum (without c(p) and the Gaussian's constant)."""
+def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, kc, nstack, pstack):
+    """(re, im) of the boundary sum (without c(p) and the Gaussian's constant)."""  # noqa: D401
+    theta = kc.theta
+    theta_node = kc.theta_node
+    eps = kc.eps
+    max_level = kc.max_level
     axi = abs(xi)
     inv_axi = 1.0 / axi
     inv2s2 = 1.0 / (2.0 * sigma * sigma)
-    cut = (1.0 + cut_k * sigma) * axi
-    sig_res = min(sigma, SIGMA_RESOLUTION)
+    cut = (1.0 + kc.gauss_cutoff * sigma) * axi
+    sig_res = min(sigma, kc.sigma_resolution)
     gauss_piece = theta * sig_res * axi
     gauss_node = theta_node * sig_res * axi
     re = 0.0
@@ -706,7 +571,7 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node
     if not use_tree:
         for k in range(tri.shape[0]):
             tr, ti = _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta, gauss_piece,
-                              eps, pstack)  # fmt: skip
+                              eps, max_level, pstack)  # fmt: skip
             re += tr
             im += ti
         return re, im
@@ -736,7 +601,7 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node
         elif nidx[nd, 0] < 0:
             for k in range(nidx[nd, 2], nidx[nd, 2] + nidx[nd, 3]):
                 tr, ti = _tri_rho(px, py, pz, tri, k, xi, inv_axi, inv2s2, cut, theta,
-                                  gauss_piece, eps, pstack)  # fmt: skip
+                                  gauss_piece, eps, max_level, pstack)  # fmt: skip
                 re += tr
                 im += ti
         else:
@@ -747,21 +612,37 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node
 
 
 @numba.njit(cache=True, parallel=True)
-def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, theta,
-              theta_node, theta_w, eps, cut_k, out):  # fmt: skip
+def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc, out):
     """Fill out (n, 4) float64 with (Re rho, Im rho, xi, winding) per point.
 
-    mode 0: winding only; 1: winding and signed distance; 2: everything.
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Query points in local units.
+    tri, node, nidx : arrays of :class:`engine.descriptor.tree.TriangleTree`
+        Packed triangles and hierarchy (any ``node``/``nidx`` when ``use_tree`` is False).
+    use_tree : bool
+        The hierarchy, or every triangle (brute force, the reference).
+    mode : int
+        0: winding only; 1: winding and signed distance; 2: everything.
+    sigma, lam_in, lam_out : float
+        The descriptor's parameters.
+    kc : KernelConstants
+        The quadrature constants.
+    out : (n, 4) float64
+        Filled with (Re rho, Im rho, xi, winding).
     """  # pragma: no cover - compiled
     n = points.shape[0]
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
+    eps = kc.eps
+    tie = kc.tie
     for i in numba.prange(n):
-        nstack = np.empty(NODE_STACK, dtype=np.int64)
-        pstack = np.empty((PIECE_STACK, 7))
+        nstack = np.empty(kc.node_stack, dtype=np.int64)
+        pstack = np.empty((kc.piece_stack, 7))
         px = points[i, 0]
         py = points[i, 1]
         pz = points[i, 2]
-        w = _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, nstack)
+        w = _winding(px, py, pz, tri, node, nidx, use_tree, kc.theta_winding, nstack)
         out[i, 3] = w
         out[i, 0] = 0.0
         out[i, 1] = 0.0
@@ -769,10 +650,11 @@ def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, t
         if mode == 0:
             continue
         inside = w > 0.5
-        dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, nstack)
+        dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, tie, nstack)
         push = False
         if dist < eps:
-            nx, ny, nz = _boundary_normal(px, py, pz, tri, node, nidx, use_tree, dist, nstack)
+            nx, ny, nz = _boundary_normal(px, py, pz, tri, node, nidx, use_tree, dist, tie,
+                                          kc.max_normals, nstack)  # fmt: skip
             nn = math.sqrt(nx * nx + ny * ny + nz * nz)
             if nn > 1e-3:
                 # Within a hair of the boundary the winding number is about 0.5 and its
@@ -783,7 +665,7 @@ def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, t
                 nz /= nn
                 qx, qy, qz = _tri_closest(px, py, pz, tri, kn)
                 off = (px - qx) * nx + (py - qy) * ny + (pz - qz) * nz
-                inside = off < TIE
+                inside = off < tie
                 push = True
         out[i, 2] = -dist if inside else dist
         if mode == 1:
@@ -796,319 +678,7 @@ def _evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, t
             py = qy + sgn * eps * ny
             pz = qz + sgn * eps * nz
         xi = sgn * max(dist, eps)
-        re, im = _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, theta, theta_node,
-                          eps, cut_k, nstack, pstack)  # fmt: skip
+        re, im = _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, kc, nstack, pstack)
         c = lam_in if inside else -lam_out
         out[i, 0] = c * norm * re
         out[i, 1] = c * norm * im
-
-
-# --------------------------------------------------------------------------------------
-# Public interface
-
-
-def _triangles(vertices: Any, faces: Any) -> np.ndarray:
-    """Check a mesh and return its triangles, (m, 3, 3) float64."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise InputError(f"vertices must have shape (n, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise InputError(f"faces must have shape (m, 3), got {f.shape}")
-    if f.shape[0] == 0 or v.shape[0] == 0:
-        raise InputError("the mesh is empty (no triangles): load a closed surface mesh")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise InputError(f"faces must be integer vertex indices, got {f.dtype}")
-    if f.min() < 0 or f.max() >= v.shape[0]:
-        raise InputError(
-            f"faces index vertices 0..{v.shape[0] - 1} but hold {int(f.min())}..{int(f.max())}"
-        )
-    used = v[np.unique(f)]
-    if not np.all(np.isfinite(used)):
-        bad = int(np.count_nonzero(~np.all(np.isfinite(used), axis=1)))
-        raise InputError(
-            f"{bad} mesh vertices have non-finite (NaN or inf) coordinates: repair the mesh"
-        )
-    return v[f]
-
-
-def _check_memory(n_points: int, what: str) -> None:
-    need = n_points * (8 + 4 * 8 + 3 * 8)  # result, per-point work array, points
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
-        return
-    if need > 0.5 * total:
-        raise ResourceError(
-            f"{what} needs about {need / 2**30:.1f} GiB but this machine has "
-            f"{total / 2**30:.1f} GiB: use a coarser grid (smaller --grid or larger --spacing)"
-        )
-
-
-def _resolve_backend(backend: Any):
-    """The Backend to use. An automatic choice whose OpenCL device cannot compile the
-    kernel falls back to numpy (logged); an explicit OpenCL choice raises BackendError."""
-    from engine.backend import Backend, get_backend
-
-    if backend is None:
-        chosen = get_backend()
-        if chosen.name == "opencl":
-            from engine.descriptor_cl import kernel_builds
-
-            if not kernel_builds(chosen):
-                _log.warning(
-                    "OpenCL device %s cannot compile the descriptor kernel; using numpy",
-                    chosen.device_name,
-                )
-                return get_backend("numpy")
-        return chosen
-    if isinstance(backend, Backend):
-        return backend
-    if isinstance(backend, str):
-        return get_backend(backend)
-    raise ValueError(
-        f"backend must be None, a Backend or one of 'numpy', 'opencl'; got {backend!r}"
-    )
-
-
-@dataclass(frozen=True)
-class _Local:
-    """Triangles in local units and what maps points there."""
-
-    centre: np.ndarray  # (3,)
-    scale: float  # local = (x - centre) / scale
-    tree: TriangleTree | None
-    tri: np.ndarray  # (m, 16) packed, tree order if tree
-
-
-def _localise(triangles: np.ndarray, centre: np.ndarray, scale: float, use_tree: bool) -> _Local:
-    # Brute force keeps the tree's triangle order too, so that ties between equally near
-    # triangles (lowest index wins) resolve the same way in both methods.
-    local = (triangles - centre) / scale
-    tree = build_tree(local)
-    return _Local(centre, scale, tree if use_tree else None, tree.tri)
-
-
-def _run(
-    local: _Local,
-    points_local: np.ndarray,
-    mode: int,
-    params: DescriptorParams,
-    backend,
-    *,
-    progress: Callable[[float], None] | None = None,
-    cancel: Callable[[], bool] | None = None,
-) -> np.ndarray:
-    """Evaluate points (n, 3) in local units; returns (n, 4) float64 (re, im, xi, w)."""
-    n = points_local.shape[0]
-    out = np.empty((n, 4))
-    use_tree = local.tree is not None
-    if backend.name == "opencl":
-        from engine.descriptor_cl import OpenCLDescriptor
-
-        runner = OpenCLDescriptor.for_backend(backend)
-        evaluate = runner.prepare(local.tri, local.tree, params)
-
-        def chunk(lo: int, hi: int) -> None:
-            out[lo:hi] = evaluate(points_local[lo:hi], mode)
-    else:
-        if use_tree:
-            assert local.tree is not None  # use_tree implies a tree was built
-            node, nidx = local.tree.node, local.tree.node_index
-        else:
-            node, nidx = np.zeros((1, 32)), np.full((1, 4), -1, dtype=np.int32)
-
-        def chunk(lo: int, hi: int) -> None:
-            # Points cost very different amounts (near the surface vs deep inside):
-            # hand them to the threads in small batches rather than one half each.
-            previous = numba.set_parallel_chunksize(64)
-            try:
-                _evaluate_chunk(lo, hi)
-            finally:
-                numba.set_parallel_chunksize(previous)
-
-        def _evaluate_chunk(lo: int, hi: int) -> None:
-            _evaluate(
-                np.ascontiguousarray(points_local[lo:hi]), local.tri, node, nidx, use_tree,
-                mode, params.sigma, params.lambda_in, params.lambda_out, THETA, THETA_NODE,
-                THETA_WINDING, EPS_FLOOR, GAUSS_CUTOFF, out[lo:hi],
-            )  # fmt: skip
-
-    step = CHUNK_POINTS
-    for lo in range(0, n, step):
-        if cancel is not None and cancel():
-            raise Cancelled("descriptor computation cancelled")
-        hi = min(n, lo + step)
-        chunk(lo, hi)
-        if progress is not None:
-            progress(hi / n)
-    return out
-
-
-def _method(method: str) -> bool:
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    return method == "tree"
-
-
-def compute_descriptor(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    grid: Grid,
-    params: DescriptorParams = DescriptorParams(),  # noqa: B008 - frozen, so shared safely
-    *,
-    backend: Any = None,
-    method: str = "tree",
-    progress: Callable[[float], None] | None = None,
-    cancel: Callable[[], bool] | None = None,
-) -> np.ndarray:
-    """Skeletal density of a closed mesh on a grid.
-
-    Parameters
-    ----------
-    vertices : (n, 3) float64
-        Vertex coordinates in the part's frame.
-    faces : (m, 3) int64
-        Triangles, counter-clockwise seen from outside.
-    grid : Grid
-        Where to sample.
-    params : DescriptorParams
-        sigma, penalty and lambda_out.
-    backend : None, Backend or {"numpy", "opencl"}
-        Compute backend; None picks :func:`engine.backend.get_backend`.
-    method : {"tree", "brute"}
-        Accelerated hierarchy or every triangle (the reference).
-    progress : callable(float), optional
-        Called with the fraction done after each chunk of points.
-    cancel : callable() -> bool, optional
-        Polled between chunks; True raises :class:`engine.errors.Cancelled`.
-
-    Returns
-    -------
-    rho : (nx, ny, nz) complex64
-        The descriptor. Points within ``1e-3 * grid.spacing`` of the boundary are evaluated
-        at that distance on their own side (see the module docstring, "Regularisation").
-
-    Raises
-    ------
-    InputError
-        Empty mesh, bad shapes or non-finite vertices.
-    ResourceError
-        The grid does not fit in memory.
-    Cancelled
-        ``cancel()`` returned True.
-    """
-    use_tree = _method(method)
-    triangles = _triangles(vertices, faces)
-    _check_memory(grid.size, f"a {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} grid")
-    be = _resolve_backend(backend)
-    centre = grid.center
-    local = _localise(triangles, centre, grid.spacing, use_tree)
-    points = ((grid.points().reshape(-1, 3) - centre) / grid.spacing).astype(np.float64)
-    out = _run(local, points, 2, params, be, progress=progress, cancel=cancel)
-    rho = (out[:, 0] + 1j * out[:, 1]).astype(np.complex64)
-    return rho.reshape(grid.shape)
-
-
-def _local_points(triangles: np.ndarray, points: Any) -> tuple[np.ndarray, np.ndarray, float]:
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"points must have shape (n, 3), got {p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise InputError("query points must be finite")
-    lo = triangles.reshape(-1, 3).min(axis=0)
-    hi = triangles.reshape(-1, 3).max(axis=0)
-    centre = 0.5 * (lo + hi)
-    scale = float(np.max(hi - lo))
-    if not scale > 0:
-        scale = 1.0
-    return p, centre, scale
-
-
-def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
-                   backend: Any = None) -> np.ndarray:  # fmt: skip
-    """Generalised winding number of the mesh about each point.
-
-    Parameters
-    ----------
-    vertices : (n, 3) float64
-    faces : (m, 3) int64
-    points : (k, 3) float64
-    backend : None, Backend or {"numpy", "opencl"}
-
-    Returns
-    -------
-    (k,) float64
-        1 inside, 0 outside (about 0.5 on the surface); threshold at 0.5 for membership.
-        Uses the tree (Barnes-Hut with exact near triangles).
-    """
-    triangles = _triangles(vertices, faces)
-    p, centre, scale = _local_points(triangles, points)
-    if p.shape[0] == 0:
-        return np.zeros(0)
-    local = _localise(triangles, centre, scale, True)
-    out = _run(local, (p - centre) / scale, 0, DescriptorParams(), _resolve_backend(backend))
-    return out[:, 3].copy()
-
-
-def signed_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
-                    backend: Any = None) -> np.ndarray:  # fmt: skip
-    """Exact signed distance to the triangles, + outside, - inside (winding number > 0.5).
-
-    Parameters
-    ----------
-    vertices : (n, 3) float64
-    faces : (m, 3) int64
-    points : (k, 3) float64
-    backend : None, Backend or {"numpy", "opencl"}
-
-    Returns
-    -------
-    (k,) float64
-    """
-    triangles = _triangles(vertices, faces)
-    p, centre, scale = _local_points(triangles, points)
-    if p.shape[0] == 0:
-        return np.zeros(0)
-    local = _localise(triangles, centre, scale, True)
-    out = _run(local, (p - centre) / scale, 1, DescriptorParams(), _resolve_backend(backend))
-    return out[:, 2] * scale
-
-
-def descriptor_at_points(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    points: np.ndarray,
-    params: DescriptorParams = DescriptorParams(),  # noqa: B008
-    *,
-    spacing: float,
-    backend: Any = None,
-    method: str = "tree",
-) -> np.ndarray:
-    """Skeletal density at arbitrary points, as :func:`compute_descriptor` computes it.
-
-    Parameters
-    ----------
-    vertices : (n, 3) float64
-    faces : (m, 3) int64
-    points : (k, 3) float64
-    params : DescriptorParams
-    spacing : float
-        The grid spacing ``h`` the regularisation refers to (floor ``1e-3 h``).
-    backend : None, Backend or {"numpy", "opencl"}
-    method : {"tree", "brute"}
-
-    Returns
-    -------
-    (k,) complex128
-    """
-    use_tree = _method(method)
-    if not (math.isfinite(spacing) and spacing > 0):
-        raise InputError(f"spacing must be a positive finite number, got {spacing!r}")
-    triangles = _triangles(vertices, faces)
-    p, centre, _ = _local_points(triangles, points)
-    if p.shape[0] == 0:
-        return np.zeros(0, dtype=np.complex128)
-    local = _localise(triangles, centre, spacing, use_tree)
-    out = _run(local, (p - centre) / spacing, 2, params, _resolve_backend(backend))
-    return out[:, 0] + 1j * out[:, 1]

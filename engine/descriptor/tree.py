@@ -12,7 +12,7 @@ the same layout:
   (3), the summed area vector (3), a radius about ``c`` that bounds every vertex below the
   node (1), total area (1), two unused, then the first moment
   ``S[a, b] = sum_i N_i[a] (g_i - c)[b]`` (9, row-major; ``g_i`` the triangle centroids),
-  which lets a lumped cluster be integrated to second order (see engine.descriptor),
+  which lets a lumped cluster be integrated to second order (see engine.descriptor.compute),
   then the area-normalised second moment of the cluster about ``c``
   ``Q = (1/A) sum_i integral (q - c)(q - c)^T dA`` as xx, yy, zz, xy, xz, yz (6), one unused.
 - ``node_index`` ``(n, 4)`` int32: left child, right child (``-1`` for a leaf), first

@@ -6,9 +6,9 @@ an ``.npz`` with (at least) ``rho``, ``origin`` (3 floats: where grid index (0, 
 the part's frame), ``spacing``, ``shape``, ``sigma``, ``penalty`` and ``lambda_out``.
 
 :func:`descriptor_for_part` goes through ``engine.cache.load_or_compute``, keyed by the mesh's
-bytes, the grid, the parameters, the method, the descriptor module's numerical constants, a
+bytes, the grid, the parameters, the method, the quadrature constants, a
 digest of the descriptor's source files and :data:`FORMAT_VERSION`; a second call with the
-same inputs loads the stored array. The key does not include the backend: the numpy and
+same inputs loads the stored array. The key does not include the backend: the numba and
 OpenCL paths agree to float32 precision, so either one's result serves both.
 
 All parts of a scene share one grid spacing (so that the correlation needs no resampling at
@@ -26,8 +26,14 @@ from typing import Any
 
 import numpy as np
 
+import engine.descriptor.constants as _c
+from engine.cache import load_or_compute
+from engine.descriptor.compute import BackendLike, compute_descriptor, resolve_backend
 from engine.errors import InputError
 from engine.grid import Grid, grid_for_bounds
+from engine.loading import Part
+from engine.params import DescriptorParams
+from engine.scene import Scene, load_scene_parts
 
 #: Bumped whenever the stored layout or the meaning of a stored descriptor changes.
 FORMAT_VERSION = 1
@@ -45,12 +51,12 @@ class Descriptor:
         Samples; ``rho[i, j, k]`` at ``grid.origin + grid.spacing * (i, j, k)`` (read-only).
     grid : Grid
         Where the samples lie, in the part's own frame.
-    params : engine.descriptor.DescriptorParams
+    params : DescriptorParams
         sigma, penalty, lambda_out.
     triangles : int
         Triangles of the mesh it was computed from.
     backend : str
-        Backend that computed it (``"numpy"``, ``"opencl"``), as stored.
+        Backend that computed it (``"numba"``, ``"opencl"``), as stored.
     seconds : float
         Wall time of the call that produced this object (a cache load when ``from_cache``).
     from_cache : bool
@@ -65,7 +71,7 @@ class Descriptor:
 
     rho: np.ndarray
     grid: Grid
-    params: Any
+    params: DescriptorParams
     triangles: int
     backend: str
     seconds: float
@@ -129,8 +135,6 @@ class Descriptor:
     @classmethod
     def _from_arrays(cls, arrays: dict[str, np.ndarray], *, source: str, seconds: float,
                      from_cache: bool) -> Descriptor:
-        from engine.descriptor import DescriptorParams
-
         missing = [k for k in ("rho", "origin", "spacing", "sigma", "penalty", "lambda_out")
                    if k not in arrays]
         if missing:
@@ -161,14 +165,14 @@ class Descriptor:
 
 
 # --------------------------------------------------------------------------- grids
-def grid_for_part(part: Any, *, samples: int | None = None, spacing: float | None = None,
+def grid_for_part(part: Part, *, samples: int | None = None, spacing: float | None = None,
                   padding: float) -> Grid:
     """The grid of a part (``engine.loading.Part``): its bounds plus ``padding`` cells."""
     lower, upper = part.bounds
     return grid_for_bounds(lower, upper, samples=samples, spacing=spacing, padding=padding)
 
 
-def scene_spacing(scene: Any, parts: Sequence[Any]) -> float:
+def scene_spacing(scene: Scene, parts: Sequence[Part]) -> float:
     """The one grid spacing of a scene.
 
     The scene's ``[descriptor] spacing`` if given, else the longest side of the largest part
@@ -177,10 +181,11 @@ def scene_spacing(scene: Any, parts: Sequence[Any]) -> float:
     settings = scene.descriptor
     if settings.spacing is not None:
         return float(settings.spacing)
+    assert settings.grid is not None  # DescriptorParams holds one of grid and spacing
     longest = max(float(np.max(p.extent)) for p in parts)
     if not longest > 0:
         raise InputError(f"{scene.path}: the parts have zero extent; cannot derive a grid")
-    return longest / int(settings.grid)
+    return longest / settings.grid
 
 
 # --------------------------------------------------------------------------- compute / cache
@@ -188,21 +193,14 @@ _CODE_DIGEST: str | None = None
 
 
 def _descriptor_code_digest() -> str:
-    """SHA-256 of the descriptor's source files: a changed kernel must not reuse old entries.
-
-    Covers engine/descriptor.py, engine/descriptor_cl.py and engine/bvh.py (whichever
-    exist); an installed program never changes them, so users keep their cache, while a
-    developer's edit recomputes instead of serving stale values.
-    """
+    """SHA-256 of the descriptor's source files: a changed kernel must not reuse old entries."""
     global _CODE_DIGEST
     if _CODE_DIGEST is None:
         import hashlib
 
-        import engine
-
         h = hashlib.sha256()
-        folder = Path(engine.__file__).parent
-        for name in ("descriptor.py", "descriptor_cl.py", "bvh.py"):
+        folder = Path(__file__).parent
+        for name in ("numba_kernels.py", "opencl_kernels.py", "tree.py"):
             path = folder / name
             if path.is_file():
                 h.update(name.encode())
@@ -211,15 +209,8 @@ def _descriptor_code_digest() -> str:
     return _CODE_DIGEST
 
 
-def _descriptor_constants() -> dict[str, Any]:
-    """Module-level numerical constants of engine.descriptor (they change the result)."""
-    import engine.descriptor as d
-
-    return {k: getattr(d, k) for k in sorted(vars(d)) if k.isupper()
-            and isinstance(getattr(d, k), (int, float, str, tuple))}
-
-
-def cache_key_parts(part: Any, grid: Grid, params: Any, method: str) -> dict[str, Any]:
+def cache_key_parts(part: Part, grid: Grid, params: DescriptorParams,
+                    method: str) -> dict[str, Any]:  # fmt: skip
     """Everything the cached descriptor of ``part`` depends on (for ``engine.cache``)."""
     return {
         "vertices": np.ascontiguousarray(part.vertices, dtype=np.float64),
@@ -232,17 +223,17 @@ def cache_key_parts(part: Any, grid: Grid, params: Any, method: str) -> dict[str
         "lambda_out": params.lambda_out,
         "method": method,
         "format": FORMAT_VERSION,
-        "constants": _descriptor_constants(),
+        "constants": _c.as_dict(),
         "code": _descriptor_code_digest(),
     }
 
 
 def descriptor_for_part(
-    part: Any,
+    part: Part,
     grid: Grid,
-    params: Any = None,
+    params: DescriptorParams | None = None,
     *,
-    backend: Any = None,
+    backend: BackendLike = None,
     method: str = "tree",
     use_cache: bool = True,
     progress: Callable[[float], None] | None = None,
@@ -259,7 +250,7 @@ def descriptor_for_part(
     params : DescriptorParams, optional
         Default ``DescriptorParams()``.
     backend : None, str or engine.backend.Backend
-        Passed to ``compute_descriptor``; not part of the cache key.
+        As :func:`engine.descriptor.compute.resolve_backend`; not part of the cache key.
     method : {"tree", "brute"}
     use_cache : bool
         False computes and stores nothing.
@@ -270,22 +261,18 @@ def descriptor_for_part(
     -------
     Descriptor
     """
-    from engine.cache import load_or_compute
-    from engine.descriptor import METHODS, DescriptorParams, compute_descriptor
-
     if params is None:
         params = DescriptorParams()
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    if method not in _c.METHODS:
+        raise ValueError(f"unknown method {method!r}; valid: {', '.join(_c.METHODS)}")
     t0 = time.perf_counter()
     used: dict[str, str] = {}
 
     def compute() -> dict[str, np.ndarray]:
-        resolved = _resolve_backend(backend)
-        used["backend"] = resolved.name if resolved is not None else str(backend)
+        resolved = resolve_backend(backend)
+        used["backend"] = resolved.name
         start = time.perf_counter()
-        rho = compute_descriptor(part.vertices, part.faces, grid, params,
-                                 backend=resolved if resolved is not None else backend,
+        rho = compute_descriptor(part.vertices, part.faces, grid, params, backend=resolved,
                                  method=method, progress=progress, cancel=cancel)
         seconds = time.perf_counter() - start
         return {
@@ -306,22 +293,11 @@ def descriptor_for_part(
     )
 
 
-def _resolve_backend(backend: Any):
-    """A Backend object for a name or None (so its name can be reported); else as given."""
-    from engine.backend import Backend, get_backend
-
-    if isinstance(backend, Backend):
-        return backend
-    if backend is None or isinstance(backend, str):
-        return get_backend(backend)
-    return None
-
-
 def descriptors_for_scene(
-    scene: Any,
+    scene: Scene,
     *,
-    parts: Sequence[Any] | None = None,
-    backend: Any = None,
+    parts: Sequence[Part] | None = None,
+    backend: BackendLike = None,
     method: str = "tree",
     use_cache: bool = True,
     progress: Callable[[float], None] | None = None,
@@ -342,12 +318,10 @@ def descriptors_for_scene(
         grid size.
     """
     if parts is None:
-        from engine.scene import load_scene_parts
-
         parts = load_scene_parts(scene)
     spacing = scene_spacing(scene, parts)
     grids = [grid_for_part(p, spacing=spacing, padding=scene.descriptor.padding) for p in parts]
-    params = scene.descriptor.params()
+    params = scene.descriptor
     total = float(sum(g.size for g in grids)) or 1.0
     done = 0.0
     out = []

@@ -1,0 +1,71 @@
+"""Quadrature constants of the skeletal density: every number both kernels use.
+
+Lengths are in *local units* (grid cells; see :mod:`engine.descriptor.compute`). The numba
+kernels receive these values as arguments (:func:`kernel_constants`), never as globals, so
+that a changed constant cannot be served from numba's on-disk cache of an old compile; the
+OpenCL kernel receives them as build options and arguments. Each value is explained where
+it is used (docs/descriptor.md gives the whole method).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+#: Floor on |xi| and the normal push distance, in grid cells.
+EPS_FLOOR = 1e-3
+#: Largest piece radius / distance (and / sigma |xi|) before a piece is split.
+THETA = 0.35
+#: Largest cluster radius / distance (and / sigma |xi|) for a lumped cluster.
+THETA_NODE = 0.35
+#: The Gaussian size test uses min(sigma, SIGMA_RESOLUTION): a wide Gaussian still gets
+#: pieces no coarser than at the default sigma (the 1/r^2-like kernel needs them anyway).
+SIGMA_RESOLUTION = 0.5
+#: Barnes-Hut opening ratio for the winding number.
+THETA_WINDING = 0.5
+#: Pieces and clusters beyond (1 + GAUSS_CUTOFF * sigma) |xi| are skipped.
+GAUSS_CUTOFF = 6.0
+#: Distances within TIE (grid cells) count as equal when picking the nearest triangle.
+TIE = 1e-4
+#: Most distinct face normals summed into the boundary normal at an edge or corner.
+MAX_NORMALS = 8
+#: Deepest subdivision of one triangle (bisections; a piece's area is 2^-level of it).
+MAX_LEVEL = 90
+#: Explicit stack sizes (pieces: one per level + 1; nodes: tree depth + 1).
+PIECE_STACK = 96
+NODE_STACK = 64
+
+#: Evaluation methods: the accelerated hierarchy, or every triangle (the reference).
+METHODS = ("tree", "brute")
+#: Points evaluated between progress reports / cancel checks.
+CHUNK_POINTS = 32768
+
+
+class KernelConstants(NamedTuple):
+    """The constants as one value the numba kernels take as an argument."""
+
+    theta: float
+    theta_node: float
+    theta_winding: float
+    eps: float
+    gauss_cutoff: float
+    sigma_resolution: float
+    tie: float
+    max_normals: int
+    max_level: int
+    piece_stack: int
+    node_stack: int
+
+
+def kernel_constants() -> KernelConstants:
+    """The current module values (read at call time, so a test may patch one)."""
+    return KernelConstants(
+        float(THETA), float(THETA_NODE), float(THETA_WINDING), float(EPS_FLOOR),
+        float(GAUSS_CUTOFF), float(SIGMA_RESOLUTION), float(TIE), int(MAX_NORMALS),
+        int(MAX_LEVEL), int(PIECE_STACK), int(NODE_STACK),
+    )  # fmt: skip
+
+
+def as_dict() -> dict[str, float | int | str | tuple[str, ...]]:
+    """Every constant by name (part of the descriptor cache key)."""
+    return {k: v for k, v in sorted(globals().items())
+            if k.isupper() and isinstance(v, (int, float, str, tuple))}  # fmt: skip
