@@ -1,13 +1,15 @@
 """On-disk cache of computed arrays (descriptors, spectra), keyed by content.
 
 Entries are ``.npz`` files named by the SHA-256 of everything that determines them:
-the mesh bytes, the grid, the parameters and a format version. The cache lives in
-``SKELASM_CACHE`` or ``~/.cache/skelasm`` and is kept under ``SKELASM_CACHE_MAX_GB``
-(default 2 GiB) by deleting the least recently used entries after each store.
+the mesh bytes, the grid, the parameters, a format version and a digest of the code that
+computes them (:func:`code_digest`). The cache lives in ``SKELASM_CACHE`` or
+``~/.cache/skelasm`` and is kept under ``SKELASM_CACHE_MAX_GB`` (default 2 GiB) by deleting
+the least recently used entries after each store.
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import os
@@ -17,6 +19,100 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+#: The folder holding the ``engine`` package (module names are resolved under it).
+SOURCE_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _module_file(name: str, root: Path) -> Path | None:
+    """The source file of module ``name`` under ``root`` (a package: its ``__init__.py``)."""
+    base = root.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _engine_imports(path: Path, name: str, root: Path) -> set[str]:
+    """Modules of the ``engine`` package that ``path`` (module ``name``) imports.
+
+    Every import counts, in a function or not. ``from a import b`` names ``a.b`` when that
+    is a module, else ``a``; a name that has no file is returned all the same, so that the
+    caller reports it rather than skipping it.
+    """
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                parts = parts[: len(parts) - node.level + 1]
+                base = ".".join(parts + ([base] if base else []))
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                found.add(sub if _module_file(sub, root) is not None else base)
+    return {m for m in found if m == "engine" or m.startswith("engine.")}
+
+
+def code_files(module: str, *, root: Path | None = None) -> list[Path]:
+    """The source files whose code shapes what ``module`` computes, sorted.
+
+    Every ``.py`` file in the folder of ``module``'s package (whatever their names, new
+    files included) and, transitively, every module of the ``engine`` package that
+    ``module`` imports (in functions too), wherever it lives.
+
+    Parameters
+    ----------
+    module : str
+        Dotted name, e.g. ``"engine.descriptor.compute"``.
+    root : Path, optional
+        The folder holding the ``engine`` package (default: this installation's).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``module`` or a module it imports has no source file under ``root``: a digest that
+        silently skipped it could serve results of code that has changed.
+    """
+    root = SOURCE_ROOT if root is None else Path(root)
+    start = _module_file(module, root)
+    if start is None:
+        raise FileNotFoundError(f"no source file for {module} under {root}: the cache's code "
+                                "digest cannot cover it")  # fmt: skip
+    files = set(start.parent.rglob("*.py"))
+    todo = [module]
+    seen: set[str] = set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        path = _module_file(name, root)
+        if path is None:
+            raise FileNotFoundError(f"no source file for {name} (imported by the code of "
+                                    f"{module}) under {root}")  # fmt: skip
+        files.add(path)
+        todo.extend(_engine_imports(path, name, root) - seen)
+    return sorted(files, key=lambda p: p.relative_to(root).as_posix())
+
+
+def code_digest(module: str, *, root: Path | None = None) -> str:
+    """SHA-256 of :func:`code_files` of ``module``: paths relative to ``root`` and bytes.
+
+    A copy of the tree elsewhere has the same digest; any change to one of the files, a
+    file added to or removed from the package folder, changes it.
+    """
+    root = SOURCE_ROOT if root is None else Path(root)
+    h = hashlib.sha256()
+    for path in code_files(module, root=root):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(b"\0")
+        h.update(path.read_bytes())
+        h.update(b"\0")
+    return h.hexdigest()
 
 
 def cache_dir() -> Path:

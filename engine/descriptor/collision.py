@@ -22,7 +22,7 @@ import numpy as np
 
 from engine.cache import load_or_compute
 from engine.descriptor.compute import winding_number
-from engine.descriptor.store import Descriptor
+from engine.descriptor.store import Descriptor, descriptor_code_digest
 from engine.grid import Grid
 from engine.loading import Part
 
@@ -67,6 +67,7 @@ def collision_descriptor(descriptor: Descriptor, part: Part) -> Descriptor:
         "grid": [list(grid.origin), grid.spacing, list(grid.shape)],
         "lambda_in": lam,
         "version": 1,
+        "code": descriptor_code_digest(),
     }
     arrays, _ = load_or_compute(
         "collision", key,

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 import engine.descriptor.constants as _c
-from engine.cache import load_or_compute
+from engine.cache import code_digest, load_or_compute
 from engine.descriptor.compute import BackendLike, compute_descriptor, resolve_backend
 from engine.errors import InputError
 from engine.grid import Grid, grid_for_bounds
@@ -192,20 +192,17 @@ def scene_spacing(scene: Scene, parts: Sequence[Part]) -> float:
 _CODE_DIGEST: str | None = None
 
 
-def _descriptor_code_digest() -> str:
-    """SHA-256 of the descriptor's source files: a changed kernel must not reuse old entries."""
+def descriptor_code_digest() -> str:
+    """Digest of the code that shapes a cached descriptor (once per process).
+
+    :func:`engine.cache.code_digest` of :mod:`engine.descriptor.compute`: every file of this
+    package and every engine module the computation imports (engine/grid.py,
+    engine/params.py, ...). An installed program never changes them, so users keep their
+    cache, while a developer's edit recomputes instead of serving stale values.
+    """
     global _CODE_DIGEST
     if _CODE_DIGEST is None:
-        import hashlib
-
-        h = hashlib.sha256()
-        folder = Path(__file__).parent
-        for name in ("numba_kernels.py", "opencl_kernels.py", "tree.py"):
-            path = folder / name
-            if path.is_file():
-                h.update(name.encode())
-                h.update(path.read_bytes())
-        _CODE_DIGEST = h.hexdigest()
+        _CODE_DIGEST = code_digest("engine.descriptor.compute")
     return _CODE_DIGEST
 
 
@@ -224,7 +221,7 @@ def cache_key_parts(part: Part, grid: Grid, params: DescriptorParams,
         "method": method,
         "format": FORMAT_VERSION,
         "constants": _c.as_dict(),
-        "code": _descriptor_code_digest(),
+        "code": descriptor_code_digest(),
     }
 
 

@@ -71,3 +71,57 @@ def test_bad_cap_is_reported(monkeypatch):
     monkeypatch.setenv("SKELASM_CACHE_MAX_GB", "lots")
     with pytest.raises(ValueError, match="SKELASM_CACHE_MAX_GB"):
         cache.max_bytes()
+
+
+def _engine_copy(tmp_path):
+    """A copy of the engine's sources (only .py files) under tmp_path; returns its root."""
+    import shutil
+
+    root = tmp_path / "src"
+    shutil.copytree(cache.SOURCE_ROOT / "engine", root / "engine",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))  # fmt: skip
+    return root
+
+
+def test_descriptor_code_files_cover_the_package_and_what_it_imports():
+    names = {p.relative_to(cache.SOURCE_ROOT).as_posix()
+             for p in cache.code_files("engine.descriptor.compute")}  # fmt: skip
+    package = {f"engine/descriptor/{p.name}"
+               for p in (cache.SOURCE_ROOT / "engine" / "descriptor").glob("*.py")}  # fmt: skip
+    assert package <= names  # every file of the folder, whatever its name
+    assert {"engine/grid.py", "engine/params.py"} <= names  # flat modules the kernels read
+
+
+def test_code_digest_follows_every_kernel_file(tmp_path):
+    root = _engine_copy(tmp_path)
+    digest = cache.code_digest("engine.descriptor.compute", root=root)
+    # A copy elsewhere has the same digest (paths are relative, content decides).
+    assert digest == cache.code_digest("engine.descriptor.compute")
+    changes = {
+        "kernel": root / "engine" / "descriptor" / "numba_kernels.py",
+        "opencl": root / "engine" / "descriptor" / "opencl_kernels.py",
+        "grid": root / "engine" / "grid.py",
+    }
+    seen = {digest}
+    for path in changes.values():
+        original = path.read_bytes()
+        path.write_bytes(original + b"\n# changed\n")
+        changed = cache.code_digest("engine.descriptor.compute", root=root)
+        assert changed not in seen, path
+        seen.add(changed)
+        path.write_bytes(original)
+    assert cache.code_digest("engine.descriptor.compute", root=root) == digest
+    # A new file in the package counts too.
+    (root / "engine" / "descriptor" / "new_rule.py").write_text("X = 1\n")
+    assert cache.code_digest("engine.descriptor.compute", root=root) not in seen
+
+
+def test_code_digest_never_skips_a_missing_file(tmp_path):
+    import pytest
+
+    root = _engine_copy(tmp_path)
+    (root / "engine" / "grid.py").unlink()
+    with pytest.raises(FileNotFoundError, match="engine.grid"):
+        cache.code_digest("engine.descriptor.compute", root=root)
+    with pytest.raises(FileNotFoundError, match="engine.nowhere"):
+        cache.code_digest("engine.nowhere", root=root)

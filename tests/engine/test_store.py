@@ -192,3 +192,25 @@ def test_changed_descriptor_code_recomputes(fake_compute, monkeypatch):
     monkeypatch.setattr(store, "_CODE_DIGEST", "a different kernel")
     assert not descriptor_for_part(part, grid, backend="numba").from_cache
     assert len(fake_compute) == 2
+
+
+def test_edited_kernel_file_recomputes(fake_compute, monkeypatch, tmp_path):
+    """The cache key follows the files themselves: an edited kernel misses the cache."""
+    import shutil
+
+    import engine.cache as cache
+
+    root = tmp_path / "src"
+    shutil.copytree(cache.SOURCE_ROOT / "engine", root / "engine",
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    monkeypatch.setattr(cache, "SOURCE_ROOT", root)
+    monkeypatch.setattr(store_module, "_CODE_DIGEST", None)
+    part = box_part()
+    grid = grid_for_part(part, samples=6, padding=1)
+    descriptor_for_part(part, grid, backend="numba")
+    assert descriptor_for_part(part, grid, backend="numba").from_cache
+    kernel = root / "engine" / "descriptor" / "numba_kernels.py"
+    kernel.write_text(kernel.read_text() + "\n# a changed quadrature rule\n")
+    monkeypatch.setattr(store_module, "_CODE_DIGEST", None)  # a new process
+    assert not descriptor_for_part(part, grid, backend="numba").from_cache
+    assert len(fake_compute) == 2
