@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.simconfig import CouplingParams, Effects, SimConfig
+from engine.params import CouplingParams, Effects, SimConfig
 
 __all__ = [
     "SceneHandle",
@@ -402,14 +402,13 @@ def open_scene(path: str | Path) -> SceneHandle:
 
     Raises
     ------
-    engine.scene.SceneError, engine.simconfig.SimConfigError, engine.loading.PartError
+    engine.scene.SceneError, engine.loading.PartError
         ValueError subclasses with the file, the line and the fix.
     """
     from engine.scene import load_scene, load_scene_parts, relative_start_pose
-    from engine.simconfig import simconfig_from_scene
 
     scene = load_scene(path)
-    config = simconfig_from_scene(scene)
+    config = scene.config
     parts = tuple(load_scene_parts(scene))
     start = relative_start_pose(scene) if len(scene.parts) >= 2 else np.zeros(6)
     return SceneHandle(

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from engine.errors import InputError
+from engine.params import LENGTH_UNITS
 
 #: File suffixes the loader reads, and what reads them.
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off")
@@ -68,9 +69,14 @@ _CONVERSION_UNITS = {
     "MILLIMETRE": ("mm", 1e-3),
     "METRE": ("m", 1.0),
 }
+#: Named lengths an unnamed conversion-based unit is matched against.
+_NAMED_LENGTHS = dict(LENGTH_UNITS)
 
 #: Product names OpenCASCADE writes when the model had none; replaced by the file's stem.
-_ANONYMOUS = re.compile(r"^(Open CASCADE STEP translator.*|SOLID|Solid\d*|COMPOUND|Body\d*|)$")
+_ANONYMOUS = re.compile(
+    r"^(Open CASCADE STEP translator.*|SOLID[_ ]?\d*|Solid[_ ]?\d*|COMPOUND[_ ]?\d*|"
+    r"Body[_ ]?\d*|)$"
+)
 
 
 class PartError(InputError):
@@ -151,7 +157,9 @@ class Part:
 
 
 # --------------------------------------------------------------------------- public API
-def load_parts(path: str | os.PathLike, *, tolerance: float | None = None) -> list[Part]:
+def load_parts(
+    path: str | os.PathLike, *, tolerance: float | None = None, unit: str | None = None
+) -> list[Part]:
     """Load every solid of a STEP file, or the mesh of a mesh file, as checked parts.
 
     Parameters
@@ -161,6 +169,12 @@ def load_parts(path: str | os.PathLike, *, tolerance: float | None = None) -> li
     tolerance : float, optional
         STEP only: tessellation tolerance (largest distance between mesh and surface) in the
         file's unit. Default: 1/1000 of the file's bounding-box diagonal. Ignored for meshes.
+    unit : str, optional
+        The unit the file's coordinates are in (a key of ``engine.params.LENGTH_UNITS``),
+        overriding the STEP header's declaration (a warning says so when they differ);
+        for a mesh file, the unit it is in. Default: the STEP header's unit, and
+        ``"unspecified"`` for meshes. Coordinates are never scaled here: they stay the
+        numbers written in the file, labelled with their unit.
 
     Returns
     -------
@@ -184,15 +198,24 @@ def load_parts(path: str | os.PathLike, *, tolerance: float | None = None) -> li
                         "are relative to the scene file)")
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise PartError(f"tessellation tolerance must be a positive number, got {tolerance!r}")
+    if unit is not None and unit not in LENGTH_UNITS:
+        raise PartError(f"{p}: unknown length unit {unit!r}; use one of "
+                        f"{', '.join(LENGTH_UNITS)}")
     if suffix in STEP_SUFFIXES:
-        return _load_step(p, tolerance)
-    return [_load_mesh(p)]
+        return _load_step(p, tolerance, unit)
+    return [_load_mesh(p, unit)]
 
 
 def load_part(
-    path: str | os.PathLike, *, tolerance: float | None = None, body: str | None = None
+    path: str | os.PathLike,
+    *,
+    tolerance: float | None = None,
+    body: str | None = None,
+    unit: str | None = None,
 ) -> Part:
     """Load one part: the only solid of the file, or the solid named ``body``.
+
+    ``tolerance`` and ``unit`` are as in :func:`load_parts`.
 
     Raises
     ------
@@ -200,7 +223,7 @@ def load_part(
         As :func:`load_parts`, or the file holds several solids and ``body`` is not given or
         names none of them (the message lists the names).
     """
-    parts = load_parts(path, tolerance=tolerance)
+    parts = load_parts(path, tolerance=tolerance, unit=unit)
     names = [p.name for p in parts]
     if body is not None:
         for part in parts:
@@ -373,31 +396,76 @@ def check_mesh(
 
 
 # --------------------------------------------------------------------------- STEP
+_ENTITY = re.compile(r"#(\d+)\s*=\s*(.*?);\s*(?=#\d+\s*=|ENDSEC)", re.S)
+
+
+def _length_unit_of(entity: str, entities: dict[int, str], depth: int = 0
+                    ) -> tuple[str, float] | None:
+    """(short name, metres per unit) of one STEP length-unit entity's text, or None."""
+    m = re.search(r"SI_UNIT\s*\(\s*(\$|\.\w+\.)\s*,\s*\.METRE\.\s*\)", entity, re.I)
+    if m:
+        return _SI_PREFIXES.get(m.group(1).upper())
+    m = re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'([^']*)'\s*,\s*#(\d+)", entity, re.I)
+    if not m:
+        return None
+    if m.group(1).upper() in _CONVERSION_UNITS:
+        return _CONVERSION_UNITS[m.group(1).upper()]
+    # an unnamed conversion: LENGTH_MEASURE_WITH_UNIT(LENGTH_MEASURE(factor), #base)
+    measure = entities.get(int(m.group(2)), "")
+    f = re.search(r"LENGTH_MEASURE\s*\(\s*([-+0-9.eE]+)\s*\)\s*,\s*#(\d+)", measure)
+    if not f or depth > 4:
+        return None
+    base = _length_unit_of(entities.get(int(f.group(2)), ""), entities, depth + 1)
+    if base is None:
+        return None
+    metres = float(f.group(1)) * base[1]
+    for name, value in _NAMED_LENGTHS.items():
+        if math.isclose(value, metres, rel_tol=1e-6):
+            return name, value
+    return m.group(1).lower() or "unnamed", metres
+
+
+def step_units(text: str) -> list[tuple[str, float]]:
+    """Every distinct length unit a STEP file's geometry contexts declare, in file order.
+
+    Reads the ``GLOBAL_UNIT_ASSIGNED_CONTEXT`` of each representation context and the
+    ``LENGTH_UNIT`` among the units it names: ``SI_UNIT(.MILLI.,.METRE.)`` or a
+    ``CONVERSION_BASED_UNIT('INCH', ...)``. Units that only define another one (the
+    millimetre an inch is defined from) are not declarations and are not listed.
+    """
+    found: list[tuple[str, float]] = []
+    contexts = list(re.finditer(r"GLOBAL_UNIT_ASSIGNED_CONTEXT\s*\(\s*\(([^)]*)\)", text,
+                                re.I))
+    if contexts:
+        entities = {int(m.group(1)): m.group(2) for m in _ENTITY.finditer(text)}
+        for context in contexts:
+            for ref in re.findall(r"#(\d+)", context.group(1)):
+                entity = entities.get(int(ref), "")
+                if not re.search(r"LENGTH_UNIT\s*\(\s*\)", entity, re.I):
+                    continue
+                unit = _length_unit_of(entity, entities)
+                if unit is not None and unit not in found:
+                    found.append(unit)
+    return found
+
+
 def step_unit(text: str) -> tuple[str, float] | None:
     """Length unit of a STEP file's text: (short name, metres per unit), or None if absent.
 
-    Reads the ``LENGTH_UNIT`` entity: ``SI_UNIT(.MILLI.,.METRE.)`` or a
-    ``CONVERSION_BASED_UNIT('INCH', ...)``.
+    The first unit :func:`step_units` finds; for a file without unit contexts, the first
+    ``LENGTH_UNIT`` entity, named or SI.
     """
-    for entity in re.finditer(r"\(\s*LENGTH_UNIT\s*\(\s*\)(.*?)\)\s*;", text, re.S | re.I):
-        body = entity.group(0)
-        m = re.search(r"SI_UNIT\s*\(\s*(\$|\.\w+\.)\s*,\s*\.METRE\.\s*\)", body, re.I)
-        if m and m.group(1).upper() in _SI_PREFIXES:
-            return _SI_PREFIXES[m.group(1).upper()]
-        m = re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'([^']*)'", body, re.I)
-        if m and m.group(1).upper() in _CONVERSION_UNITS:
-            return _CONVERSION_UNITS[m.group(1).upper()]
-    m = re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'(INCH|FOOT)'", text, re.I)
-    if m:
-        return _CONVERSION_UNITS[m.group(1).upper()]
-    m = re.search(r"LENGTH_UNIT\s*\(\s*\)[^;]*?SI_UNIT\s*\(\s*(\$|\.\w+\.)\s*,\s*\.METRE\.",
-                  text, re.I | re.S)
-    if m and m.group(1).upper() in _SI_PREFIXES:
-        return _SI_PREFIXES[m.group(1).upper()]
+    units = step_units(text)
+    if units:
+        return units[0]
+    for entity in re.finditer(r"\(([^;]*?LENGTH_UNIT\s*\(\s*\)[^;]*)\)\s*;", text, re.S | re.I):
+        unit = _length_unit_of(entity.group(1), {})
+        if unit is not None:
+            return unit
     return None
 
 
-def _load_step(path: Path, tolerance: float | None) -> list[Part]:
+def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Part]:
     try:
         import cascadio
         import trimesh
@@ -415,11 +483,31 @@ def _load_step(path: Path, tolerance: float | None) -> list[Part]:
         )
     text = data.decode("latin-1")
     warnings: list[str] = []
-    unit = step_unit(text)
-    if unit is None:
-        unit = ("mm", 1e-3)
-        warnings.append(f"{path}: no length unit in the STEP header; assumed millimetres")
-    unit_name, metres = unit
+    declared = step_units(text)
+    if len(declared) > 1:
+        names = ", ".join(u for u, _ in declared)
+        warnings.append(
+            f"{path}: the STEP file declares several length units ({names}); read in "
+            f"{declared[0][0]}, the first; if the part comes out the wrong size, give its "
+            "[[part]] the right `unit`"
+        )
+    found = declared[0] if declared else step_unit(text)
+    if found is None:
+        found = ("mm", 1e-3)
+        if unit is None:
+            warnings.append(f"{path}: no length unit in the STEP header; assumed millimetres "
+                            "(give the [[part]] a `unit` if it is in another)")
+    # OpenCASCADE reads the coordinates in the declared unit; dividing its metres by the
+    # declared unit gives the numbers written in the file back
+    metres = found[1]
+    unit_name = found[0]
+    if unit is not None:
+        if unit != found[0]:
+            warnings.append(
+                f"{path}: the STEP header declares {found[0]}; its coordinates are read as "
+                f"{unit}, as the scene's `unit` asks"
+            )
+        unit_name = unit
     # OpenCASCADE tessellates in its session unit, millimetres, whatever the file's unit
     mm_per_unit = metres * 1e3
 
@@ -464,9 +552,7 @@ def _load_step(path: Path, tolerance: float | None) -> list[Part]:
             transform, geometry_name = scene.graph[node]
             items.append((str(geometry_name), transform, scene.geometry[geometry_name]))
     items = [it for it in items if hasattr(it[2], "faces") and len(it[2].faces)]
-    # file order: GLB scene graphs are unordered, the STEP's PRODUCT entities are not
-    products = [m.group(1) for m in re.finditer(r"PRODUCT\s*\(\s*'([^']*)'", text)]
-    items.sort(key=lambda it: products.index(it[0]) if it[0] in products else len(products))
+    items = _name_and_order(items, step_products(text))
     if not items:
         raise PartError(_no_solid_message(path))
     for index, (raw_name, transform, mesh) in enumerate(items):
@@ -517,6 +603,56 @@ def _scene_bounds(scene) -> np.ndarray | None:
     if b is None or not np.all(np.isfinite(b)):
         return None
     return np.asarray(b, dtype=np.float64)
+
+
+def step_products(text: str) -> list[tuple[str, str]]:
+    """(id, name) of each part product of a STEP file (assemblies left out), in file order.
+
+    ``PRODUCT('id', 'name', ...)``; a product is an assembly when one of its definitions
+    is the relating side of a ``NEXT_ASSEMBLY_USAGE_OCCURRENCE``.
+    """
+    products = [(int(m.group(1)), m.group(2), m.group(3)) for m in re.finditer(
+        r"#(\d+)\s*=\s*PRODUCT\s*\(\s*'([^']*)'\s*,\s*'([^']*)'", text)]
+    if not products:
+        return []
+    formation = {int(m.group(1)): int(m.group(2)) for m in re.finditer(
+        r"#(\d+)\s*=\s*PRODUCT_DEFINITION_FORMATION\w*\s*\(\s*'[^']*'\s*,\s*'[^']*'\s*,"
+        r"\s*#(\d+)", text)}
+    definition = {int(m.group(1)): int(m.group(2)) for m in re.finditer(
+        r"#(\d+)\s*=\s*PRODUCT_DEFINITION\s*\(\s*'[^']*'\s*,\s*'[^']*'\s*,\s*#(\d+)", text)}
+    assemblies = set()
+    for m in re.finditer(r"NEXT_ASSEMBLY_USAGE_OCCURRENCE\s*\(\s*'[^']*'\s*,\s*'[^']*'\s*,"
+                         r"\s*'[^']*'\s*,\s*#(\d+)", text):
+        assemblies.add(formation.get(definition.get(int(m.group(1)), -1), -1))
+    return [(pid, name) for ref, pid, name in products if ref not in assemblies]
+
+
+def _name_and_order(items: list[tuple[str, Any, Any]], products: list[tuple[str, str]]
+                    ) -> list[tuple[str, Any, Any]]:
+    """Bodies in the STEP file's order, each named after its product where the file says.
+
+    OpenCASCADE names a body after its product's name; a product named like ``SOLID``
+    (some exporters put the real name in the id) comes back as ``SOLID``, ``SOLID_1``,
+    ... in file order, so the n-th such body takes the id of the n-th product of that name.
+    GLB scene graphs are unordered; the STEP's PRODUCT entities are not.
+    """
+    names = [n for _, n in products]
+    renamed: list[tuple[int, str, Any, Any]] = []
+    for raw, transform, mesh in items:
+        order, name = len(products), raw
+        if raw in names:
+            order = names.index(raw)
+        if _ANONYMOUS.match(raw):
+            m = re.fullmatch(r"(.*?)(?:_(\d+))?", raw)
+            base, rank = (m.group(1), int(m.group(2) or 0)) if m else (raw, 0)
+            same = [i for i, n in enumerate(names) if n == base]
+            if rank < len(same):
+                order = same[rank]
+            if order < len(products) and not _ANONYMOUS.match(products[order][0]):
+                name = products[order][0]
+        renamed.append((order, name, transform, mesh))
+    renamed.sort(key=lambda it: it[0])
+    return [(name, transform, mesh) for _, name, transform, mesh in renamed]
 
 
 def _clean_name(raw: str, stem: str, index: int, count: int) -> str:
@@ -574,7 +710,7 @@ def _redirected() -> Iterator[list[str]]:
 
 
 # --------------------------------------------------------------------------- meshes
-def _load_mesh(path: Path) -> Part:
+def _load_mesh(path: Path, unit: str | None = None) -> Part:
     import trimesh
 
     if path.stat().st_size == 0:
@@ -609,8 +745,8 @@ def _load_mesh(path: Path) -> Part:
             "surface mesh"
         )
     v, f, warnings = check_mesh(vertices, faces, source=str(path))
-    return Part(name=path.stem, vertices=v, faces=f, source=str(path), unit="unspecified",
-                warnings=warnings)
+    return Part(name=path.stem, vertices=v, faces=f, source=str(path),
+                unit=unit or "unspecified", warnings=warnings)
 
 
 # --------------------------------------------------------------------------- mesh algorithms

@@ -37,11 +37,13 @@ from engine.errors import InputError
 
 #: Length units a scene or a part may declare: the length of one unit in metres.
 LENGTH_UNITS: dict[str, float] = {
+    "km": 1000.0,
     "m": 1.0,
     "dm": 0.1,
     "cm": 0.01,
     "mm": 0.001,
     "um": 1e-6,
+    "nm": 1e-9,
     "in": 0.0254,
     "ft": 0.3048,
 }
@@ -422,7 +424,10 @@ class MassSpec:
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, _positive("part", name, getattr(self, name)))
         if self.inertia is not None:
-            arr = np.asarray(self.inertia, dtype=np.float64)
+            try:
+                arr = np.asarray(self.inertia, dtype=np.float64)
+            except (TypeError, ValueError):
+                arr = np.zeros(0)
             if arr.shape == (3,):
                 arr = np.diag(arr)
             if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):

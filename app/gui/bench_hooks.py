@@ -136,7 +136,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
             return {
                 "periods": periods,
                 "scene": str(scene),
-                "scene_name": str(getattr(handle.scene, "name", scene)),
+                "scene_name": handle.scene.name,
                 "backend": win.readouts.text("backend"),
                 "engine": win.session.engine_name,
                 "engine_note": getattr(win, "engine_note", ""),

@@ -362,18 +362,15 @@ class MainWindow(QtWidgets.QMainWindow):
         views = self.session.part_views()
         self.viewport.set_scene(views)
         scene = handle.scene
-        title = getattr(scene, "name", "") or Path(handle.path).stem
+        title = scene.name
         self.setWindowTitle(f"{title} — skelasm")
         meshes = [(v.name, v.vertices, v.faces) for v in views]
         self.slice_view.set_parts(meshes, [posemath.pose_to_matrix(v.pose) for v in views])
         self.slice_view.set_descriptors(())
         self.landscape_view.set_landscape(None)
         self.landscape_view.canvas.clear("landscape not computed yet")
-        desc = getattr(scene, "descriptor", None)
-        sigma = float(getattr(desc, "sigma", 0.5) or 0.5)
-        penalty = float(getattr(desc, "penalty", 3.0) or 3.0)
-        modes = int(getattr(scene, "modes", 16) or 16)
-        self.params.load_config(handle.config, modes, sigma, penalty)
+        self.params.load_config(handle.config, scene.modes, scene.descriptor.sigma,
+                                scene.descriptor.penalty)
         if self.session.engine is None:
             self.statusBar().showMessage(
                 f"{title}: one part loaded; open a second part (the moving one) to assemble")

@@ -14,7 +14,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import SliderField
 from engine import api
-from engine.simconfig import AXES, GUIDANCE, CouplingParams, Effects
+from engine.params import AXES, GUIDANCE, CouplingParams, Effects
 
 
 class ParamsPanel(QtWidgets.QWidget):

@@ -1,23 +1,27 @@
-"""Saving the open scene: its TOML tables with the current pose and parameters written in.
+"""Saving the open scene with the window's current pose and parameters written in.
 
-The original scene file is the starting point, so tables the window does not edit
-(``[simulation]``, ``[device]``, masses, ...) are kept as they were. Part file paths are
-rewritten relative to the new location.
+The scene is written by the engine's one scene writer (``engine.scene.save_scene``), which
+reads the text back before it replaces the file: every table the window does not edit is
+kept, part file paths are rewritten relative to the new location, and what is saved loads
+back the same.
 """
 
 from __future__ import annotations
 
-import os
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-import tomli_w
-import tomllib
+
+from engine.params import CouplingParams, Effects
+from engine.scene import save_scene
 
 
-def write_scene(handle, path: Path, *, moving_relative_pose: np.ndarray | None = None,
+def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | None = None,
                 sigma: float | None = None, penalty: float | None = None,
-                modes: int | None = None) -> Path:
+                modes: int | None = None, effects: Effects | None = None,
+                coupling: CouplingParams | None = None, kappa: float | None = None) -> Path:
     """Write ``handle``'s scene to ``path`` (TOML) and return the path written.
 
     Parameters
@@ -29,45 +33,34 @@ def write_scene(handle, path: Path, *, moving_relative_pose: np.ndarray | None =
         Part 2 relative to part 1 now; stored as part 2's world pose.
     sigma, penalty, modes : optional
         Current descriptor and accuracy settings.
+    effects, coupling, kappa : optional
+        Current simulation settings (``[effects]``, ``[coupling]``, ``[simulation] kappa``).
+
+    Raises
+    ------
+    engine.scene.SceneError
+        The scene cannot be written (or would not load back).
     """
     if handle is None:
-        raise ValueError("there is no scene to save")
-    path = Path(path)
-    if path.suffix.lower() != ".toml":
-        path = path.with_suffix(".toml")
-    source = Path(handle.path)
-    spec = tomllib.loads(source.read_text()) if source.exists() else {}
-    parts = spec.get("part") or []
-    spec_parts = handle.scene.parts
-    base_old = source.parent
-    base_new = path.parent.resolve()
-    out_parts = []
-    for i, scene_part in enumerate(spec_parts):
-        entry = dict(parts[i]) if i < len(parts) else {"name": scene_part.name}
-        file = Path(str(entry.get("file", scene_part.file)))
-        absolute = file if file.is_absolute() else (base_old / file).resolve()
-        try:
-            entry["file"] = os.path.relpath(absolute, base_new)
-        except ValueError:  # another drive on Windows
-            entry["file"] = str(absolute)
-        entry["pose"] = [float(x) for x in scene_part.pose]
-        out_parts.append(entry)
-    if moving_relative_pose is not None and len(out_parts) >= 2:
-        out_parts[1]["pose"] = [float(x) for x in handle.world_pose(moving_relative_pose)]
-    spec["part"] = out_parts
-    if sigma is not None or penalty is not None:
-        desc = dict(spec.get("descriptor", {}))
-        if sigma is not None:
-            desc["sigma"] = float(sigma)
-        if penalty is not None:
-            desc["penalty"] = float(penalty)
-        spec["descriptor"] = desc
-    if modes is not None:
-        spec["correlation"] = {**spec.get("correlation", {}), "modes": int(modes)}
-    spec.setdefault("name", getattr(handle.scene, "name", path.stem))
-    text = tomli_w.dumps(spec)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".toml.part")
-    tmp.write_text(text)
-    os.replace(tmp, path)  # never leave a half-written scene behind
-    return path
+        raise ValueError("there is no scene to save; open one first")
+    scene = handle.scene
+    parts = list(scene.parts)
+    if moving_relative_pose is not None and len(parts) >= 2:
+        parts[1] = replace(parts[1], pose=handle.world_pose(moving_relative_pose))
+    changes = {k: float(v) for k, v in (("sigma", sigma), ("penalty", penalty)) if v is not None}
+    config = scene.config
+    if effects is not None:
+        config = replace(config, effects=effects)
+    if coupling is not None:
+        config = replace(config, coupling=coupling)
+    if kappa is not None:
+        config = replace(config, simulation=replace(config.simulation, kappa=float(kappa)))
+    scene = replace(
+        scene,
+        parts=tuple(parts),
+        descriptor=replace(scene.descriptor, **changes),
+        correlation=(scene.correlation if modes is None
+                     else replace(scene.correlation, modes=int(modes))),
+        config=config,
+    )
+    return save_scene(scene, path)

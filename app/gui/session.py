@@ -210,43 +210,39 @@ class Session(QtCore.QObject):
     def _scene_with_part(self, part_path: Path) -> Path:
         """A generated scene: the current fixed part and ``part_path`` as the moving part.
 
-        Without a current scene the part is shown alone as the fixed part.
+        The current scene's tables (descriptor, coupling, effects, ...) are kept. Without a
+        current scene the part is shown alone as the fixed part, in a scene that declares
+        no unit (so a mesh file's missing unit is reported when it loads).
         """
-        import tomli_w
-        import tomllib
+        from dataclasses import replace
 
-        parts = []
-        spec = {"name": f"untitled ({part_path.name})", "units": "mm",
-                "assembled_pose": [0.0] * 6}
+        from engine.params import SimConfig
+        from engine.scene import PartSpec, Scene, save_scene
+
+        self._generated += 1
+        out = Path(self._tmp.name) / f"generated_{self._generated}.toml"
+        name = f"untitled ({part_path.name})"
         if self.handle is not None:
             scene = self.handle.scene
-            source = Path(self.handle.path)
-            if source.exists():
-                # keep the current scene's settings (descriptor, coupling, effects, ...)
-                old = tomllib.loads(source.read_text())
-                spec.update({k: v for k, v in old.items() if k not in ("part", "name")})
-            spec["units"] = str(getattr(scene, "units", spec.get("units", "mm")))
             first = scene.parts[0]
-            parts.append({
-                "name": first.name,
-                "file": str((source.parent / first.file).resolve()),
-                "pose": [float(x) for x in first.pose],
-            })
             # start above the fixed part, clear of it
             v = self.handle.parts[0].vertices
             height = float(np.ptp(v[:, 2])) if len(v) else 1.0
-            pose = [float(x) for x in first.pose]
+            pose = np.array(first.pose, dtype=float)
             pose[2] += float(v[:, 2].max()) + 0.75 * height
-            parts.append({"name": part_path.stem, "file": str(part_path.resolve()),
-                          "pose": pose})
+            moving = PartSpec(name=part_path.stem, file=part_path.resolve(), pose=pose,
+                              fixed=False)
+            if moving.name == first.name:
+                moving = replace(moving, name=f"{moving.name} (moving)")
+            config = replace(scene.config, masses=scene.config.masses[:1])
+            generated = replace(scene, path=out, name=name, parts=(first, moving),
+                                config=config)
         else:
-            parts.append({"name": part_path.stem, "file": str(part_path.resolve()),
-                          "pose": [0.0] * 6})
-        spec["part"] = parts
-        self._generated += 1
-        out = Path(self._tmp.name) / f"generated_{self._generated}.toml"
-        out.write_text(tomli_w.dumps(spec))
-        return out
+            generated = Scene(path=out, name=name, units_declared=False,
+                              assembled_pose=np.zeros(6), config=SimConfig(),
+                              parts=(PartSpec(name=part_path.stem, file=part_path.resolve(),
+                                              pose=np.zeros(6), fixed=True),))
+        return save_scene(generated, out)
 
     def _on_loaded(self, handle, error, path: str) -> None:
         self.loading = None

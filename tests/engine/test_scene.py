@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import textwrap
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from engine.loading import _edge_defects
+from engine.params import DEFAULT_GRID, DEFAULT_MODES, MassSpec, SimConfig
 from engine.pose import compose, pose_to_matrix
 from engine.scene import (
-    DEFAULT_GRID,
-    DEFAULT_MODES,
     SceneError,
     key_line,
     load_scene,
@@ -112,7 +112,7 @@ def test_minimal_scene_defaults(scene_dir):
     assert scene.modes == DEFAULT_MODES and scene.insertion_axis is None
     assert [p.name for p in scene.parts] == ["block", "peg"]
     assert scene.parts[1].file == (scene_dir / "peg.step").resolve()
-    assert scene.sections == {}
+    assert scene.config == SimConfig(masses=(MassSpec(), MassSpec()))
     np.testing.assert_allclose(relative_start_pose(scene), [1, 2, 3, 0, 0, 0.5])
     params = scene.descriptor
     assert (params.sigma, params.penalty, params.lambda_out) == (0.5, 3.0, 1.0)
@@ -125,12 +125,13 @@ def test_relative_start_pose_with_a_moved_fixed_part(scene_dir):
     np.testing.assert_allclose(compose(scene.parts[0].pose, rel), scene.parts[1].pose, atol=1e-12)
 
 
-def test_simulation_sections_and_mass_keys_are_kept_raw(scene_dir):
-    text = MINIMAL + '\nmass = 0.2\n\n[simulation]\nrate_hz = 500\n\n[device]\nkind = "csv"\n'
+def test_simulation_tables_and_mass_keys_are_read_with_the_rest(scene_dir):
+    text = MINIMAL + '\nmass = 0.2\n\n[simulation]\nrate_hz = 500\n\n[device]\nkind = "udp"\n'
     scene = load_scene(write(scene_dir, text))
-    assert scene.sections == {"simulation": {"rate_hz": 500}, "device": {"kind": "csv"}}
-    assert scene.parts[1].extras == {"mass": 0.2}
-    assert scene.parts[0].extras == {}
+    assert scene.config.simulation.rate_hz == 500 and scene.config.device.kind == "udp"
+    assert scene.config.masses == (MassSpec(), MassSpec(mass=0.2))
+    with pytest.raises(SceneError, match="kind in \\[device\\] must be one of mouse"):
+        load_scene(write(scene_dir, text.replace('"udp"', '"csv"')))
 
 
 @pytest.mark.parametrize(
@@ -143,7 +144,8 @@ def test_simulation_sections_and_mass_keys_are_kept_raw(scene_dir):
          "unknown key 'sgima' in \\[descriptor\\]; valid keys: sigma, penalty"),
         ("speed = 3\n" + MINIMAL, 1, "unknown key 'speed' in the scene"),
         (MINIMAL + "\n[descriptor]\nsigma = -1\n", 11,
-         "sigma in \\[descriptor\\] must be positive"),
+         "sigma in \\[descriptor\\] must be a positive number, got -1; remove the line "
+         "for the default \\(0.5\\)"),
         (MINIMAL + "\n[descriptor]\ngrid = 64\nspacing = 0.5\n", 12, "grid or spacing"),
         (MINIMAL + "\n[descriptor]\ngrid = 6.5\n", 11,
          "grid in \\[descriptor\\] must be an integer"),
@@ -151,7 +153,8 @@ def test_simulation_sections_and_mass_keys_are_kept_raw(scene_dir):
         (MINIMAL.replace("pose = [1, 2, 3, 0, 0, 0.5]", "pose = [1, 2, 3]"), 8,
          "pose in \\[\\[part\\]\\] #2 must be six numbers"),
         (MINIMAL.replace("peg.step", "nothing.step"), 7, "part file 'nothing.step' not found"),
-        ('units = "furlong"\n' + MINIMAL, 1, "units must be one of .*mm"),
+        ('units = "furlong"\n' + MINIMAL, 1,
+         "units in the scene must be one of .*mm.*; write the unit"),
         (MINIMAL.replace("[[part]]\nfile = \"peg", "[[part]]\nfixed = true\nfile = \"peg"), 7,
          "first \\[\\[part\\]\\] is the fixed one"),
         (MINIMAL.replace("assembled_pose = [0, 0, -15, 0, 0, 0]", "assembled_pose = [0, 0, 'a']"),
@@ -209,37 +212,132 @@ def test_key_line_lookup():
     assert key_line(text, ("nothing",), "x") is None
 
 
-def test_save_and_reload_round_trip(scene_dir, tmp_path):
-    text = MINIMAL + textwrap.dedent("""\
-        mass = 0.25
-        tolerance = 0.02
+EVERY_TABLE = MINIMAL + textwrap.dedent("""\
+    mass = 0.25
+    tolerance = 0.02
+    unit = "cm"
+    pivot = [1, 2, 3]
+    inertia = [[2, 0.1, 0], [0.1, 3, 0], [0, 0, 4]]
+    center_of_mass = [0, 0, 1.5]
 
-        [descriptor]
-        spacing = 0.75
-        sigma = 0.7
+    [descriptor]
+    spacing = 0.75
+    sigma = 0.7
+    penalty = 2.5
+    lambda_out = 1.5
+    padding = 3
 
-        [correlation]
-        modes = 12
+    [correlation]
+    modes = 12
+    oversample = 3.0
+    refine = 1
+    fine_modes = 20
+    selection = "largest"
 
-        [coupling]
-        frequency_hz = 8.0
-        """)
-    scene = load_scene(write(scene_dir, 'insertion_axis = [0, 0, -2]\n' + text))
+    [simulation]
+    rate_hz = 500
+    kappa = 0.3
+    guidance_gain = 0.4
+    body_damping_ratio = 0.25
+    seconds = 2
+
+    [coupling]
+    frequency_hz = 8.0
+    damping_ratio = 0.7
+    stiffness = 40
+    angular_damping = 0.01
+
+    [effects]
+    guidance = "collision"
+    axes = ["z", "rz"]
+    damping = false
+    gravity = true
+    gravity_direction = [0, -1, 0]
+
+    [device]
+    kind = "udp"
+    max_force = 4.0
+    force_scale = 0.5
+    port = 9000
+    host = "127.0.0.1"
+    """)
+
+
+def assert_same_scene(a, b):
+    """Every field of two scenes is equal (the path aside)."""
+    for f in fields(a):
+        if f.name in ("path", "parts", "assembled_pose", "insertion_axis"):
+            continue
+        assert getattr(a, f.name) == getattr(b, f.name), f.name
+    np.testing.assert_array_equal(a.assembled_pose, b.assembled_pose)
+    assert (a.insertion_axis is None) == (b.insertion_axis is None)
+    if a.insertion_axis is not None:
+        np.testing.assert_array_equal(a.insertion_axis, b.insertion_axis)
+    assert len(a.parts) == len(b.parts)
+    for pa, pb in zip(a.parts, b.parts, strict=True):
+        for f in fields(pa):
+            va, vb = getattr(pa, f.name), getattr(pb, f.name)
+            if isinstance(va, np.ndarray) or isinstance(vb, np.ndarray):
+                np.testing.assert_array_equal(va, vb, err_msg=f.name)
+            else:
+                assert va == vb, f.name
+
+
+def test_save_and_reload_round_trip_keeps_every_field(scene_dir, tmp_path):
+    scene = load_scene(write(scene_dir, 'insertion_axis = [0, 0, -2]\n' + EVERY_TABLE))
+    # the values really differ from the defaults, so the comparison can fail
+    assert scene.config.effects.gravity == pytest.approx((0, -9810.0, 0))
+    assert scene.parts[1].unit == "cm" and scene.config.masses[1].inertia[0][1] == 0.1
+    assert scene.correlation.selection == "largest" and scene.config.device.option("port")
     out = tmp_path / "elsewhere" / "copy.toml"
     out.parent.mkdir()
-    save_scene(scene, out)
-    again = load_scene(out)
-    assert again.units == scene.units and again.modes == 12
-    assert again.descriptor == scene.descriptor
-    assert again.descriptor.spacing == 0.75 and again.descriptor.grid is None
-    np.testing.assert_allclose(again.assembled_pose, scene.assembled_pose)
+    again = load_scene(save_scene(scene, out))
+    assert_same_scene(again, scene)
     np.testing.assert_allclose(again.insertion_axis, [0, 0, -1])
-    assert again.sections == {"coupling": {"frequency_hz": 8.0}}
-    for a, b in zip(again.parts, scene.parts, strict=True):
-        assert a.name == b.name and a.file == b.file and a.fixed == b.fixed
-        assert a.extras == b.extras and a.tolerance == b.tolerance
-        np.testing.assert_allclose(a.pose, b.pose)
+    assert again.descriptor.spacing == 0.75 and again.descriptor.grid is None
     assert "../" in out.read_text()  # part files written relative to the new location
+    # a scene without units stays without (its warning about mesh units survives a save)
+    bare = load_scene(save_scene(load_scene(write(scene_dir, MINIMAL)), tmp_path / "b.toml"))
+    assert not bare.units_declared and "units" not in (tmp_path / "b.toml").read_text()
+
+
+def test_the_gui_saves_through_the_scene_writer_and_it_loads_back(scene_dir, tmp_path):
+    from app.gui.scene_file import write_scene
+    from engine.api import open_scene
+    from engine.params import CouplingParams, Effects
+    from engine.pose import compose
+
+    handle = open_scene(write(scene_dir, 'units = "mm"\n' + EVERY_TABLE.replace(
+        'unit = "cm"\n', "")))
+    moved = np.array([0.5, -0.25, 3.0, 0.01, 0.02, 0.3])
+    effects = Effects(guidance="skeletal", axes=("x", "y", "z"), gravity=(0.0, 0.0, -1.0))
+    coupling = CouplingParams(frequency_hz=5.0)
+    out = write_scene(handle, tmp_path / "saved", moving_relative_pose=moved, sigma=0.9,
+                      penalty=4.0, modes=20, effects=effects, coupling=coupling, kappa=2.0)
+    assert out.suffix == ".toml"
+    again = load_scene(out)
+    scene = handle.scene
+    expected = replace(
+        scene,
+        parts=(scene.parts[0], replace(scene.parts[1], pose=compose(scene.parts[0].pose,
+                                                                     moved))),
+        descriptor=replace(scene.descriptor, sigma=0.9, penalty=4.0),
+        correlation=replace(scene.correlation, modes=20),
+        config=replace(scene.config, effects=effects, coupling=coupling,
+                       simulation=replace(scene.config.simulation, kappa=2.0)),
+    )
+    np.testing.assert_allclose(again.parts[1].pose, expected.parts[1].pose, atol=1e-12)
+    expected = replace(expected, parts=(expected.parts[0],
+                                        replace(expected.parts[1], pose=again.parts[1].pose)))
+    assert_same_scene(again, expected)
+
+
+def test_a_scene_that_would_not_load_is_never_written(scene_dir, tmp_path):
+    scene = load_scene(write(scene_dir, MINIMAL))
+    (scene_dir / "peg.step").unlink()
+    with pytest.raises(SceneError, match="part file .*peg.step.* not found"):
+        save_scene(scene, tmp_path / "x.toml")
+    assert not (tmp_path / "x.toml").exists()
 
 
 def test_scene_parts_take_the_scene_unit(tmp_path):

@@ -60,7 +60,6 @@ def _box_scene(tmp_path, rate_hz=1000):
     import trimesh
 
     from engine.scene import load_scene, load_scene_parts, relative_start_pose
-    from engine.simconfig import simconfig_from_scene
 
     trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
     trimesh.creation.box(extents=(1.0, 1.0, 3.0)).export(tmp_path / "peg.stl")
@@ -71,7 +70,7 @@ def _box_scene(tmp_path, rate_hz=1000):
         '[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, 4, 0, 0, 0]\n'
     )
     scene = load_scene(tmp_path / "scene.toml")
-    return LoadedBoxes(scene, simconfig_from_scene(scene), tuple(load_scene_parts(scene)),
+    return LoadedBoxes(scene, scene.config, tuple(load_scene_parts(scene)),
                        relative_start_pose(scene))
 
 

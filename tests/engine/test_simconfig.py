@@ -1,109 +1,124 @@
-"""Simulation tables of a scene: defaults, scale with part size, errors with the line."""
+"""Simulation tables of a scene: defaults, values, errors naming the line, part mass keys."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from engine.simconfig import (
-    AXES,
-    SimConfigError,
-    parse_simconfig,
-)
+from engine.params import AXES, SimConfig, gravity_vector
+from engine.scene import SceneError, load_scene, save_scene
 
-TEXT = """name = "x"
+HEAD = """name = "x"
 assembled_pose = [0, 0, 0, 0, 0, 0]
 
-[simulation]
-rate_hz = 1000
+[[part]]
+file = "a.stl"
 
-[coupling]
-frequency_hz = 12
-stiffnes = 3
-
-[effects]
-guidance = "collision"
+[[part]]
+file = "a.stl"
+name = "b"
 """
 
 
-def box(size=(1.0, 2.0, 4.0)):
+@pytest.fixture
+def folder(tmp_path):
     import trimesh
 
-    m = trimesh.creation.box(extents=size)
-    return np.asarray(m.vertices), np.asarray(m.faces)
+    trimesh.creation.box(extents=(1, 2, 4)).export(tmp_path / "a.stl")
+    return tmp_path
 
 
-def test_defaults_with_no_tables():
-    cfg = parse_simconfig({})
+def scene_of(folder, text):
+    path = folder / "s.toml"
+    path.write_text(text)
+    return load_scene(path)
+
+
+def test_defaults_with_no_tables(folder):
+    cfg = scene_of(folder, HEAD).config
+    assert cfg == SimConfig(masses=cfg.masses)
     assert cfg.simulation.rate_hz == 1000 and cfg.effects.axes == AXES
     assert cfg.effects.guidance == "skeletal" and cfg.device.kind == "mouse"
 
 
-def test_unknown_key_names_its_line():
-    sections = {"simulation": {"rate_hz": 1000}, "coupling": {"frequency_hz": 12, "stiffnes": 3},
-                "effects": {"guidance": "collision"}}
-    with pytest.raises(SimConfigError) as err:
-        parse_simconfig(sections, path="s.toml", text=TEXT)
+def test_unknown_key_names_its_line_and_the_valid_keys(folder):
+    text = HEAD + "\n[simulation]\nrate_hz = 1000\n\n[coupling]\nfrequency_hz = 12\nstiffnes = 3\n"
+    with pytest.raises(SceneError) as err:
+        scene_of(folder, text)
     msg = str(err.value)
-    assert msg.startswith("s.toml:9: [coupling] stiffnes: unknown key")
-    assert "stiffness" in msg  # lists the known keys
+    assert msg.startswith(f"{folder / 's.toml'}:16: unknown key 'stiffnes' in [coupling]; ")
+    assert "valid keys: frequency_hz, damping_ratio, stiffness" in msg
+    assert err.value.line == 16
 
 
 @pytest.mark.parametrize(
-    "sections,match",
+    "table,match",
     [
-        ({"simulation": {"rate_hz": -5}}, "rate_hz: must be positive"),
-        ({"simulation": {"rate_hz": "fast"}}, "must be a number"),
-        ({"effects": {"guidance": "magnets"}}, "must be one of skeletal, collision, none"),
-        ({"effects": {"axes": ["x", "q"]}}, "axes: must be"),
-        ({"effects": {"damping": 1}}, "must be true or false"),
-        ({"effects": {"gravity": [0, 0]}}, "list of 3 numbers"),
-        ({"device": {"kind": "joystick"}}, "must be one of mouse"),
-        ({"device": {"kind": "trajectory"}}, "needs file"),
-        ({"coupling": {"frequency_hz": 400}}, "too stiff"),
+        ("[simulation]\nrate_hz = -5", "rate_hz in \\[simulation\\] must be a positive number, "
+                                       "got -5; remove the line for the default \\(1000"),
+        ("[simulation]\nrate_hz = 'fast'", "must be a positive number"),
+        ("[simulation]\nkappa = 'strong'", 'or "auto"'),
+        ("[effects]\nguidance = 'magnets'", "must be one of skeletal, collision, none"),
+        ("[effects]\naxes = ['x', 'q']", "axes in \\[effects\\] must be"),
+        ("[effects]\ndamping = 1", "must be true or false"),
+        ("[effects]\ngravity = [0, 0]", "must be 3 numbers"),
+        ("[effects]\ngravity = true\ngravity_direction = [0, 0, 0]", "must not be zero"),
+        ("[device]\nkind = 'joystick'", "must be one of mouse"),
+        ("[device]\nkind = 'trajectory'", "needs a file"),
+        ("[device]\nkind = 'mouse'\nport = 5", "unknown key 'port' in \\[device\\]"),
+        ("[coupling]\nfrequency_hz = 400", "too stiff"),
+        ("[correlation]\nselection = 'best'", "must be one of cube, largest"),
     ],
 )
-def test_bad_values(sections, match):
-    with pytest.raises(SimConfigError, match=match):
-        parse_simconfig(sections)
+def test_bad_values_name_file_line_and_fix(folder, table, match):
+    text = HEAD + "\n" + table + "\n"
+    with pytest.raises(SceneError, match=match) as err:
+        scene_of(folder, text)
+    assert err.value.line is not None and err.value.line > 10
+    assert str(err.value).startswith(f"{folder / 's.toml'}:{err.value.line}: ")
+    assert "; " in str(err.value).split(": ", 1)[1]  # a fix follows the problem
 
 
-def test_part_mass_keys_and_bad_inertia():
-    cfg = parse_simconfig({}, parts=({}, {"density": 2.0, "inertia": [1, 2, 3]}))
-    assert cfg.masses[1].density == 2.0
-    assert cfg.masses[1].inertia == ((1, 0, 0), (0, 2, 0), (0, 0, 3))
-    with pytest.raises(SimConfigError, match="symmetric positive definite"):
-        parse_simconfig({}, parts=({}, {"inertia": [1, -2, 3]}))
-    with pytest.raises(SimConfigError, match=r"\[part\] colour: unknown key"):
-        parse_simconfig({}, parts=({}, {"colour": "red"}))
+def test_part_mass_keys_and_bad_inertia(folder):
+    scene = scene_of(folder, HEAD + "density = 2.0\ninertia = [1, 2, 3]\n")
+    assert scene.config.masses[1].density == 2.0
+    assert scene.config.masses[1].inertia == ((1, 0, 0), (0, 2, 0), (0, 0, 3))
+    assert scene.config.mass_spec(0).mass is None and scene.config.mass_spec(5).mass is None
+    with pytest.raises(SceneError, match="symmetric positive definite") as err:
+        scene_of(folder, HEAD + "inertia = [1, -2, 3]\n")
+    assert err.value.line == 10
+    with pytest.raises(SceneError, match="unknown key 'colour' in \\[\\[part\\]\\] #2"):
+        scene_of(folder, HEAD + "colour = 'red'\n")
 
 
-def test_axes_words_and_gravity_in_scene_units():
-    cfg = parse_simconfig({"effects": {"axes": "translation", "gravity": True}}, units="mm")
-    assert not cfg.effects.rotation
-    np.testing.assert_allclose(cfg.effects.gravity, [0, 0, -9810.0])
-    cfg = parse_simconfig({"effects": {"axes": ["z", "rz"]}})
-    np.testing.assert_array_equal(cfg.effects.translation_mask, [0, 0, 1])
-    np.testing.assert_array_equal(cfg.effects.rotation_mask, [0, 0, 1])
-    assert cfg.effects.rotation
+@pytest.mark.parametrize("units,g", [("mm", 9810.0), ("m", 9.81), ("ft", 9.81 / 0.3048),
+                                      ("dm", 98.1)])
+def test_axes_words_and_gravity_in_scene_units(folder, units, g):
+    text = f'units = "{units}"\n' + HEAD + '\n[effects]\naxes = "translation"\ngravity = true\n'
+    effects = scene_of(folder, text).config.effects
+    assert not effects.rotation
+    np.testing.assert_allclose(effects.gravity, [0, 0, -g])
+    np.testing.assert_allclose(gravity_vector(units), [0, 0, -g])
+    effects = scene_of(folder, HEAD + '\n[effects]\naxes = ["z", "rz"]\n').config.effects
+    np.testing.assert_array_equal(effects.translation_mask, [0, 0, 1])
+    np.testing.assert_array_equal(effects.rotation_mask, [0, 0, 1])
+    assert effects.rotation
 
 
-def test_scene_file_sections_reach_simconfig(tmp_path):
-    import trimesh
+def test_trajectory_file_is_relative_to_the_scene_and_survives_a_move(folder):
+    (folder / "push.csv").write_text("t,tx,ty,tz,rx,ry,rz\n0,0,0,0,0,0,0\n")
+    scene = scene_of(folder, HEAD + '\n[device]\nkind = "trajectory"\nfile = "push.csv"\n')
+    assert scene.config.device.option("file") == str((folder / "push.csv").resolve())
+    (folder / "sub").mkdir()
+    again = load_scene(save_scene(scene, folder / "sub" / "copy.toml"))
+    assert again.config.device == scene.config.device
+    assert 'file = "../push.csv"' in (folder / "sub" / "copy.toml").read_text()
 
-    from engine.scene import load_scene
-    from engine.simconfig import simconfig_from_scene
 
-    trimesh.creation.box(extents=(1, 1, 1)).export(tmp_path / "a.stl")
-    text = (
-        'units = "mm"\nassembled_pose = [0, 0, 0, 0, 0, 0]\n\n[effects]\naxes = "translation"\n'
-        'damping = "yes"\n\n[[part]]\nname = "a"\nfile = "a.stl"\npose = [0, 0, 0, 0, 0, 0]\n\n'
-        '[[part]]\nname = "b"\nfile = "a.stl"\npose = [0, 0, 2, 0, 0, 0]\nmass = 2.5\n'
-    )
-    (tmp_path / "s.toml").write_text(text)
-    scene = load_scene(tmp_path / "s.toml")
-    with pytest.raises(SimConfigError, match=r"s.toml:6: \[effects\] damping"):
-        simconfig_from_scene(scene)
-    (tmp_path / "s.toml").write_text(text.replace('damping = "yes"', "damping = false"))
-    cfg = simconfig_from_scene(load_scene(tmp_path / "s.toml"))
+def test_scene_tables_reach_the_config(folder):
+    text = ('units = "mm"\n' + HEAD + "mass = 2.5\n\n[effects]\naxes = \"translation\"\n"
+            'damping = "yes"\n')
+    with pytest.raises(SceneError, match=r"s.toml:15: damping in \[effects\]"):
+        scene_of(folder, text)
+    cfg = scene_of(folder, text.replace('damping = "yes"', "damping = false")).config
     assert cfg.masses[1].mass == 2.5 and not cfg.effects.damping and not cfg.effects.rotation

@@ -1,0 +1,472 @@
+"""Reading a scene file: TOML text to a validated :class:`~engine.scene.model.Scene`.
+
+The file is read once; every table is checked by one reader (:class:`_Table`) with one
+error format, ``FILE:LINE: problem; fix`` (:class:`~engine.scene.model.SceneError`).
+tomllib gives no line numbers, so the offending key is looked up in the text
+(:func:`key_line`). Every key the format knows is listed in the ``*_KEYS`` tuples below;
+any other key is an error naming the valid ones.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.errors import InputError
+from engine.params import (
+    AXES,
+    DEFAULT_GRID,
+    DEFAULT_UNIT,
+    DEVICE_OPTIONS,
+    DEVICES,
+    GUIDANCE,
+    LENGTH_UNITS,
+    MODE_SELECTIONS,
+    CorrelationParams,
+    CouplingParams,
+    DescriptorParams,
+    DeviceConfig,
+    Effects,
+    MassSpec,
+    SimConfig,
+    SimulationParams,
+    gravity_vector,
+)
+from engine.scene.model import PartSpec, Scene, SceneError
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+#: Top-level keys of a scene file.
+TOP_KEYS = ("name", "units", "assembled_pose", "insertion_axis")
+#: Tables of a scene file (``part`` is the array of ``[[part]]`` tables).
+TABLES = ("descriptor", "correlation", "simulation", "coupling", "effects", "device", "part")
+#: Keys of ``[descriptor]``.
+DESCRIPTOR_KEYS = ("sigma", "penalty", "lambda_out", "grid", "spacing", "padding")
+#: Keys of ``[correlation]``.
+CORRELATION_KEYS = ("modes", "oversample", "refine", "fine_modes", "selection")
+#: Keys of ``[simulation]``.
+SIMULATION_KEYS = ("rate_hz", "kappa", "guidance_gain", "body_damping_ratio", "seconds")
+#: Keys of ``[coupling]``.
+COUPLING_KEYS = ("frequency_hz", "damping_ratio", "stiffness", "angular_stiffness", "damping",
+                 "angular_damping")
+#: Keys of ``[effects]``.
+EFFECTS_KEYS = ("guidance", "axes", "damping", "gravity", "gravity_direction")
+#: Keys of ``[device]`` for every kind (plus ``DEVICE_OPTIONS[kind]``).
+DEVICE_KEYS = ("kind", "max_force", "force_scale")
+#: Keys of a ``[[part]]``.
+PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance", "unit", "pivot", "mass",
+             "density", "inertia", "center_of_mass")
+#: Words ``[effects] axes`` accepts besides a list of axes.
+AXES_WORDS = {"all": AXES, "translation": AXES[:3], "rotation": AXES[3:]}
+
+_HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+_KEY = re.compile(r"""^\s*(?:"([^"]+)"|'([^']+)'|([A-Za-z0-9_\-]+))\s*(?:\.|=)""")
+
+
+def key_line(text: str, table: tuple[Any, ...], key: str | None = None) -> int | None:
+    """1-based line of ``key`` in ``table`` of a TOML text, or of the table's header.
+
+    ``table`` is ``()`` for the top level, ``("descriptor",)`` for a table and
+    ``("part", 1)`` for the second ``[[part]]``. Returns None when not found.
+    """
+    current: tuple[Any, ...] = ()
+    counts: dict[str, int] = {}
+    header_line = None
+    for lineno, line in enumerate(text.splitlines(), 1):
+        m = _HEADER.match(line)
+        if m:
+            name = tuple(s.strip().strip('"') for s in m.group(2).split("."))
+            if m.group(1) == "[[":
+                counts[m.group(2)] = counts.get(m.group(2), -1) + 1
+                current = (*name, counts[m.group(2)])
+            else:
+                current = name
+            if current == table:
+                header_line = lineno
+                if key is None:
+                    return lineno
+            continue
+        if key is not None and current == table:
+            k = _KEY.match(line)
+            if k and (k.group(1) or k.group(2) or k.group(3)) == key:
+                return lineno
+    return header_line
+
+
+def _toml(value: Any) -> str:
+    """A default as the scene file would write it."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+class _Table:
+    """Reads one table of a scene; each bad key raises a SceneError naming its line."""
+
+    def __init__(self, path: Path, text: str, where: tuple[Any, ...], values: Any, label: str):
+        self.path, self.text, self.where, self.label = path, text, where, label
+        if not isinstance(values, dict):
+            raise self.fail(None, f"{label} must be a table of key = value lines, got "
+                                  f"{values!r}", f"write it as {label} followed by its keys")
+        self.values: dict[str, Any] = values
+
+    def fail(self, key: str | None, problem: str, fix: str) -> SceneError:
+        """The error for ``key`` (None: the table itself): ``FILE:LINE: problem; fix``."""
+        line = key_line(self.text, self.where, key)
+        where = f"{self.path}:{line}" if line else str(self.path)
+        return SceneError(f"{where}: {problem}; {fix}", path=str(self.path), line=line)
+
+    def reject_unknown(self, allowed: tuple[str, ...]) -> None:
+        """Fail on the first key not in ``allowed``."""
+        for key in self.values:
+            if key not in allowed:
+                raise self.fail(key, f"unknown key {key!r} in {self.label}",
+                                f"valid keys: {', '.join(allowed)}")
+
+    def _bad(self, key: str, what: str, default: Any) -> SceneError:
+        value = self.values[key]
+        fix = (f"remove the line for the default ({_toml(default)})"
+               if default is not None else "correct the value")
+        return self.fail(key, f"{key} in {self.label} must be {what}, got {value!r}", fix)
+
+    def number(self, key: str, default: Any, *, positive: bool = False,
+               minimum: float | None = None, auto: bool = False) -> Any:
+        """A finite number; ``auto``: the word "auto" reads as None (a derived default)."""
+        if key not in self.values:
+            return default
+        value = self.values[key]
+        if auto and value == "auto":
+            return None
+        what = ("a positive number" if positive else
+                f"a number of at least {minimum:g}" if minimum is not None else "a number")
+        if auto:
+            what += ' or "auto"'
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
+            value
+        ):
+            raise self._bad(key, what, default)
+        if (positive and value <= 0) or (minimum is not None and value < minimum):
+            raise self._bad(key, what, default)
+        return float(value)
+
+    def integer(self, key: str, default: Any, *, minimum: int) -> Any:
+        """An integer of at least ``minimum``."""
+        if key not in self.values:
+            return default
+        value = self.values[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise self._bad(key, f"an integer of at least {minimum}", default)
+        return int(value)
+
+    def vector(self, key: str, n: int, default: Any = None) -> Any:
+        """``n`` finite numbers as a (n,) float64 array."""
+        if key not in self.values:
+            return default
+        value = self.values[key]
+        ok = isinstance(value, list) and len(value) == n and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            for x in value
+        )
+        if not ok:
+            what = ("six numbers (tx, ty, tz, rx, ry, rz; rotation vector in radians)" if n == 6
+                    else f"{n} numbers")
+            raise self._bad(key, what, None)
+        return np.array(value, dtype=np.float64)
+
+    def string(self, key: str, default: Any) -> Any:
+        """A non-empty string."""
+        if key not in self.values:
+            return default
+        value = self.values[key]
+        if not isinstance(value, str) or not value.strip():
+            raise self._bad(key, "a non-empty string", None)
+        return value
+
+    def choice(self, key: str, default: str, valid: tuple[str, ...], *,
+               fix: str | None = None) -> str:
+        """One of ``valid``."""
+        if key not in self.values:
+            return default
+        value = self.values[key]
+        if value not in valid:
+            raise self.fail(key, f"{key} in {self.label} must be one of {', '.join(valid)}, "
+                                 f"got {value!r}",
+                            fix or f"remove the line for the default ({_toml(default)})")
+        return str(value)
+
+    def boolean(self, key: str, default: bool) -> bool:
+        """true or false."""
+        if key not in self.values:
+            return default
+        value = self.values[key]
+        if not isinstance(value, bool):
+            raise self._bad(key, "true or false", default)
+        return value
+
+    def table(self, key: str, label: str) -> _Table:
+        """The sub-table ``key`` (empty when absent)."""
+        return _Table(self.path, self.text, (*self.where, key), self.values.get(key, {}), label)
+
+    def build(self, cls: Any, *, key: str | None = None, **values: Any) -> Any:
+        """``cls(**values)``, its InputError turned into a SceneError at ``key``'s line."""
+        try:
+            return cls(**values)
+        except InputError as exc:
+            raise self.fail(key, f"{self.label}: {exc}", "correct the value") from None
+
+
+# --------------------------------------------------------------------------- load
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a scene file (read once; every table checked).
+
+    Raises
+    ------
+    SceneError
+        Unreadable file, bad TOML, unknown key, bad value, missing part file; the message
+        names the file and line, the problem and the fix.
+    """
+    p = Path(path).resolve()
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError(f"{path}: no such scene file; check the path", path=str(path)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{path}: cannot read the scene file ({exc}); check that it is a "
+                         "UTF-8 text file you may read", path=str(path)) from exc
+    return parse_scene(text, p)
+
+
+def parse_scene(text: str, path: Path) -> Scene:
+    """Validate a scene's TOML ``text``; relative part files are relative to ``path``'s folder.
+
+    Raises
+    ------
+    SceneError
+        As :func:`load_scene`.
+    """
+    p = Path(path).resolve()
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"at line (\d+)", str(exc))
+        line = int(m.group(1)) if m else None
+        if line is None and "end of document" in str(exc):
+            line = max(1, len(text.splitlines()))
+        where = f"{p}:{line}" if line else str(p)
+        raise SceneError(f"{where}: not valid TOML ({exc}); check the syntax there",
+                         path=str(p), line=line) from exc
+
+    top = _Table(p, text, (), data, "the scene")
+    top.reject_unknown(TOP_KEYS + TABLES)
+    name = top.string("name", p.parent.name if p.name == "scene.toml" else p.stem)
+    units_declared = "units" in data
+    units = top.choice("units", DEFAULT_UNIT, tuple(LENGTH_UNITS),
+                       fix="write the unit the scene's poses and lengths are in")
+    if "assembled_pose" not in data:
+        raise top.fail(None, "assembled_pose is missing",
+                       "add `assembled_pose = [tx, ty, tz, rx, ry, rz]` (part 2 in part 1's "
+                       "frame when assembled)")
+    assembled = top.vector("assembled_pose", 6)
+    axis = top.vector("insertion_axis", 3)
+    if axis is not None:
+        norm = float(np.linalg.norm(axis))
+        if norm == 0:
+            raise top.fail("insertion_axis", "insertion_axis must not be zero",
+                           "give the direction part 2 travels to seat, e.g. [0, 0, -1]")
+        axis = axis / norm
+
+    descriptor = _descriptor(top.table("descriptor", "[descriptor]"))
+    correlation = _correlation(top.table("correlation", "[correlation]"))
+    parts, masses = _parts(top, data, p)
+    config = SimConfig(
+        simulation=(sim := _simulation(top.table("simulation", "[simulation]"))),
+        coupling=_coupling(top.table("coupling", "[coupling]"), sim),
+        effects=_effects(top.table("effects", "[effects]"), units),
+        device=_device(top.table("device", "[device]"), p),
+        masses=masses,
+        units=units,
+    )
+    return Scene(path=p, name=name, units=units, units_declared=units_declared,
+                 parts=tuple(parts), assembled_pose=assembled, insertion_axis=axis,
+                 descriptor=descriptor, correlation=correlation, config=config)
+
+
+def _descriptor(d: _Table) -> DescriptorParams:
+    d.reject_unknown(DESCRIPTOR_KEYS)
+    if "grid" in d.values and "spacing" in d.values:
+        raise d.fail("spacing", "both grid and spacing in [descriptor]",
+                     "give grid or spacing, not both")
+    base = DescriptorParams()
+    spacing = d.number("spacing", None, positive=True)
+    return d.build(
+        DescriptorParams,
+        sigma=d.number("sigma", base.sigma, positive=True),
+        penalty=d.number("penalty", base.penalty, positive=True),
+        lambda_out=d.number("lambda_out", base.lambda_out, positive=True),
+        grid=d.integer("grid", None if spacing is not None else DEFAULT_GRID, minimum=4),
+        spacing=spacing,
+        padding=d.number("padding", base.padding, minimum=0.0),
+    )
+
+
+def _correlation(c: _Table) -> CorrelationParams:
+    c.reject_unknown(CORRELATION_KEYS)
+    base = CorrelationParams()
+    return c.build(
+        CorrelationParams,
+        modes=c.integer("modes", base.modes, minimum=1),
+        oversample=c.number("oversample", base.oversample, minimum=1.0),
+        refine=c.integer("refine", base.refine, minimum=1),
+        fine_modes=c.integer("fine_modes", base.fine_modes, minimum=1),
+        selection=c.choice("selection", base.selection, MODE_SELECTIONS),
+    )
+
+
+def _simulation(s: _Table) -> SimulationParams:
+    s.reject_unknown(SIMULATION_KEYS)
+    base = SimulationParams()
+    return s.build(
+        SimulationParams,
+        rate_hz=s.number("rate_hz", base.rate_hz, positive=True),
+        kappa=s.number("kappa", None, minimum=0.0, auto=True),
+        guidance_gain=s.number("guidance_gain", base.guidance_gain, minimum=0.0),
+        body_damping_ratio=s.number("body_damping_ratio", base.body_damping_ratio, minimum=0.0),
+        seconds=s.number("seconds", base.seconds, positive=True),
+    )
+
+
+def _coupling(c: _Table, sim: SimulationParams) -> CouplingParams:
+    c.reject_unknown(COUPLING_KEYS)
+    base = CouplingParams()
+    coupling = c.build(
+        CouplingParams,
+        frequency_hz=c.number("frequency_hz", base.frequency_hz, positive=True),
+        damping_ratio=c.number("damping_ratio", base.damping_ratio, minimum=0.0),
+        stiffness=c.number("stiffness", None, positive=True, auto=True),
+        angular_stiffness=c.number("angular_stiffness", None, positive=True, auto=True),
+        damping=c.number("damping", None, minimum=0.0, auto=True),
+        angular_damping=c.number("angular_damping", None, minimum=0.0, auto=True),
+    )
+    if coupling.frequency_hz * 2 * math.pi / sim.rate_hz > 1.0:
+        raise c.fail("frequency_hz", f"frequency_hz = {coupling.frequency_hz:g} Hz in [coupling] "
+                                     f"is too stiff for the {sim.rate_hz:g} Hz rate (the step "
+                                     "needs 2 pi f dt <= 1)",
+                     "lower it or raise [simulation] rate_hz")
+    return coupling
+
+
+def _effects(e: _Table, units: str) -> Effects:
+    e.reject_unknown(EFFECTS_KEYS)
+    guidance = e.choice("guidance", "skeletal", GUIDANCE)
+    raw_axes = e.values.get("axes", "all")
+    if isinstance(raw_axes, str) and raw_axes in AXES_WORDS:
+        axes = AXES_WORDS[raw_axes]
+    elif isinstance(raw_axes, list) and all(a in AXES for a in raw_axes):
+        axes = tuple(raw_axes)
+    else:
+        raise e.fail("axes", f"axes in [effects] must be \"all\", \"translation\", \"rotation\" "
+                             f"or a list of {', '.join(AXES)}, got {raw_axes!r}",
+                     'remove the line for the default ("all")')
+    damping = e.boolean("damping", True)
+    direction = e.vector("gravity_direction", 3, np.array([0.0, 0.0, -1.0]))
+    if float(np.linalg.norm(direction)) == 0:
+        raise e.fail("gravity_direction", "gravity_direction in [effects] must not be zero",
+                     "give the direction of the pull, e.g. [0, 0, -1]")
+    raw_gravity = e.values.get("gravity", False)
+    gravity: tuple[float, float, float] | None
+    if raw_gravity is False:
+        gravity = None
+    elif raw_gravity is True:
+        gravity = gravity_vector(units, tuple(direction))
+    else:
+        g = e.vector("gravity", 3)
+        gravity = (float(g[0]), float(g[1]), float(g[2]))
+    return e.build(Effects, guidance=guidance, axes=axes, damping=damping, gravity=gravity)
+
+
+def _device(d: _Table, scene_path: Path) -> DeviceConfig:
+    kind = d.choice("kind", "mouse", DEVICES)
+    d.reject_unknown(DEVICE_KEYS + DEVICE_OPTIONS[kind])
+    options = [(k, d.values[k]) for k in DEVICE_OPTIONS[kind] if k in d.values]
+    if kind == "trajectory":
+        file = d.string("file", None)
+        if file is None:
+            raise d.fail("kind", "a trajectory device needs a file",
+                         'add file = "path/to.csv" (relative to the scene file) to [device]')
+        resolved = Path(file) if Path(file).is_absolute() else scene_path.parent / file
+        options = [(k, str(resolved.resolve()) if k == "file" else v) for k, v in options]
+    return d.build(
+        DeviceConfig,
+        kind=kind,
+        max_force=d.number("max_force", None, positive=True, auto=True),
+        force_scale=d.number("force_scale", 1.0, positive=True),
+        options=tuple(options),
+    )
+
+
+def _parts(top: _Table, data: dict[str, Any], p: Path
+           ) -> tuple[list[PartSpec], tuple[MassSpec, ...]]:
+    raw_parts = data.get("part")
+    if raw_parts is None:
+        raise top.fail(None, "no [[part]] tables",
+                       "add one [[part]] for the fixed part and one for the moving part, each "
+                       "with file and pose")
+    if not isinstance(raw_parts, list) or not all(isinstance(t, dict) for t in raw_parts):
+        raise top.fail("part", "part is not written as [[part]] tables",
+                       "write each part as a [[part]] table")
+    if len(raw_parts) > 2:
+        raise _Table(p, top.text, ("part", 2), raw_parts[2], "[[part]] #3").fail(
+            None, f"{len(raw_parts)} [[part]] tables",
+            "a scene has two parts (fixed, then moving): remove the others")
+    parts: list[PartSpec] = []
+    masses: list[MassSpec] = []
+    for i, table in enumerate(raw_parts):
+        label = f"[[part]] #{i + 1}"
+        pc = _Table(p, top.text, ("part", i), table, label)
+        pc.reject_unknown(PART_KEYS)
+        file = pc.string("file", None)
+        if file is None:
+            raise pc.fail(None, f"{label} has no file",
+                          'add `file = "part.step"` (relative to the scene file)')
+        resolved = Path(file) if Path(file).is_absolute() else (p.parent / file)
+        if not resolved.is_file():
+            raise pc.fail("file", f"part file {file!r} not found (looked for {resolved})",
+                          "check the name; relative paths are relative to the scene file")
+        body = pc.string("body", None)
+        pname = pc.string("name", body if body is not None else Path(file).stem)
+        if any(q.name == pname for q in parts):
+            raise pc.fail("name", f"two parts named {pname!r}", "give them different names")
+        fixed = pc.boolean("fixed", i == 0)
+        if fixed != (i == 0):
+            raise pc.fail("fixed", "the first [[part]] is the fixed one and the second moves",
+                          "swap the tables instead of setting fixed")
+        parts.append(PartSpec(
+            name=pname, file=resolved.resolve(), pose=pc.vector("pose", 6, np.zeros(6)),
+            fixed=fixed, body=body, tolerance=pc.number("tolerance", None, positive=True),
+            unit=(pc.choice("unit", DEFAULT_UNIT, tuple(LENGTH_UNITS),
+                            fix="write the unit the part's file is drawn in")
+                  if "unit" in table else None),
+            pivot=pc.vector("pivot", 3),
+        ))
+        inertia = pc.values.get("inertia")
+        if inertia is not None and not isinstance(inertia, list):
+            raise pc._bad("inertia", "3 principal moments or a 3x3 list", None)
+        com = pc.vector("center_of_mass", 3)
+        masses.append(pc.build(
+            MassSpec, key="inertia",
+            mass=pc.number("mass", None, positive=True),
+            density=pc.number("density", None, positive=True),
+            inertia=inertia,
+            center_of_mass=None if com is None else tuple(float(x) for x in com),
+        ))
+    return parts, tuple(masses)

@@ -1,0 +1,144 @@
+"""Writing a scene: a :class:`~engine.scene.model.Scene` to TOML that reads back the same.
+
+One writer for every table. Part files (and a trajectory device's file) are written
+relative to the new file's folder where possible. The text is checked by the reader before
+it replaces the destination, so a scene that could not be loaded is never written.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.params import (
+    CouplingParams,
+    DeviceConfig,
+    Effects,
+    MassSpec,
+    SimulationParams,
+    gravity_vector,
+)
+from engine.scene.model import Scene, SceneError
+from engine.scene.reader import AXES_WORDS, parse_scene
+
+
+def _floats(a: Any) -> list[float]:
+    return [float(x) for x in np.asarray(a, dtype=np.float64).ravel()]
+
+
+def _relative(file: str | Path, folder: Path) -> str:
+    try:
+        return Path(os.path.relpath(Path(file), folder)).as_posix()
+    except ValueError:  # another drive on Windows
+        return Path(file).as_posix()
+
+
+def _given(obj: Any) -> dict[str, Any]:
+    """The fields of a parameter dataclass that are not None."""
+    return {f.name: getattr(obj, f.name) for f in fields(obj) if getattr(obj, f.name) is not None}
+
+
+def scene_to_toml(scene: Scene, folder: Path) -> dict[str, Any]:
+    """The TOML tables of ``scene`` as a dict, files relative to ``folder``.
+
+    ``[descriptor]`` and ``[correlation]`` are always written in full; the simulation tables
+    only when they differ from their defaults.
+    """
+    data: dict[str, Any] = {"name": scene.name}
+    if scene.units_declared:
+        data["units"] = scene.units
+    data["assembled_pose"] = _floats(scene.assembled_pose)
+    if scene.insertion_axis is not None:
+        data["insertion_axis"] = _floats(scene.insertion_axis)
+    data["descriptor"] = _given(scene.descriptor)
+    data["correlation"] = _given(scene.correlation)
+    config = scene.config
+    if config.simulation != SimulationParams():
+        data["simulation"] = _given(config.simulation)
+    if config.coupling != CouplingParams():
+        data["coupling"] = _given(config.coupling)
+    if config.effects != Effects():
+        data["effects"] = _effects(config.effects, scene.units)
+    if config.device != DeviceConfig():
+        device = config.device
+        table: dict[str, Any] = {"kind": device.kind, "force_scale": device.force_scale}
+        if device.max_force is not None:
+            table["max_force"] = device.max_force
+        for key, value in device.options:
+            table[key] = _relative(value, folder) if key == "file" else value
+        data["device"] = table
+    parts = []
+    for i, spec in enumerate(scene.parts):
+        part: dict[str, Any] = {"name": spec.name, "file": _relative(spec.file, folder),
+                                "pose": _floats(spec.pose), "fixed": bool(spec.fixed)}
+        if spec.body is not None:
+            part["body"] = spec.body
+        if spec.tolerance is not None:
+            part["tolerance"] = spec.tolerance
+        if spec.unit is not None:
+            part["unit"] = spec.unit
+        if spec.pivot is not None:
+            part["pivot"] = _floats(spec.pivot)
+        mass = config.mass_spec(i)
+        if mass != MassSpec():
+            for key, value in _given(mass).items():
+                part[key] = [list(r) for r in value] if key == "inertia" else (
+                    list(value) if key == "center_of_mass" else value)
+        parts.append(part)
+    data["part"] = parts
+    return data
+
+
+def _effects(effects: Effects, units: str) -> dict[str, Any]:
+    words = {v: k for k, v in AXES_WORDS.items()}
+    table: dict[str, Any] = {
+        "guidance": effects.guidance,
+        "axes": words.get(effects.axes, list(effects.axes)),
+        "damping": effects.damping,
+    }
+    if effects.gravity is not None:
+        g = np.asarray(effects.gravity, dtype=np.float64)
+        direction = tuple(float(x) for x in g / max(float(np.linalg.norm(g)), 1e-300))
+        standard = gravity_vector(units, direction)  # type: ignore[arg-type]
+        if np.allclose(standard, g, rtol=1e-12, atol=0.0):
+            table["gravity"] = True
+            table["gravity_direction"] = list(direction)
+        else:
+            table["gravity"] = _floats(g)
+    return table
+
+
+def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
+    """Write a scene as TOML (atomically) and return the path written.
+
+    ``.toml`` is appended when missing. The text is read back with the scene reader
+    before it replaces the destination, so ``load_scene(save_scene(s, p))`` gives back
+    ``s``'s values, and a scene that would not load is never written.
+
+    Raises
+    ------
+    SceneError
+        The scene does not read back (a bug, or a part file that no longer exists).
+    """
+    import tomli_w
+
+    out = Path(path)
+    if out.suffix.lower() != ".toml":
+        out = out.with_suffix(".toml")
+    out = out.resolve()
+    text = tomli_w.dumps(scene_to_toml(scene, out.parent))
+    parse_scene(text, out)  # raises SceneError naming the line of what does not read back
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".part")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, out)  # never leave a half-written scene behind
+    except OSError as exc:
+        raise SceneError(f"{out}: cannot write the scene ({exc}); choose a folder you may "
+                         "write to", path=str(out)) from exc
+    return out
+
