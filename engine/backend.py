@@ -1,23 +1,40 @@
-"""Compute backends: an OpenCL context (GPU if present, else PoCL on the CPU) or numpy.
+"""Compute backends: one registry and one vocabulary for every kernel of the engine.
 
-The backend is picked once per process and can be forced with ``SKELASM_BACKEND``
-(``numpy`` or ``opencl``) and ``SKELASM_DEVICE`` (a substring of the device name, or
-``platform:device`` indices as in ``PYOPENCL_CTX``), or by the command-line options
-``--backend`` and ``--device``. A backend that is missing fails only when asked for.
+The names, validated in one place (:func:`check_name`):
+
+- ``"numpy"``: the pure-numpy reference; always present.
+- ``"numba"``: code compiled in process for the CPU (numba).
+- ``"opencl"``: a pyopencl context and queue on one device: a GPU if there is one, else a
+  CPU device (PoCL); ``SKELASM_DEVICE`` (or ``device=``) picks it by a substring of its
+  name or by ``platform:device`` indices, as ``PYOPENCL_CTX`` does.
+- ``"auto"``: the first backend of a preference order that works here (default:
+  :data:`AUTO_ORDER`, OpenCL, then numba, then numpy). This is the one fallback rule.
+
+``SKELASM_BACKEND`` overrides the default name. Each backend is created once per process
+(per device) and shared. A backend that cannot be created is registered with the error
+that stopped it, and fails only when asked for by name, raising :class:`BackendError`
+whose cause (``__cause__``) is that original error; "auto" simply passes over it. scipy's
+``scipy.fft`` backend registry and trimesh's engine wrappers work the same way.
 """
 
 from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-BACKENDS = ("numpy", "opencl")
+#: The backend names, reference first.
+BACKENDS = ("numpy", "numba", "opencl")
+#: What a user may ask for.
+CHOICES = BACKENDS + ("auto",)
+#: The order "auto" tries the backends in, unless a caller gives its own.
+AUTO_ORDER = ("opencl", "numba", "numpy")
 
 
 class BackendError(RuntimeError):
-    """A requested compute backend cannot be used here."""
+    """A requested compute backend cannot be used here (the cause says why)."""
 
 
 @dataclass(frozen=True)
@@ -26,8 +43,7 @@ class Backend:
 
     Attributes
     ----------
-    name : str
-        ``"numpy"`` or ``"opencl"``.
+    name : {"numpy", "numba", "opencl"}
     device_name : str
         Human-readable device, e.g. ``"pthread-AMD EPYC (Portable Computing Language)"``.
     is_gpu : bool
@@ -44,7 +60,7 @@ class Backend:
 
     @property
     def device(self) -> Any:
-        """The pyopencl device, or None for numpy."""
+        """The pyopencl device, or None."""
         return None if self.context is None else self.context.devices[0]
 
     def describe(self) -> str:
@@ -53,8 +69,16 @@ class Backend:
         return f"{self.name} on {self.device_name} ({kind})"
 
 
-_lock = threading.Lock()
-_cache: dict[tuple[str, str | None], Backend] = {}
+def check_name(name: str) -> str:
+    """``name`` in lower case, if it is one of :data:`CHOICES`; else a ValueError listing them."""
+    lowered = str(name).lower()
+    if lowered not in CHOICES:
+        raise ValueError(f"unknown backend {name!r}; valid: {', '.join(CHOICES)}")
+    return lowered
+
+
+_lock = threading.RLock()
+_made: dict[tuple[str, str | None], Backend | BaseException] = {}
 
 
 def _opencl_devices() -> list[Any]:
@@ -137,43 +161,17 @@ def _names(devices: list[Any]) -> str:
     return ", ".join(f"{d.name} ({d.platform.name})" for d in devices)
 
 
-def get_backend(name: str | None = None, *, device: str | None = None) -> Backend:
-    """The compute backend, created once per (name, device) and shared.
+def _make_numpy(device: str | None) -> Backend:
+    return Backend("numpy", "numpy (CPU)")
 
-    Parameters
-    ----------
-    name : {"opencl", "numpy"}, optional
-        Defaults to ``SKELASM_BACKEND``, else OpenCL when a device is present, else numpy.
-    device : str, optional
-        Device selector (see module docstring); defaults to ``SKELASM_DEVICE``.
 
-    Raises
-    ------
-    ValueError
-        Unknown backend name.
-    BackendError
-        OpenCL was asked for explicitly and cannot be used.
-    """
-    explicit = name is not None or "SKELASM_BACKEND" in os.environ
-    name = (name or os.environ.get("SKELASM_BACKEND") or "auto").lower()
-    device = device or os.environ.get("SKELASM_DEVICE") or None
-    if name not in BACKENDS + ("auto",):
-        raise ValueError(f"unknown backend {name!r}; valid: {', '.join(BACKENDS + ('auto',))}")
-    with _lock:
-        key = (name, device)
-        if key in _cache:
-            return _cache[key]
-        if name == "numpy":
-            backend = Backend("numpy", "numpy (CPU)")
-        else:
-            try:
-                backend = _make_opencl(device)
-            except BackendError:
-                if explicit and name == "opencl":
-                    raise
-                backend = Backend("numpy", "numpy (CPU; no usable OpenCL device)")
-        _cache[key] = backend
-        return backend
+def _make_numba(device: str | None) -> Backend:
+    try:
+        import numba
+    except ImportError as exc:
+        raise BackendError(f"numba cannot be imported ({exc}): install it with "
+                           "`pip install numba`, or use --backend numpy") from exc
+    return Backend("numba", f"numba (CPU, {numba.get_num_threads()} threads)")
 
 
 def _make_opencl(device: str | None) -> Backend:
@@ -194,12 +192,76 @@ def _make_opencl(device: str | None) -> Backend:
     )
 
 
+_FACTORIES: dict[str, Callable[[str | None], Backend]] = {
+    "numpy": _make_numpy,
+    "numba": _make_numba,
+    "opencl": _make_opencl,
+}
+
+
+def _create(name: str, device: str | None) -> Backend:
+    """The backend ``name`` (created once); raises :class:`BackendError` from its cause."""
+    key = (name, device if name == "opencl" else None)
+    with _lock:
+        if key not in _made:
+            try:
+                _made[key] = _FACTORIES[name](key[1])
+            except Exception as exc:  # noqa: BLE001 - registered, raised when asked for
+                _made[key] = exc
+        made = _made[key]
+    if isinstance(made, BaseException):
+        if isinstance(made, BackendError):
+            raise BackendError(str(made)) from (made.__cause__ or made)
+        raise BackendError(f"the {name} backend cannot be used here: {made}") from made
+    return made
+
+
+def get_backend(
+    name: str | None = None,
+    device: str | None = None,
+    *,
+    order: Sequence[str] = AUTO_ORDER,
+) -> Backend:
+    """The compute backend, created once per (name, device) and shared.
+
+    Parameters
+    ----------
+    name : {"numpy", "numba", "opencl", "auto"}, optional
+        Defaults to ``SKELASM_BACKEND``, else "auto".
+    device : str, optional
+        OpenCL device selector (see the module docstring); defaults to ``SKELASM_DEVICE``.
+    order : sequence of str
+        The preference order "auto" resolves with (the first that works; numpy always does).
+
+    Raises
+    ------
+    ValueError
+        Unknown backend name.
+    BackendError
+        A backend asked for by name cannot be used here; its ``__cause__`` is the original
+        error.
+    """
+    name = check_name(name or os.environ.get("SKELASM_BACKEND") or "auto")
+    device = device or os.environ.get("SKELASM_DEVICE") or None
+    if name != "auto":
+        return _create(name, device)
+    for candidate in order:
+        try:
+            return _create(check_name(candidate), device)
+        except BackendError:
+            continue
+    return _create("numpy", None)
+
+
+def backend_problem(name: str, device: str | None = None) -> str | None:
+    """None when the backend ``name`` works here, else the first line of why not."""
+    try:
+        _create(check_name(name), device)
+    except BackendError as exc:
+        return str(exc).splitlines()[0]
+    return None
+
+
 def available_backends() -> list[str]:
     """Names of the backends that work here (OpenCL: a device compiles a kernel), numpy first."""
-    names = ["numpy"]
-    try:
-        _pick_device(_opencl_devices(), None)
-        names.append("opencl")
-    except BackendError:
-        pass
-    return names
+    return [name for name in BACKENDS if backend_problem(name) is None]

@@ -344,7 +344,9 @@ def test_set_modes_only_truncates(fields, monkeypatch):
     corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8, backend="numpy",
                       use_cache=False)
     after_init = calls["fft"]
-    assert after_init == 5 + 8 * 4  # part 1, part 2, 3 moments; refined table: 8 x 4
+    # part 1's spectrum only: part 2's refined table is a separable Fourier sum, and its
+    # spectrum on the q lattice is computed when a K beyond the refined table needs it
+    assert after_init == 1
     spectra = corr.stats["spectra"]
     for k in (4, 12, 20, 8):
         corr.set_modes(k)
@@ -352,6 +354,10 @@ def test_set_modes_only_truncates(fields, monkeypatch):
     assert calls["fft"] == after_init
     assert corr.stats["spectra"] == spectra
     assert corr.stats["truncations"] == 5
+    for k in (30, 40, 30, 8):  # beyond the refined table: part 2 and 3 moments, once
+        corr.set_modes(k)
+        corr.evaluate(np.eye(3), np.zeros(3))
+    assert calls["fft"] == after_init + 4
 
 
 def test_rotation_off_computes_no_moments(fields):
@@ -360,7 +366,7 @@ def test_rotation_off_computes_no_moments(fields):
                       backend="numba", use_cache=False)
     assert corr.stats["moment_spectra"] == 0
     assert corr.spectrum_moving.moments is None
-    assert corr.moving_table()[0].shape[-1] == 2
+    assert corr.table.moving.shape[-1] == 2
     ev = corr.evaluate(rotation_matrix(np.array([0.1, 0.2, 0.3])), np.array([0.1, 0.0, 0.2]))
     assert ev.torque is None
     assert corr.stats["torque_sums"] == 0
@@ -434,7 +440,7 @@ def test_input_validation(fields):
     other = Grid(GRID2.origin, 0.6, GRID2.shape)
     with pytest.raises(ValueError, match="spacing"):
         Correlator(descriptor(r1, GRID1), descriptor(r2, other), use_cache=False)
-    with pytest.raises(ValueError, match="valid: auto, numpy, numba, opencl"):
+    with pytest.raises(ValueError, match="valid: numpy, numba, opencl, auto"):
         Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), backend="cuda", use_cache=False)
     corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=4, backend="numpy",
                       use_cache=False)
@@ -451,12 +457,12 @@ def test_fft_size_covers_any_rotation():
 
 
 def test_full_modes_on_compiled_backend_fall_back_to_reference(fields, monkeypatch):
-    import engine.correlation as correlation
+    import engine.correlation.tables as tables
 
     r1, r2 = fields
     corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8, backend="numba",
                       use_cache=False)
-    monkeypatch.setattr(correlation, "MAX_TABLE_BYTES", 1 << 20)
+    monkeypatch.setattr(tables, "MAX_TABLE_BYTES", 1 << 20)
     corr.set_modes(corr.size)
     rot = rotation_matrix(np.array([0.2, 0.1, 0.3]))
     got = corr.evaluate(rot, np.zeros(3))
@@ -472,7 +478,7 @@ def test_largest_selection(fields):
     t = np.array([0.4, 0.1, -0.3])
     largest = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8,
                          selection="largest", backend="numba", use_cache=False)
-    assert largest._mode_k.shape == (512, 3)
+    assert largest.table.mode_k.shape == (512, 3)
     got = largest.evaluate(rot, t)
     largest.use_backend("numpy")
     ref = largest.evaluate(rot, t)
@@ -497,6 +503,6 @@ def test_largest_selection(fields):
     assert error_largest < 1.5 * abs(cube.evaluate(rot, t).energy - exact)
     with pytest.raises(RuntimeError, match="cube"):
         largest.use_backend("opencl")
-    with pytest.raises(ValueError, match="valid: cube, largest"):
+    with pytest.raises(ValueError, match="cube, largest"):
         Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), selection="random",
                    use_cache=False)

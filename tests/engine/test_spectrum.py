@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from engine.correlation.spectrum import compute_spectrum, fast_size, kept_indices
 from engine.grid import Grid
-from engine.spectrum import compute_spectrum, fast_size, kept_indices
 
 
 def _smooth(n: int) -> bool:
@@ -97,7 +97,7 @@ def test_kept_indices():
 
 
 def test_refined_table_equals_direct_sums_at_fractional_frequencies():
-    from engine.spectrum import refined_table
+    from engine.correlation.spectrum import refined_table
 
     rng = np.random.default_rng(4)
     grid = Grid((0.1, 0.7, -0.4), 0.3, (5, 4, 6))

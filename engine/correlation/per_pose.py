@@ -1,0 +1,153 @@
+"""Choosing the per-pose path: the numpy reference, or a compiled kernel, measured.
+
+Works on the backend names of :mod:`engine.backend` ("numpy", "numba", "opencl", "auto")
+and on kernels with the small interface the correlator calls: ``pose(table, rot, t)``
+returning ``[E, F (3), T (3)]``, ``supports(table)`` and ``describe()``. "numpy" has no
+kernel (the correlator runs :mod:`engine.correlation.reference`). "auto" builds every
+compiled kernel the registry has here, measures them at a few generic poses and keeps the
+fastest; a kernel that cannot be built is a note in the description, not an error. A
+kernel asked for by name that cannot be built raises :class:`engine.backend.BackendError`
+with the original error as its cause.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import numpy as np
+
+from engine.backend import BackendError, check_name, get_backend
+from engine.correlation.tables import ModeTable
+from engine.pose import rotation_matrix
+
+#: The compiled per-pose kernels, in the order "auto" measures them.
+COMPILED = ("numba", "opencl")
+
+
+class Kernel(Protocol):
+    """What the correlator asks of a compiled per-pose kernel."""
+
+    name: str
+
+    def pose(self, table: ModeTable, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(7,) float64 ``[E, F (3), T (3)]``."""
+        ...
+
+    def supports(self, table: ModeTable) -> bool:
+        """Whether the kernel can sum this table."""
+        ...
+
+    def describe(self) -> str:
+        """Name and device, for status lines."""
+        ...
+
+
+def make_kernel(name: str, selection: str, rotation: bool) -> Kernel:
+    """The compiled kernel ``name`` ("numba" or "opencl") for tables of this kind.
+
+    The kernel modules import their compilers (numba, pyopencl) at the top, so they are
+    imported only here, after the backend registry has vouched for the compiler.
+    """
+    backend = get_backend(check_name(name))  # BackendError (with its cause) when missing
+    try:
+        if name == "numba":
+            from engine.correlation.numba_kernels import NumbaKernel
+
+            return NumbaKernel(selection)
+        if name == "opencl":
+            from engine.correlation.opencl_kernels import OpenCLKernel
+
+            return OpenCLKernel(selection, rotation, backend)
+    except BackendError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a kernel that does not build on this device
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise BackendError(f"the {name} per-pose kernel cannot be built here: {first}") from exc
+    raise ValueError(f"no compiled per-pose kernel is called {name!r}; valid: "
+                     f"{', '.join(COMPILED)}")
+
+
+def choose(
+    name: str, table: ModeTable, selection: str, rotation: bool,
+    progress: Callable[[float], None] | None = None,
+) -> tuple[dict[str, Kernel], str, str]:
+    """The kernels built, the short name of the one to use, and a line saying why.
+
+    ``name`` "numpy" builds nothing; "numba" or "opencl" builds that kernel (or raises);
+    "auto" builds what it can and measures (a few hundred calls in all).
+    """
+    name = check_name(name)
+    if name == "numpy":
+        return {}, "numpy", "numpy (reference, asked for)"
+    if name != "auto":
+        kernel = make_kernel(name, selection, rotation)
+        _tune_threads(kernel, table)
+        return {name: kernel}, name, f"{kernel.describe()} (asked for)"
+    kernels: dict[str, Kernel] = {}
+    notes: list[str] = []
+    for i, candidate in enumerate(COMPILED):
+        try:
+            kernels[candidate] = make_kernel(candidate, selection, rotation)
+            _tune_threads(kernels[candidate], table)
+        except BackendError as exc:
+            notes.append(f"{candidate} unavailable: {str(exc).splitlines()[0]}")
+        if progress is not None:
+            progress(0.5 * (i + 1) / len(COMPILED))
+    usable = {k: v for k, v in kernels.items() if v.supports(table)}
+    if not usable:
+        return kernels, "numpy", ("numpy (auto: no compiled backend"
+                                  + "".join(f"; {n}" for n in notes) + ")")
+    timings = measure(usable, table, progress=progress)
+    best = min(timings, key=lambda k: timings[k])
+    measured = ", ".join(f"{k} {v:.0f} us" for k, v in sorted(timings.items()))
+    extra = "".join(f"; {n}" for n in notes)
+    why = (f"{kernels[best].describe()} (auto: fastest median at K={table.modes}: "
+           f"{measured}{extra})")
+    return kernels, best, why
+
+
+def _tune_threads(kernel: Any, table: ModeTable) -> None:
+    """Let a kernel with a parallel variant use it only where it is clearly faster (below
+    three quarters of the serial time, measured interleaved)."""
+    if not getattr(kernel, "can_parallel", False) or not kernel.supports(table):
+        return
+    serial, parallel = [], []
+    for _ in range(6):
+        kernel.parallel = False
+        serial.append(median_microseconds(kernel, table, calls=2))
+        kernel.parallel = True
+        parallel.append(median_microseconds(kernel, table, calls=2))
+    kernel.parallel = float(np.median(parallel)) < 0.75 * float(np.median(serial))
+
+
+def measure(
+    kernels: dict[str, Kernel], table: ModeTable, *, rounds: int = 4, calls: int = 5,
+    progress: Callable[[float], None] | None = None,
+) -> dict[str, float]:
+    """Median microseconds per pose of each kernel, in interleaved rounds (so that load from
+    other processes hits all alike)."""
+    samples: dict[str, list[float]] = {k: [] for k in kernels}
+    for r in range(rounds):
+        for name, kernel in kernels.items():
+            samples[name].append(median_microseconds(kernel, table, calls=calls))
+        if progress is not None:
+            progress(0.5 + 0.5 * (r + 1) / rounds)
+    return {k: float(np.median(v)) for k, v in samples.items()}
+
+
+def median_microseconds(kernel: Any, table: ModeTable, calls: int = 30) -> float:
+    """Median wall time of ``kernel.pose`` at a few generic poses (after one warm-up)."""
+    rng = np.random.default_rng(0)
+    g = table.geometry
+    rot = rotation_matrix(rng.normal(size=3))
+    kernel.pose(table, rot, g.centre_fixed - rot @ g.centre_moving)
+    times = []
+    for _ in range(calls):
+        rot = rotation_matrix(rng.normal(size=3))
+        t = g.centre_fixed - rot @ g.centre_moving + rng.normal(size=3)
+        start = time.perf_counter()
+        kernel.pose(table, rot, t)
+        times.append(time.perf_counter() - start)
+    return float(np.median(times) * 1e6)
