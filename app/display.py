@@ -6,8 +6,10 @@ No Qt here: this runs before Qt is imported, because Qt reads ``DISPLAY`` when i
 from __future__ import annotations
 
 import atexit
+import ctypes
 import os
 import shutil
+import signal
 import subprocess
 import sys
 
@@ -27,7 +29,8 @@ def start_virtual_screen(width: int = 1920, height: int = 1080) -> str | None:
     """Start Xvfb on a free display number, set ``DISPLAY``, and return it (``":N"``).
 
     None when Xvfb is not installed or does not start. The server stops when this process
-    exits.
+    exits, and on Linux also when it is killed (the kernel sends Xvfb SIGTERM when its
+    parent dies, ``PR_SET_PDEATHSIG``), so a crashed or killed window leaves no server.
     """
     exe = shutil.which("Xvfb")
     if exe is None:
@@ -36,6 +39,7 @@ def start_virtual_screen(width: int = 1920, height: int = 1080) -> str | None:
     proc = subprocess.Popen(
         [exe, "-displayfd", str(w), "-screen", "0", f"{width}x{height}x24", "-nolisten", "tcp"],
         pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
     )
     os.close(w)
     with os.fdopen(r) as f:
@@ -48,6 +52,18 @@ def start_virtual_screen(width: int = 1920, height: int = 1080) -> str | None:
     display = f":{number}"
     os.environ["DISPLAY"] = display
     return display
+
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:
+    """In the forked child before exec: ask the kernel for SIGTERM when the parent dies, and
+    leave the terminal's process group, so that Ctrl+C reaches the window (which then closes
+    cleanly and stops this server) rather than killing the screen under it."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    os.setpgid(0, 0)
 
 
 def ensure_screen(program: str) -> str | None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import socket
 import sys
 from pathlib import Path
 
@@ -31,6 +34,49 @@ def check_display() -> str | None:
     from app.display import ensure_screen
 
     return ensure_screen("skelasm")
+
+
+_signal_wakeup: list = []
+
+
+def _quit_on_signals(app, window) -> list[int]:
+    """Close the window and leave the event loop on SIGINT (Ctrl+C) or SIGTERM.
+
+    Python runs its signal handlers only between bytecodes, and Qt's event loop runs none
+    while it waits: the signal also writes a byte to a socket that Qt watches
+    (:func:`signal.set_wakeup_fd`), which wakes the loop at once. Returns a list that
+    receives the signal numbers caught.
+    """
+    from PySide6 import QtCore
+
+    caught: list[int] = []
+    receive, send = socket.socketpair()
+    receive.setblocking(False)
+    send.setblocking(False)
+    signal.set_wakeup_fd(send.fileno())
+    notifier = QtCore.QSocketNotifier(receive.fileno(), QtCore.QSocketNotifier.Type.Read, app)
+
+    def drain() -> None:
+        try:
+            receive.recv(64)
+        except OSError:
+            pass
+
+    notifier.activated.connect(drain)
+    _signal_wakeup[:] = [receive, send, notifier]  # alive as long as the application
+
+    def finish() -> None:
+        window.close()
+        app.quit()
+
+    def handler(signum, frame) -> None:
+        if not caught:
+            QtCore.QTimer.singleShot(0, finish)
+        caught.append(signum)
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return caught
 
 
 def run(scene: str | None = None, *, screenshot: str | None = None,
@@ -67,7 +113,12 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
             app.quit()
 
         QtCore.QTimer.singleShot(int(quit_after * 1000), finish)
+    interrupted = _quit_on_signals(app, window)
     app.exec()
+    # a second Ctrl+C while background work winds down leaves at once, without a traceback
+    signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+    if interrupted:
+        status["code"] = 130
     # free the window (Qt, VTK, the engine thread) while the interpreter is whole: left to
     # shutdown, a half-torn-down VTK object crashed it ("none_dealloc") now and then
     window.close()
