@@ -6,9 +6,11 @@ unit. Every part is converted into the scene's unit. Two checks warn, once per s
 
 - a scene that declares no ``units`` and holds a mesh part without a ``unit`` (the mesh is
   read as millimetres, which is wrong for the many OBJ files drawn in metres);
-- parts whose sizes differ by a factor near 25.4, 1000, 100 or 10: the signature of a part
-  read in the wrong unit (an inch declaration on a part drawn in millimetres, a mesh in
-  metres read as millimetres). The message names the units that would explain it.
+- two parts whose sizes differ by a factor near 25.4, 1000, 100 or 10 (after allowing for
+  mating parts of somewhat different size): the signature of a part read in the wrong
+  unit, such as an inch declaration on a part drawn in millimetres, or a mesh in metres
+  read as millimetres. The message names the part, the unit it was read in and where that
+  came from, the unit that would explain it, and the ``unit`` line that fixes it.
 """
 
 from __future__ import annotations
@@ -22,15 +24,15 @@ from engine.loading import Part, load_part
 from engine.params import LENGTH_UNITS
 from engine.scene.model import Scene
 
-#: Size ratios that betray a unit mix-up, with the unit pairs that produce them.
-SUSPICIOUS_RATIOS: dict[float, tuple[tuple[str, str], ...]] = {
-    25.4: (("in", "mm"),),
-    1000.0: (("m", "mm"), ("mm", "um")),
-    100.0: (("m", "cm"),),
-    10.0: (("cm", "mm"), ("m", "dm")),
-}
-#: How close (relative) a size ratio must come to a suspicious one to warn.
-RATIO_TOLERANCE = 0.08
+#: Size ratios that betray a unit mix-up (a part read in a unit this many times too large).
+UNIT_FACTORS = (25.4, 1000.0, 100.0, 10.0)
+#: Parts of one assembly whose largest sides differ by less than this are never suspected.
+COMPARABLE_RATIO = 4.0
+#: How far apart two mating parts' sizes may be once a suspected unit error is undone.
+MATING_SPREAD = 3.0
+#: Without other evidence (both parts' units from the same kind of source and equal), only a
+#: ratio this close (relative) to a unit factor is suspected.
+EXACT_TOLERANCE = 0.1
 
 
 def load_scene_parts(scene: Scene) -> list[Part]:
@@ -40,19 +42,17 @@ def load_scene_parts(scene: Scene) -> list[Part]:
     converted, and the unit checks of this module add theirs (each once per scene).
     """
     parts: list[Part] = []
-    origins: list[str] = []  # where each part's unit came from, for the messages
-    unitless: list[int] = []
-    for i, spec in enumerate(scene.parts):
+    units: list[str] = []  # each part's unit before conversion
+    kinds: list[str] = []  # where it came from: "part" (its [[part]]), "header", "mesh"
+    for spec in scene.parts:
         part = load_part(spec.file, tolerance=spec.tolerance, body=spec.body, unit=spec.unit)
         notes = list(part.warnings)
         if spec.unit is not None:
-            unit, origin = spec.unit, f"read as {spec.unit} by its [[part]] unit"
+            unit, kind = spec.unit, "part"
         elif part.unit in LENGTH_UNITS:
-            unit, origin = part.unit, f"declared {part.unit} by its STEP header"
+            unit, kind = part.unit, "header"
         else:
-            unit = scene.units
-            origin = f"a mesh file without a unit, read in the scene's {scene.units}"
-            unitless.append(i)
+            unit, kind = scene.units, "mesh"
         vertices = part.vertices
         if unit != scene.units:
             factor = LENGTH_UNITS[unit] / LENGTH_UNITS[scene.units]
@@ -61,55 +61,88 @@ def load_scene_parts(scene: Scene) -> list[Part]:
                          f"(x{factor:g})")
         parts.append(replace(part, name=spec.name, vertices=vertices, unit=scene.units,
                              warnings=tuple(notes)))
-        origins.append(origin)
+        units.append(unit)
+        kinds.append(kind)
 
-    if unitless and not scene.units_declared:
-        i = unitless[0]
-        names = ", ".join(repr(scene.parts[j].name) for j in unitless)
-        parts[i] = _warn(parts[i], (
+    meshes = [i for i, k in enumerate(kinds) if k == "mesh"]
+    if meshes and not scene.units_declared:
+        names = ", ".join(repr(scene.parts[j].name) for j in meshes)
+        parts[meshes[0]] = _warn(parts[meshes[0]], (
             f"{scene.path}: the scene declares no units, and {names} "
-            f"{'is a mesh file' if len(unitless) == 1 else 'are mesh files'} (STL, OBJ, PLY, "
+            f"{'is a mesh file' if len(meshes) == 1 else 'are mesh files'} (STL, OBJ, PLY, "
             f"OFF carry no unit): read as {scene.units}. If that is wrong (OBJ files are often "
             'in metres), add `units = "m"` (or the right unit) at the top of the scene, or '
             '`unit = "m"` to the part\'s [[part]]'))
     if len(parts) >= 2:
-        message = unit_mismatch(parts, [s.name for s in scene.parts], origins, scene.units)
+        sizes = [float(np.max(p.extent)) for p in parts[:2]]
+        pair = [s.name for s in scene.parts[:2]]
+        message = unit_mismatch(sizes, pair, units[:2], kinds[:2], scene.units)
         if message is not None:
-            parts[-1] = _warn(parts[-1], f"{scene.path}: {message}")
+            parts[1] = _warn(parts[1], f"{scene.path}: {message}")
     return parts
 
 
-def unit_mismatch(parts: list[Part], names: list[str], origins: list[str], units: str
-                  ) -> str | None:
-    """A warning when two parts' sizes differ by a factor near a unit ratio, else None.
+_SOURCES = {"part": "its [[part]] unit", "header": "its STEP header",
+            "mesh": "a mesh file carries none: the scene's unit"}
+
+
+def unit_mismatch(sizes: list[float], names: list[str], units: list[str], kinds: list[str],
+                  scene_units: str) -> str | None:
+    """A warning when two parts' sizes betray a unit mix-up, else None.
+
+    Mating parts are of comparable size. When the larger part's largest side is many times
+    the smaller's, and dividing the ratio by a unit factor (25.4, 1000, 100, 10) brings it
+    within :data:`MATING_SPREAD` of 1, one part was most likely read in the wrong unit. That
+    is suspected when the two parts' units differ or only one is a mesh file without a
+    unit; when their units agree and come from the same kind of source, only a ratio
+    within :data:`EXACT_TOLERANCE` of a factor is.
 
     Parameters
     ----------
-    parts : list of Part
-        The parts, converted into ``units``.
-    names, origins : list of str
-        Each part's name and where its unit came from.
-    units : str
-        The scene's unit.
+    sizes : list of 2 float
+        Largest bounding-box side of each part, in the scene's unit.
+    names : list of 2 str
+    units : list of 2 str
+        The unit each part was read in (before conversion into the scene's).
+    kinds : list of 2 str
+        Where that unit came from: ``"part"`` (its ``[[part]]``), ``"header"`` (its STEP
+        header) or ``"mesh"`` (a mesh file without one: the scene's unit).
+    scene_units : str
     """
-    sizes = [float(np.max(p.extent)) for p in parts]
-    big = int(np.argmax(sizes))
-    small = int(np.argmin(sizes))
-    if sizes[small] <= 0:
+    if min(sizes) <= 0:
         return None
+    big = int(np.argmax(sizes))
+    small = 1 - big
     ratio = sizes[big] / sizes[small]
-    for factor, pairs in SUSPICIOUS_RATIOS.items():
-        if abs(math.log(ratio / factor)) < math.log1p(RATIO_TOLERANCE):
-            causes = " or ".join(f"a part in {a} read as {b}" for a, b in pairs)
-            return (
-                f"parts {names[big]!r} ({sizes[big]:.4g} {units}) and {names[small]!r} "
-                f"({sizes[small]:.4g} {units}) differ in size by a factor of {ratio:.4g}, close "
-                f"to {factor:g}: the likely cause is {causes} ({names[big]!r}: "
-                f"{origins[big]}; {names[small]!r}: {origins[small]}). If so, give that "
-                "part's [[part]] the unit its file is really in, e.g. "
-                f'`unit = "{pairs[0][1]}"` for {names[big]!r}'
-            )
-    return None
+    if ratio < COMPARABLE_RATIO:
+        return None
+    factor = min(UNIT_FACTORS, key=lambda k: abs(math.log(ratio / k)))
+    rest = ratio / factor
+    if abs(math.log(rest)) > math.log(MATING_SPREAD):
+        return None
+    evidence = units[0] != units[1] or (kinds[0] != kinds[1] and "mesh" in kinds)
+    if not evidence and abs(math.log(rest)) > math.log1p(EXACT_TOLERANCE):
+        return None
+    # the suspect: a part whose unit stands apart (a mesh read in the scene's unit, or a
+    # unit unlike the other part's); the larger one was read in too large a unit
+    suspect = big
+    if kinds[small] == "mesh" and kinds[big] != "mesh":
+        suspect = small
+    metres = LENGTH_UNITS[units[suspect]] * (1 / factor if suspect == big else factor)
+    right = next((u for u, m in LENGTH_UNITS.items() if math.isclose(m, metres, rel_tol=1e-9)),
+                 None)
+    if right is not None:
+        really, fix = right, f'give its [[part]] `unit = "{right}"`'
+    else:
+        really = f"a unit {factor:g} times {'smaller' if suspect == big else 'larger'}"
+        fix = "give its [[part]] the unit its file is drawn in"
+    return (
+        f"parts {names[big]!r} ({sizes[big]:.4g} {scene_units}) and {names[small]!r} "
+        f"({sizes[small]:.4g} {scene_units}) differ in size by a factor of {ratio:.4g}, "
+        f"close to {factor:g}: likely {names[suspect]!r} is not in {units[suspect]}, the unit "
+        f"it was read in ({_SOURCES[kinds[suspect]]}), but in {really}. If so, {fix}; if "
+        "the parts really differ this much, ignore this"
+    )
 
 
 def _warn(part: Part, line: str) -> Part:

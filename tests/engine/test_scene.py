@@ -381,3 +381,138 @@ def test_scene_part_body_selects_a_solid(tmp_path):
     coarse = load_scene_parts(load_scene(write(tmp_path, path.read_text().replace(
         "tolerance = 0.01", "tolerance = 0.2"), "coarse.toml")))[1]
     assert pin.triangles > coarse.triangles
+
+
+# --------------------------------------------------------------------------- units
+INCH_FROM_MM = """#658 = ( CONVERSION_BASED_UNIT('INCH',#90001) LENGTH_UNIT() NAMED_UNIT(#90002) );
+#90001 = LENGTH_MEASURE_WITH_UNIT(LENGTH_MEASURE(25.4),#90003);
+#90002 = DIMENSIONAL_EXPONENTS(1.,0.,0.,0.,0.,0.,0.);
+#90003 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );"""
+
+
+def inch_declared_slide(folder: Path) -> Path:
+    """The dovetail slide, drawn in mm, with a header that declares inches (defined from mm,
+    as Pro/E writes it)."""
+    text = (ROOT / "assets" / "dovetail" / "slide.step").read_text()
+    mm = "#658 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );"
+    assert mm in text
+    path = folder / "slide_in.step"
+    path.write_text(text.replace(mm, INCH_FROM_MM))
+    (folder / "block.step").write_bytes((ROOT / "assets" / "dovetail" / "block.step").read_bytes())
+    return path
+
+
+def box_stl(folder: Path, name: str, extents) -> str:
+    import trimesh
+
+    trimesh.creation.box(extents=extents).export(folder / name)
+    return name
+
+
+def two_part_scene(folder: Path, first: str, second: str, head: str = 'units = "mm"',
+                   extra: str = "") -> Path:
+    return write(folder, f"""\
+{head}
+assembled_pose = [0, 0, 0, 0, 0, 0]
+[[part]]
+file = "{first}"
+[[part]]
+file = "{second}"
+{extra}""")
+
+
+def all_warnings(parts):
+    return [w for p in parts for w in p.warnings]
+
+
+def test_wrong_inch_declaration_loads_as_declared_warns_and_a_part_unit_fixes_it(tmp_path):
+    inch_declared_slide(tmp_path)
+    block, slide = load_scene_parts(load_scene(two_part_scene(tmp_path, "block.step",
+                                                              "slide_in.step")))
+    # as declared: 25.4 times the drawn size
+    np.testing.assert_allclose(slide.bounds, 25.4 * np.array([(-10, -30, -8), (10, 0, 5)]),
+                               atol=1e-3)
+    mismatch = [w for w in all_warnings([block, slide]) if "differ in size" in w]
+    assert len(mismatch) == 1, all_warnings([block, slide])
+    assert "close to 25.4" in mismatch[0] and "'slide_in' is not in in" in mismatch[0]
+    assert "its STEP header" in mismatch[0] and 'unit = "mm"' in mismatch[0]
+    # the per-part unit fixes it, with a note that it overrides the header
+    fixed = two_part_scene(tmp_path, "block.step", "slide_in.step", extra='unit = "mm"\n')
+    block, slide = load_scene_parts(load_scene(fixed))
+    np.testing.assert_allclose(slide.bounds, [(-10, -30, -8), (10, 0, 5)], atol=1e-6)
+    notes = all_warnings([block, slide])
+    assert not any("differ in size" in w for w in notes), notes
+    assert any("declares in; its coordinates are read as mm" in w for w in notes), notes
+
+
+def test_mesh_in_metres_beside_a_step_in_mm_warns_and_unit_m_fixes_it(tmp_path):
+    (tmp_path / "block.step").write_bytes(
+        (ROOT / "assets" / "dovetail" / "block.step").read_bytes())
+    box_stl(tmp_path, "pin_m.stl", (0.01, 0.01, 0.04))  # a 40 mm pin drawn in metres
+    parts = load_scene_parts(load_scene(two_part_scene(tmp_path, "block.step", "pin_m.stl")))
+    mismatch = [w for w in all_warnings(parts) if "differ in size" in w]
+    assert len(mismatch) == 1 and "close to 1000" in mismatch[0], all_warnings(parts)
+    assert "'pin_m' is not in mm" in mismatch[0] and 'unit = "m"' in mismatch[0]
+    fixed = load_scene_parts(load_scene(two_part_scene(tmp_path, "block.step", "pin_m.stl",
+                                                       extra='unit = "m"\n')))
+    np.testing.assert_allclose(fixed[1].extent, [10, 10, 40], rtol=1e-6)  # STL is float32
+    assert not any("differ in size" in w for w in all_warnings(fixed))
+
+
+def test_parts_that_really_differ_in_size_do_not_cry_wolf(tmp_path):
+    box_stl(tmp_path, "plate.stl", (60, 60, 5))
+    box_stl(tmp_path, "pin.stl", (5, 5, 5))  # 12 times smaller: near 10, but same units
+    parts = load_scene_parts(load_scene(two_part_scene(tmp_path, "plate.stl", "pin.stl")))
+    assert all_warnings(parts) == []
+    box_stl(tmp_path, "pin10.stl", (6, 6, 6))  # exactly 10 times smaller, one unit source
+    parts = load_scene_parts(load_scene(two_part_scene(tmp_path, "plate.stl", "pin10.stl")))
+    assert any("close to 10:" in w for w in all_warnings(parts))
+
+
+def test_a_scene_of_meshes_without_units_says_so_once(tmp_path):
+    box_stl(tmp_path, "a.stl", (0.04, 0.04, 0.02))
+    box_stl(tmp_path, "b.stl", (0.01, 0.01, 0.03))
+    path = two_part_scene(tmp_path, "a.stl", "b.stl", head="")
+    scene = load_scene(path)
+    assert scene.units == "mm" and not scene.units_declared
+    parts = load_scene_parts(scene)
+    notes = all_warnings(parts)
+    assert len([w for w in notes if "declares no units" in w]) == 1, notes
+    assert "'a', 'b' are mesh files" in notes[0] and 'units = "m"' in notes[0]
+    np.testing.assert_allclose(parts[0].extent, [0.04, 0.04, 0.02])  # read as mm, as said
+    # declaring the unit silences it; the meshes are then taken in that unit
+    metres = load_scene(two_part_scene(tmp_path, "a.stl", "b.stl", head='units = "m"'))
+    parts = load_scene_parts(metres)
+    assert all_warnings(parts) == [] and parts[0].unit == "m"
+    # a scene of STEP parts without units is not warned about (STEP files carry a unit)
+    scene_dir = tmp_path / "steps"
+    scene_dir.mkdir()
+    for name in ("block.step", "slide.step"):
+        (scene_dir / name).write_bytes((ROOT / "assets" / "dovetail" / name).read_bytes())
+    steps = load_scene_parts(load_scene(two_part_scene(scene_dir, "block.step", "slide.step",
+                                                       head="")))
+    assert all_warnings(steps) == []
+
+
+@pytest.mark.parametrize("unit,scale", [("dm", 100.0), ("cm", 10.0), ("in", 25.4),
+                                        ("um", 1e-3), ("ft", 304.8), ("m", 1000.0)])
+def test_per_part_unit_converts_mesh_into_the_scene_unit(tmp_path, unit, scale):
+    box_stl(tmp_path, "a.stl", (2, 2, 1))
+    path = two_part_scene(tmp_path, "a.stl", "a.stl", extra=f'name = "b"\nunit = "{unit}"\n')
+    a, b = load_scene_parts(load_scene(path))
+    np.testing.assert_allclose(b.extent, scale * np.array([2, 2, 1]), rtol=1e-12)
+    np.testing.assert_allclose(a.extent, [2, 2, 1])
+    assert a.unit == b.unit == "mm"
+    assert any(f"converted from {unit} to the scene's mm" in w for w in b.warnings)
+
+
+def test_scene_in_feet_or_decimetres_converts_step_parts(tmp_path):
+    for name in ("block.step", "slide.step"):
+        (tmp_path / name).write_bytes((ROOT / "assets" / "dovetail" / name).read_bytes())
+    for units, per_mm in (("ft", 1 / 304.8), ("dm", 0.01)):
+        scene = load_scene(two_part_scene(tmp_path, "block.step", "slide.step",
+                                          head=f'units = "{units}"'))
+        block, slide = load_scene_parts(scene)
+        np.testing.assert_allclose(slide.bounds, per_mm * np.array([(-10, -30, -8), (10, 0, 5)]),
+                                   rtol=1e-9, atol=1e-12)
+        assert slide.unit == units
