@@ -335,18 +335,28 @@ def check_mesh(
     if tol > 0 and len(v) > 1:
         v, f = _weld(v, f, tol)
 
-    # degenerate and duplicate triangles
+    # degenerate triangles: a repeated vertex (welding collapsed an edge) is dropped, which
+    # keeps a closed surface closed; three distinct collinear corners are removed by an edge
+    # flip with the neighbour across the longest edge, which keeps it closed and unchanged
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
-    areas = _areas(v, f)
-    flat = areas <= (1e-10 * max(diagonal, 1e-300)) ** 2
-    degenerate = repeated | flat
-    if degenerate.any():
+    if repeated.any():
         if report_degenerate:
             warnings.append(
-                f"{source}: dropped {int(degenerate.sum())} degenerate triangles (zero area or "
-                "a repeated vertex); harmless, but a finer or cleaner export avoids them"
+                f"{source}: dropped {int(repeated.sum())} degenerate triangles (a repeated "
+                "vertex); harmless, but a finer or cleaner export avoids them"
             )
-        f = f[~degenerate]
+        f = f[~repeated]
+    f, flipped_flat, dropped_flat = _flip_collinear(v, f, max(tol, 1e-12 * diagonal))
+    if flipped_flat and report_degenerate:
+        warnings.append(
+            f"{source}: {flipped_flat} zero-area triangles (three collinear corners) were "
+            "removed by edge flips with their neighbours; the surface is unchanged"
+        )
+    if dropped_flat:
+        warnings.append(
+            f"{source}: dropped {dropped_flat} degenerate triangles (zero area, with no single "
+            "neighbour to flip with); check the mesh near them"
+        )
     if len(f):
         _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
         if len(first) < len(f):
@@ -791,6 +801,72 @@ def _weld(v: np.ndarray, f: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndar
     remap_label = np.empty(labels.max() + 1, dtype=np.int64)
     remap_label[label_ids] = new_index_of_label
     return v[np.sort(reps)], remap_label[labels][f]
+
+
+def _heights(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(m,) height of each triangle over its longest side, and (m,) which corner (0..2)
+    lies opposite that side."""
+    p = v[f]  # (m, 3, 3)
+    sides = np.stack([p[:, 2] - p[:, 1], p[:, 0] - p[:, 2], p[:, 1] - p[:, 0]], axis=1)
+    lengths = np.linalg.norm(sides, axis=2)  # (m, 3): side k is opposite corner k
+    opposite = np.argmax(lengths, axis=1)
+    longest = lengths[np.arange(len(f)), opposite]
+    area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return area2 / np.maximum(longest, 1e-300), opposite
+
+
+def _flip_collinear(v: np.ndarray, f: np.ndarray, tol: float, rounds: int = 20
+                    ) -> tuple[np.ndarray, int, int]:
+    """Remove triangles whose three distinct corners are collinear, keeping the surface closed.
+
+    A triangle ``(x, y, m)`` whose corner ``m`` lies within ``tol`` of its longest side
+    ``x-y`` is flipped with the one neighbour across that side, ``(y, x, c)``: the two
+    become ``(m, x, c)`` and ``(y, m, c)``, the neighbour split at ``m``. The surface is the
+    same point set, every edge keeps its two triangles, and the winding is kept. A flat
+    triangle with no single neighbour across its longest side is dropped (counted apart).
+
+    Returns the faces, how many triangles were flipped away and how many were dropped.
+    """
+    flipped = dropped = 0
+    f = f.copy()
+    for _ in range(rounds):
+        if len(f) == 0:
+            break
+        heights, opposite = _heights(v, f)
+        flat = np.nonzero(heights <= tol)[0]
+        if len(flat) == 0:
+            break
+        changed: set[int] = set()
+        drop: list[int] = []
+        for d in flat.tolist():
+            if d in changed:
+                continue  # a neighbour of an earlier flip this round: look again next round
+            k = int(opposite[d])
+            m = int(f[d, k])
+            x, y = int(f[d, (k + 1) % 3]), int(f[d, (k + 2) % 3])  # d runs x -> y -> m
+            across = np.nonzero((f == x).any(axis=1) & (f == y).any(axis=1))[0]
+            across = across[across != d]
+            if len(across) != 1 or int(across[0]) in changed:
+                if len(across) != 1:
+                    drop.append(d)
+                    changed.add(d)
+                continue
+            n = int(across[0])
+            c = int(next(q for q in f[n].tolist() if q not in (x, y)))
+            if c == m:  # two flat triangles back to back: a fin, no area on either side
+                drop.extend([d, n])
+                changed.update((d, n))
+                continue
+            f[d] = (m, x, c)
+            f[n] = (y, m, c)
+            changed.update((d, n))
+            flipped += 1
+        if drop:
+            keep = np.ones(len(f), dtype=bool)
+            keep[drop] = False
+            f = f[keep]
+            dropped += len(drop)
+    return f, flipped, dropped
 
 
 def _directed_edges(f: np.ndarray) -> np.ndarray:

@@ -16,7 +16,9 @@ from engine.loading import (
     load_part,
     load_parts,
     part_from_mesh,
+    step_products,
     step_unit,
+    step_units,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -113,6 +115,98 @@ def test_step_unit_parser():
     inch = ("#5 = ( CONVERSION_BASED_UNIT('INCH',#6) LENGTH_UNIT() NAMED_UNIT(#7) );")
     assert step_unit(inch) == ("in", 0.0254)
     assert step_unit("nothing here") is None
+    assert step_unit("#1=(LENGTH_UNIT()NAMED_UNIT(*)SI_UNIT(.DECI.,.METRE.));") == ("dm", 0.1)
+
+
+CONTEXT = """DATA;
+#10 = ( GEOMETRIC_REPRESENTATION_CONTEXT(3) GLOBAL_UNCERTAINTY_ASSIGNED_CONTEXT((#14))
+GLOBAL_UNIT_ASSIGNED_CONTEXT((#11,#12,#13)) REPRESENTATION_CONTEXT('','') );
+{units}
+#12 = ( NAMED_UNIT(*) PLANE_ANGLE_UNIT() SI_UNIT($,.RADIAN.) );
+#13 = ( NAMED_UNIT(*) SI_UNIT($,.STERADIAN.) SOLID_ANGLE_UNIT() );
+ENDSEC;
+"""
+
+
+@pytest.mark.parametrize(
+    "units,expected",
+    [
+        # an inch defined from a millimetre written after it: the millimetre is no declaration
+        ("#11 = ( CONVERSION_BASED_UNIT('INCH',#20) LENGTH_UNIT() NAMED_UNIT(#21) );\n"
+         "#20 = LENGTH_MEASURE_WITH_UNIT(LENGTH_MEASURE(25.4),#22);\n"
+         "#21 = DIMENSIONAL_EXPONENTS(1.,0.,0.,0.,0.,0.,0.);\n"
+         "#22 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );", [("in", 0.0254)]),
+        # the same, the millimetre first
+        ("#9 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );\n"
+         "#11 = ( CONVERSION_BASED_UNIT('INCH',#20) LENGTH_UNIT() NAMED_UNIT(#21) );\n"
+         "#20 = LENGTH_MEASURE_WITH_UNIT(LENGTH_MEASURE(25.4),#9);", [("in", 0.0254)]),
+        # a conversion under another name is matched by its length
+        ("#11 = ( CONVERSION_BASED_UNIT('DECIMETRE',#20) LENGTH_UNIT() NAMED_UNIT(#21) );\n"
+         "#20 = LENGTH_MEASURE_WITH_UNIT(LENGTH_MEASURE(100.),#22);\n"
+         "#22 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );", [("dm", 0.1)]),
+        ("#11 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.CENTI.,.METRE.) );", [("cm", 0.01)]),
+    ],
+)
+def test_step_units_come_from_the_geometry_context(units, expected):
+    text = CONTEXT.format(units=units)
+    assert step_units(text) == expected
+    assert step_unit(text) == expected[0]
+
+
+def test_inch_declaration_is_read_as_declared_and_a_unit_overrides_it(tmp_path):
+    text = (ASSETS / "dovetail/slide.step").read_text()
+    mm = "#658 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );"
+    inch = ("#658 = ( CONVERSION_BASED_UNIT('INCH',#90001) LENGTH_UNIT() NAMED_UNIT(#90002) );"
+            "\n#90001 = LENGTH_MEASURE_WITH_UNIT(LENGTH_MEASURE(25.4),#90003);"
+            "\n#90002 = DIMENSIONAL_EXPONENTS(1.,0.,0.,0.,0.,0.,0.);"
+            "\n#90003 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );")
+    path = tmp_path / "slide_in.step"
+    path.write_text(text.replace(mm, inch))
+    part = load_part(path)
+    assert part.unit == "in" and part.warnings == ()
+    # the numbers written in the file, labelled with the declared unit
+    np.testing.assert_allclose(part.bounds, [(-10, -30, -8), (10, 0, 5)], atol=1e-4)
+    again = load_part(path, unit="mm", tolerance=0.01)
+    assert again.unit == "mm"
+    np.testing.assert_allclose(again.bounds, part.bounds, atol=1e-4)
+    assert any("declares in; its coordinates are read as mm" in w for w in again.warnings)
+    with pytest.raises(PartError, match="unknown length unit 'yard'"):
+        load_part(path, unit="yard")
+
+
+def test_several_declared_units_are_reported(tmp_path):
+    text = (DATA / "two_bodies.step").read_text()
+    mm = "SI_UNIT(.MILLI.,.METRE.)"
+    assert text.count(mm) == 3
+    last = text.rindex(mm)
+    path = tmp_path / "mixed.step"
+    path.write_text(text[:last] + "SI_UNIT(.CENTI.,.METRE.)" + text[last + len(mm):])
+    parts = load_parts(path)
+    assert any("declares several length units (mm, cm)" in w for w in parts[0].warnings)
+
+
+def test_anonymous_bodies_take_their_product_ids(tmp_path):
+    import re
+
+    text = (DATA / "two_bodies.step").read_text()
+    # some exporters write the real name as the product's id and a generic one as its name
+    renamed = re.sub(r"PRODUCT\('(block|peg)',\s*'(block|peg)'",
+                     lambda m: f"PRODUCT('{m.group(1)}','SOLID'", text)
+    assert renamed.count("'SOLID'") == 2
+    path = tmp_path / "anonymous.step"
+    path.write_text(renamed)
+    assert step_products(renamed) == [("block", "SOLID"), ("peg", "SOLID")]
+    parts = load_parts(path)
+    assert [p.name for p in parts] == ["block", "peg"]
+    np.testing.assert_allclose(parts[1].bounds[:, 2], [-15, 15], atol=1e-4)  # the peg
+
+
+def test_mesh_takes_the_unit_it_is_given(tmp_path):
+    import trimesh
+
+    trimesh.creation.box(extents=(1, 1, 1)).export(tmp_path / "b.obj")
+    assert load_part(tmp_path / "b.obj").unit == "unspecified"
+    assert load_part(tmp_path / "b.obj", unit="dm").unit == "dm"
 
 
 def test_multibody_step_gives_named_parts():
@@ -275,7 +369,10 @@ def test_degenerate_and_duplicate_triangles_are_dropped():
     extra = np.array([[0, 0, 5], [0, 8, 1], [2, 3, 7]])  # repeated, zero area, duplicate
     v2, f2, warnings = check_mesh(v, np.vstack([f, extra]), source="d.off")
     assert len(f2) == 12
-    assert any("dropped 2 degenerate triangles" in w for w in warnings), warnings
+    assert any("dropped 1 degenerate triangles (a repeated vertex)" in w for w in warnings)
+    # the dangling flat triangle shares its long side with two box faces: nothing to flip with
+    assert any("dropped 1 degenerate triangles (zero area, with no single neighbour" in w
+               for w in warnings), warnings
     assert any("dropped 1 duplicate triangles" in w for w in warnings), warnings
     assert len(v2) == 8  # the unused midpoint is gone
 
@@ -329,3 +426,86 @@ def test_obj_with_two_objects_is_one_part(tmp_path):
     part = load_part(path)
     assert part.triangles == 24 and part.volume == pytest.approx(2.0)
     np.testing.assert_allclose(part.bounds, [(-0.5, -0.5, -0.5), (5.5, 0.5, 0.5)])
+
+
+# --------------------------------------------------------------------------- closed CAD meshes
+def cad_style_box():
+    """A 2 x 2 x 2 box tessellated as CAD exporters do: a vertex in the middle of the edge
+    between corners 4 and 5, a fan from it over the face x = +1, and on the face y = -1 a
+    zero-area triangle (4, m, 5) whose three distinct corners are collinear. Written as a
+    triangle soup (each triangle its own vertices), as GLB and STL store it.
+
+    Returns (vertices (n, 3), faces (m, 3)) with every edge paired once it is welded.
+    """
+    v, _ = box_mesh()
+    v = np.vstack([v, [[1.0, -1.0, 0.0]]])  # 8: midpoint of edge 4-5
+    centre = np.zeros(3)
+    faces = [
+        [0, 1, 3], [0, 3, 2], [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3],
+        [8, 4, 6], [8, 6, 7], [8, 7, 5],  # fan over x = +1 from the edge's midpoint
+        [0, 4, 5], [0, 5, 1],  # y = -1
+    ]
+    oriented = []
+    for tri in faces:
+        a, b, c = v[tri]
+        normal = np.cross(b - a, c - a)
+        oriented.append(tri if normal @ ((a + b + c) / 3 - centre) > 0 else tri[::-1])
+    # the flat triangle's winding pairs its edges with its neighbours': 5 -> 4 against (0, 4, 5)
+    oriented.append([5, 4, 8])
+    f = np.array(oriented)
+    return v[f].reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3)
+
+
+def test_cad_mesh_with_collinear_corners_stays_closed(tmp_path):
+    import trimesh
+
+    soup_v, soup_f = cad_style_box()
+    reference = trimesh.Trimesh(soup_v, soup_f, process=False)
+    reference.merge_vertices()
+    assert reference.is_watertight  # trimesh calls it closed once welded
+    areas = _tri_areas(soup_v, soup_f)
+    assert (areas == 0).sum() == 1  # the collinear-corner triangle
+
+    v, f, warnings = check_mesh(soup_v, soup_f, source="cad.stl")
+    assert _edge_defects(f) == (0, 0), warnings
+    assert not any("watertight" in w for w in warnings), warnings
+    assert any("removed by edge flips" in w for w in warnings), warnings
+    assert _tri_areas(v, f).min() > 0.1
+    assert len(f) == len(soup_f) - 1 + 1  # the flat triangle gone, its neighbour split in two
+    mesh = trimesh.Trimesh(v, f, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume == pytest.approx(8.0, rel=1e-12)
+    # the same through the file loader, as an STL
+    reference.export(tmp_path / "cad.stl")
+    part = load_part(tmp_path / "cad.stl")
+    assert _edge_defects(part.faces) == (0, 0)
+    assert not any("watertight" in w for w in part.warnings), part.warnings
+    assert part.volume == pytest.approx(8.0, rel=1e-6)
+
+
+def test_flat_triangle_chain_on_one_edge_is_flipped_away():
+    """Two midpoints on one edge: two stacked flat triangles; flips resolve both."""
+    v, _ = box_mesh()
+    v = np.vstack([v, [[1.0, -1.0, -0.5]], [[1.0, -1.0, 0.5]]])  # 8, 9 on edge 4-5
+    faces = [
+        [0, 1, 3], [0, 3, 2], [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3],
+        [8, 4, 6], [8, 6, 9], [9, 6, 7], [9, 7, 5],  # x = +1, fanned through 8 and 9
+        [0, 4, 5], [0, 5, 1],
+    ]
+    oriented = []
+    for tri in faces:
+        a, b, c = v[tri]
+        normal = np.cross(b - a, c - a)
+        oriented.append(tri if normal @ ((a + b + c) / 3) > 0 else tri[::-1])
+    oriented += [[5, 4, 8], [5, 8, 9]]  # flat: 5 -> 4 against (0, 4, 5), then split at 8
+    f = np.array(oriented)
+    assert _edge_defects(f) == (0, 0)
+    v2, f2, warnings = check_mesh(v, f, source="chain.obj")
+    assert _edge_defects(f2) == (0, 0), warnings
+    assert _tri_areas(v2, f2).min() > 0.1
+    assert _signed_volume_positive(v2, f2)
+
+
+def _tri_areas(v, f):
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
