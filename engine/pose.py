@@ -2,7 +2,15 @@
 
 A pose is six numbers ``(tx, ty, tz, rx, ry, rz)``: a translation, then a rotation vector
 in radians (axis times angle). It maps a point ``q`` of the moved part's frame to
-``R q + t``. Quaternions are ``(w, x, y, z)``.
+``R q + t``: the rotation turns about the origin of the part's file. Quaternions are
+``(w, x, y, z)``.
+
+A *pivot pose* is the same six numbers read about a pivot ``c`` of the part (a point of
+its own frame, usually its centre): rotate by ``R`` about ``c``, then move ``c`` by ``t``,
+so ``q -> R (q - c) + c + t``. That is how a person types or drags a pose: a "2 degree
+tilt" of a part drawn far from its file's origin then tilts it in place instead of
+swinging it across the scene. :func:`pivot_to_origin` and :func:`origin_to_pivot` convert
+between the two readings; stored poses (scene files, frames) use the origin reading.
 """
 
 from __future__ import annotations
@@ -123,3 +131,39 @@ def relative_pose(pose_fixed: np.ndarray, pose_moving: np.ndarray) -> np.ndarray
 def compose(pose_a: np.ndarray, pose_b: np.ndarray) -> np.ndarray:
     """(6,) pose of ``a`` after ``b``: ``x -> A (B x)``."""
     return matrix_to_pose(pose_to_matrix(pose_a) @ pose_to_matrix(pose_b))
+
+
+def pivot_to_origin(pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """(6,) origin pose of a pivot pose: ``t_origin = t + c - R c``, rotation unchanged.
+
+    Parameters
+    ----------
+    pose : (6,) float
+        Rotation ``r`` about ``pivot``, then translation ``t`` of the pivot.
+    pivot : (3,) float
+        The pivot ``c`` in the moved part's own frame.
+    """
+    p = np.asarray(pose, dtype=np.float64).reshape(6)
+    c = np.asarray(pivot, dtype=np.float64).reshape(3)
+    return np.concatenate([p[:3] + c - rotation_matrix(p[3:]) @ c, p[3:]])
+
+
+def origin_to_pivot(pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """(6,) pivot pose of an origin pose: ``t = t_origin - c + R c`` (inverse of
+    :func:`pivot_to_origin`)."""
+    p = np.asarray(pose, dtype=np.float64).reshape(6)
+    c = np.asarray(pivot, dtype=np.float64).reshape(3)
+    return np.concatenate([p[:3] - c + rotation_matrix(p[3:]) @ c, p[3:]])
+
+
+def rotate_about(pose: np.ndarray, rotvec: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """(6,) origin pose after turning a placed part by ``rotvec`` about the point ``center``.
+
+    ``rotvec`` (3,) and ``center`` (3,) are in the frame the pose maps into (world, or part
+    1's frame for a relative pose): the rotation a drag applies about the part's centre.
+    """
+    p = np.asarray(pose, dtype=np.float64).reshape(6)
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    r = rotation_matrix(rotvec)
+    turned = r @ rotation_matrix(p[3:])
+    return np.concatenate([r @ (p[:3] - c) + c, rotation_vector(turned)])

@@ -303,9 +303,9 @@ def test_save_and_reload_round_trip_keeps_every_field(scene_dir, tmp_path):
 
 def test_the_gui_saves_through_the_scene_writer_and_it_loads_back(scene_dir, tmp_path):
     from app.gui.scene_file import write_scene
-    from engine.api import open_scene
     from engine.params import CouplingParams, Effects
     from engine.pose import compose
+    from engine.runtime import open_scene
 
     handle = open_scene(write(scene_dir, 'units = "mm"\n' + EVERY_TABLE.replace(
         'unit = "cm"\n', "")))
@@ -516,3 +516,33 @@ def test_scene_in_feet_or_decimetres_converts_step_parts(tmp_path):
         np.testing.assert_allclose(slide.bounds, per_mm * np.array([(-10, -30, -8), (10, 0, 5)]),
                                    rtol=1e-9, atol=1e-12)
         assert slide.unit == units
+
+
+# --------------------------------------------------------------------------- pivots
+def test_part_pivot_is_the_centre_or_the_scene_named_point(tmp_path):
+    import trimesh
+
+    from engine.pose import pivot_to_origin, pose_to_matrix
+    from engine.scene import part_pivot
+
+    # a body drawn far from its file's origin, as bodies of an assembly file are
+    trimesh.creation.box(extents=(4, 4, 10)).apply_translation([75, 0, 5]).export(
+        tmp_path / "pin.stl")
+    box_stl(tmp_path, "base.stl", (20, 20, 5))
+    scene = load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl",
+                                      extra="pose = [0, 0, 3, 0, 0, 0]\n"))
+    base, pin = load_scene_parts(scene)
+    centre = part_pivot(scene.parts[1], pin)
+    np.testing.assert_allclose(centre, [75, 0, 5], atol=1e-5)
+    # a 2 degree tilt typed for the pin turns it in place; the scene's own poses stay
+    # origin poses of part 2 relative to part 1
+    tilt = np.array([0, 0, 0, 0, np.radians(2.0), 0])
+    placed = pivot_to_origin(relative_start_pose(scene) + tilt, centre)
+    np.testing.assert_allclose(pose_to_matrix(placed)[:3] @ np.append(centre, 1.0),
+                               centre + [0, 0, 3], atol=1e-9)
+    np.testing.assert_allclose(relative_start_pose(scene), [0, 0, 3, 0, 0, 0])
+    named = load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl",
+                                      extra="pivot = [75, 0, 0]\n"))
+    np.testing.assert_array_equal(part_pivot(named.parts[1], pin), [75, 0, 0])
+    with pytest.raises(SceneError, match="pivot in \\[\\[part\\]\\] #2 must be 3 numbers"):
+        load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl", extra="pivot = [1, 2]\n"))
