@@ -8,7 +8,7 @@ A scene is a TOML file (the full format is in docs/scenes.md)::
     insertion_axis = [0, 0, -1]             # optional, part 1's frame
 
     [descriptor]      # sigma, penalty, lambda_out, grid | spacing, padding
-    [correlation]     # modes, oversample, refine, fine_modes, selection
+    [correlation]     # modes
     [simulation]      # rate_hz, kappa, guidance_gain, body_damping_ratio, seconds
     [coupling]        # frequency_hz, damping_ratio, stiffness, ... (absolute gains)
     [effects]         # guidance, axes, damping, gravity, gravity_direction

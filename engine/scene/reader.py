@@ -26,7 +26,6 @@ from engine.params import (
     DEVICES,
     GUIDANCE,
     LENGTH_UNITS,
-    MODE_SELECTIONS,
     CorrelationParams,
     CouplingParams,
     DescriptorParams,
@@ -50,8 +49,10 @@ TOP_KEYS = ("name", "units", "assembled_pose", "insertion_axis")
 TABLES = ("descriptor", "correlation", "simulation", "coupling", "effects", "device", "part")
 #: Keys of ``[descriptor]``.
 DESCRIPTOR_KEYS = ("sigma", "penalty", "lambda_out", "grid", "spacing", "padding")
-#: Keys of ``[correlation]``.
-CORRELATION_KEYS = ("modes", "oversample", "refine", "fine_modes", "selection")
+#: Keys of ``[correlation]``. ``CorrelationParams`` also holds oversample, refine,
+#: fine_modes and selection; a scene may set them once the engine builds its correlator
+#: from ``Scene.correlation`` (until then a key that changed nothing would mislead).
+CORRELATION_KEYS = ("modes",)
 #: Keys of ``[simulation]``.
 SIMULATION_KEYS = ("rate_hz", "kappa", "guidance_gain", "body_damping_ratio", "seconds")
 #: Keys of ``[coupling]``.
@@ -322,14 +323,7 @@ def _descriptor(d: _Table) -> DescriptorParams:
 def _correlation(c: _Table) -> CorrelationParams:
     c.reject_unknown(CORRELATION_KEYS)
     base = CorrelationParams()
-    return c.build(
-        CorrelationParams,
-        modes=c.integer("modes", base.modes, minimum=1),
-        oversample=c.number("oversample", base.oversample, minimum=1.0),
-        refine=c.integer("refine", base.refine, minimum=1),
-        fine_modes=c.integer("fine_modes", base.fine_modes, minimum=1),
-        selection=c.choice("selection", base.selection, MODE_SELECTIONS),
-    )
+    return c.build(CorrelationParams, modes=c.integer("modes", base.modes, minimum=1))
 
 
 def _simulation(s: _Table) -> SimulationParams:

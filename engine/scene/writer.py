@@ -23,7 +23,7 @@ from engine.params import (
     gravity_vector,
 )
 from engine.scene.model import Scene, SceneError
-from engine.scene.reader import AXES_WORDS, parse_scene
+from engine.scene.reader import AXES_WORDS, CORRELATION_KEYS, parse_scene
 
 
 def _floats(a: Any) -> list[float]:
@@ -55,7 +55,8 @@ def scene_to_toml(scene: Scene, folder: Path) -> dict[str, Any]:
     if scene.insertion_axis is not None:
         data["insertion_axis"] = _floats(scene.insertion_axis)
     data["descriptor"] = _given(scene.descriptor)
-    data["correlation"] = _given(scene.correlation)
+    data["correlation"] = {k: v for k, v in _given(scene.correlation).items()
+                           if k in CORRELATION_KEYS}
     config = scene.config
     if config.simulation != SimulationParams():
         data["simulation"] = _given(config.simulation)

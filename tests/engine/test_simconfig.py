@@ -67,7 +67,7 @@ def test_unknown_key_names_its_line_and_the_valid_keys(folder):
         ("[device]\nkind = 'trajectory'", "needs a file"),
         ("[device]\nkind = 'mouse'\nport = 5", "unknown key 'port' in \\[device\\]"),
         ("[coupling]\nfrequency_hz = 400", "too stiff"),
-        ("[correlation]\nselection = 'best'", "must be one of cube, largest"),
+        ("[correlation]\nselection = 'best'", "unknown key 'selection' in \\[correlation\\]"),
     ],
 )
 def test_bad_values_name_file_line_and_fix(folder, table, match):
