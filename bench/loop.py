@@ -13,7 +13,7 @@ interpreter:
 - ``--gui``: the real application window rendering beside the loop (``app.gui``, imported
   only then; without a screen a private Xvfb is started), with the engine in its own process
   as ``skelasm gui`` runs it, or in a thread of the window's process with ``--thread``;
-- ``--process``: the loop in its own process (``engine.loop.ProcessEngine``) while the load
+- ``--process``: the loop in its own process (``engine.runtime.ProcessEngine``) while the load
   runs in this one;
 - ``--switch-interval S``: ``sys.setswitchinterval`` while the loop runs (Python's default
   5 ms lets another thread hold the GIL for that long).
@@ -88,7 +88,7 @@ def _vtk_load(stop: threading.Event, counter: list[int]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from engine.loop import period_stats
+    from engine.runtime import period_stats
 
     stop = threading.Event()
     counter = [0]
@@ -124,11 +124,9 @@ def run(args: argparse.Namespace) -> int:
     interval = args.switch_interval
     if interval is None and args.gui:
         # the window starts its engine through start_engine, whose default this is
-        import inspect
+        from engine.runtime import DEFAULT_SWITCH_INTERVAL
 
-        from engine.api import start_engine
-
-        interval = inspect.signature(start_engine).parameters["switch_interval"].default
+        interval = DEFAULT_SWITCH_INTERVAL
     print(f"mode: {'process' if args.process else 'thread'}, load: {args.load}, "
           f"switch interval: {interval or sys.getswitchinterval()} s"
           + (", GUI running" if args.gui else ""))
@@ -153,39 +151,33 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sim_and_model(args: argparse.Namespace):
+def _handle(args: argparse.Namespace):
+    """The scene, rotation locked with ``--translation-only``."""
     from dataclasses import replace
 
-    from engine.api import open_scene
-    from engine.sim import build_simulation
+    from engine.runtime import open_scene
 
     handle = open_scene(args.scene)
-    effects = handle.config.effects
     if args.translation_only:
-        effects = replace(effects, axes=("x", "y", "z"))
-    handle = replace(handle, config=replace(handle.config, effects=effects))
-    if args.fake:
-        from engine.loop import AnalyticWell
-        from engine.sim import CorrelatorField
-
-        sim, model = build_simulation(handle, prepare=False)
-        sim.set_field(CorrelatorField(AnalyticWell(), sim.physics.kappa))
-        return handle, sim, model, "analytic field"
-    sim, model = build_simulation(handle, modes=args.modes, backend=args.backend, prepare=True)
-    c = getattr(sim.field, "correlator", None)
-    return handle, sim, model, getattr(c, "backend_name", type(sim.field).__name__)
+        effects = replace(handle.config.effects, axes=("x", "y", "z"))
+        handle = replace(handle, config=replace(handle.config, effects=effects))
+    return handle
 
 
 def _run_thread(args, load):
     from engine.devices import TrajectoryDevice
-    from engine.loop import EngineLoop, bench_proxy_motion
+    from engine.runtime import AnalyticWell, EngineLoop, bench_trajectory
+    from engine.runtime.guidance import backend_name
+    from engine.sim import build_simulation
 
-    handle, sim, model, field = _sim_and_model(args)
-    pose_at = bench_proxy_motion(sim)
-    ts = np.arange(0.0, args.seconds + 2.0, 0.01)
-    traj = TrajectoryDevice(np.column_stack([ts, np.array([pose_at(t) for t in ts])]))
-    loop = EngineLoop(sim, model=model, device=traj, rate_hz=args.rate, realtime=True,
-                      keep_periods=True, switch_interval=args.switch_interval)
+    handle = _handle(args)
+    sim, model = build_simulation(handle, modes=args.modes, backend=args.backend,
+                                  rate_hz=args.rate, prepare=not args.fake)
+    if args.fake:
+        sim.set_field(AnalyticWell(sim.physics.kappa))
+    traj = TrajectoryDevice(bench_trajectory(sim, args.seconds + 2.0))
+    loop = EngineLoop(sim, model=model, device=traj, realtime=True, keep_periods=True,
+                      switch_interval=args.switch_interval)
     if load is not None:
         load.start()
     warm = int(0.5 * args.rate)
@@ -194,7 +186,7 @@ def _run_thread(args, load):
     eval_us = float(np.median([f.eval_us for f in frames])) if frames else float("nan")
     return np.asarray(loop.periods)[warm:], {
         "what": f"{handle.scene.name} ({Path(args.scene).name})",
-        "field": field,
+        "field": backend_name(sim.field),
         "eval_us": eval_us,
     }
 
@@ -221,18 +213,18 @@ def _report_from_frames(args, info) -> int:
 
 
 def _run_process(args, load):
-    from engine.loop import ProcessEngine
+    from engine.runtime import EngineOptions, ProcessEngine
 
-    options = {
-        "modes": args.modes,
-        "backend": args.backend,
-        "translation_only": args.translation_only,
-        "fake": args.fake,
-        "rate_hz": args.rate,
-        "switch_interval": args.switch_interval,
-        "raise_priority": True,  # as the GUI's engine process (SKELASM_REALTIME=0: off)
-    }
-    engine = ProcessEngine(args.scene, options=options, keep_periods=True)
+    options = EngineOptions(
+        modes=args.modes,
+        backend=args.backend,
+        analytic=args.fake,
+        rate_hz=args.rate,
+        switch_interval=args.switch_interval,
+        raise_priority=True,  # as the GUI's engine process (SKELASM_REALTIME=0: off)
+        keep_periods=True,
+    )
+    engine = ProcessEngine(_handle(args), options)
     engine.start()
     ready = engine.wait_ready(timeout=1800)
     if load is not None:

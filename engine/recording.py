@@ -9,6 +9,7 @@ step (``part_*``), energy, geometric force and torque, haptic force and torque.
 Files: ``.csv`` (header line, numbers written with 17 significant digits so that replay
 is bit-exact) or ``.npz`` (``columns`` and ``rows`` arrays).
 
+Recording: ``engine.runtime.Recorder`` takes these columns from the loop's frame rows.
 Replay: :func:`replay_device` turns a recording into a
 :class:`engine.devices.TrajectoryDevice`; stepping the same scene with it at the same
 rate feeds the exact recorded proxy pose to every step and so reproduces the motion.
@@ -17,7 +18,6 @@ rate feeds the exact recorded proxy pose to every step and so reproduces the mot
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -30,40 +30,6 @@ COLUMNS = (
     "energy", "fx", "fy", "fz", "mx", "my", "mz",
     "haptic_fx", "haptic_fy", "haptic_fz", "haptic_mx", "haptic_my", "haptic_mz",
 )
-
-
-class Recorder:
-    """Collects one row per step; pass :meth:`on_step` to ``EngineLoop(on_step=...)``.
-
-    Runs in the engine thread; rows go to a preallocated, growing float64 buffer.
-    """
-
-    def __init__(self, capacity: int = 10000):
-        self._rows = np.empty((max(16, int(capacity)), len(COLUMNS)), dtype=np.float64)
-        self.count = 0
-
-    def on_step(self, sim: Any, proxy_pose: np.ndarray) -> None:
-        if self.count == len(self._rows):
-            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
-        row = self._rows[self.count]
-        row[0] = sim.step_time  # the step started here; the proxy was read at this time
-        row[1:7] = proxy_pose
-        row[7:13] = sim.part_pose()
-        s = sim.sample
-        row[13] = s.energy
-        row[14:17] = s.force
-        row[17:20] = s.torque
-        row[20:23] = sim.haptic_force
-        row[23:26] = sim.haptic_torque
-        self.count += 1
-
-    @property
-    def rows(self) -> np.ndarray:
-        """(n, 26) float64 view of the recorded rows."""
-        return self._rows[: self.count]
-
-    def save(self, path: str | Path) -> Path:
-        return save_recording(path, self.rows)
 
 
 def save_recording(path: str | Path, rows: np.ndarray) -> Path:

@@ -43,11 +43,9 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from engine.api import open_scene
     from engine.devices import DeviceError, MouseDevice, TrajectoryDevice, open_device
-    from engine.loop import EngineLoop, period_stats
     from engine.pose import relative_pose
-    from engine.recording import Recorder
+    from engine.runtime import EngineLoop, Recorder, open_scene, period_stats
     from engine.sim import build_simulation
 
     handle = open_scene(args.scene)
@@ -85,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         device=device,
         realtime=args.realtime,
         keep_periods=True,
-        on_step=recorder.on_step if recorder else None,
+        on_frame=recorder.on_frame if recorder else None,
     )
     import time
 

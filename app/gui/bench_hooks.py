@@ -33,7 +33,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
     drag_radius : float, optional
         Radius of the proxy's circle, scene units (default: a tenth of the moving part).
     engine_kwargs : dict, optional
-        Passed to ``engine.api.start_engine`` (``rate_hz``, ``modes``, ``backend``,
+        Passed to ``engine.runtime.start_engine`` (``rate_hz``, ``modes``, ``backend``,
         ``switch_interval``, ``process``).
     keep_periods : bool
         Also return ``periods``: every engine loop period (seconds) of the measured time
@@ -59,7 +59,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
     from PySide6 import QtCore, QtWidgets
 
     from app.gui.main_window import MainWindow
-    from engine import api
+    from engine import runtime
 
     app = make_application()
     scene = Path(scene) if scene else DEFAULT_SCENE
@@ -102,17 +102,19 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 pose = start.copy()
                 pose[0] += radius * np.sin(2 * np.pi * 0.5 * t)
                 pose[1] += radius * (1 - np.cos(2 * np.pi * 0.5 * t))
-                win.session.send(api.SetProxyPose(tuple(pose)))
+                win.session.send(runtime.SetProxyPose(tuple(pose)))
                 f = win.latest_frame
                 if f is not None:
                     rates.append(f.period.rate_hz)
                     evals.append(f.eval_us)
                     p99.append(f.period.p99_us)
 
-            loop = getattr(win.session.engine, "_loop", None)
-            if keep_periods and loop is not None and hasattr(loop, "periods"):
-                del loop.periods[:]
-                loop.keep_periods = True
+            engine = win.session.engine
+            loop = engine.transport if engine is not None else None
+            window = loop.window if isinstance(loop, runtime.EngineLoop) else None
+            if keep_periods and window is not None:
+                del window.periods[:]
+                window.keep = True
             driver = QtCore.QTimer()
             driver.timeout.connect(drag_step)
             driver.start(16)
@@ -130,9 +132,9 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 return float(np.percentile(lat, q)) if lat.size else float("nan")
 
             periods = None
-            if keep_periods and loop is not None and hasattr(loop, "periods"):
-                loop.keep_periods = False
-                periods = np.asarray(loop.periods, float)
+            if keep_periods and window is not None:
+                window.keep = False
+                periods = np.asarray(window.periods, float)
             return {
                 "periods": periods,
                 "scene": str(scene),

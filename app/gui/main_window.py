@@ -22,8 +22,8 @@ from app.gui.slice_view import SliceView
 from app.gui.strip_chart import StripChart
 from app.gui.viewport import Viewport
 from app.gui.widgets import Readouts
-from engine import api
 from engine import pose as posemath
+from engine import runtime
 
 ORGANISATION = "skelasm"
 APPLICATION = "skelasm"
@@ -99,13 +99,9 @@ class MainWindow(QtWidgets.QMainWindow):
                                handle_transform=handle_transform)
         self.session.opened.connect(self._scene_opened)
         self.session.open_failed.connect(self._open_failed)
-        self.session.descriptors_loaded.connect(self._descriptors_loaded)
-        self.session.landscape_computed.connect(
-            lambda land: self._handle_event(api.LandscapeReady(land)))
-        self.session.local_error.connect(self._local_error)
         self.last_error: str | None = None
         self.error_dialog: QtWidgets.QMessageBox | None = None
-        self.latest_frame: api.Frame | None = None
+        self.latest_frame: runtime.Frame | None = None
         self.frames_received = 0
         self.engine_note = ""  # the engine's ReadyEvent message (its loop's scheduling)
         self._landscape_pending = False
@@ -219,7 +215,7 @@ class MainWindow(QtWidgets.QMainWindow):
         sim = bar.addMenu("&Simulation")
         self.pause_action = self._action(sim, "&Pause", self._toggle_pause, "Space",
                                          checkable=True)
-        self._action(sim, "&Reset pose", lambda: self._command(api.Reset()), "Ctrl+R")
+        self._action(sim, "&Reset pose", lambda: self._command(runtime.Reset()), "Ctrl+R")
         self._action(sim, "&More modes", lambda: self._step_modes(+2), "]")
         self._action(sim, "&Fewer modes", lambda: self._step_modes(-2), "[")
 
@@ -379,16 +375,6 @@ class MainWindow(QtWidgets.QMainWindow):
         if not Path(handle.path).name.startswith("generated_"):
             self._remember(str(handle.path))
 
-    def _descriptors_loaded(self, descriptors) -> None:
-        self.slice_view.set_descriptors(descriptors)
-        self._landscape_pending = False
-        self.landscape_view.set_landscape(None)
-
-    def _local_error(self, message: str) -> None:
-        self._landscape_pending = False
-        self.last_error = message
-        self.statusBar().showMessage(message, 15000)
-
     def _open_failed(self, path: str, message: str) -> None:
         self.show_error(f"Could not open {Path(path).name}:\n\n{message}")
 
@@ -406,12 +392,12 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def _command(self, command) -> None:
         self.session.send(command)
-        if isinstance(command, api.SetModes):
+        if isinstance(command, runtime.SetModes):
             self.statusBar().showMessage(f"m' = {command.modes ** 3:,} modes", 3000)
 
     def _proxy_dragged(self, world_pose) -> None:
         if self.session.handle is not None:
-            self.session.send(api.SetProxyPose(tuple(self.session.relative(world_pose))))
+            self.session.send(runtime.SetProxyPose(tuple(self.session.relative(world_pose))))
 
     def _drag_state(self, dragging: bool) -> None:
         if dragging:
@@ -473,7 +459,7 @@ class MainWindow(QtWidgets.QMainWindow):
             if lat:
                 self.status_latency.setText(f"event loop late ≤ {max(lat):.0f} ms")
 
-    def _show_frame(self, frame: api.Frame) -> None:
+    def _show_frame(self, frame: runtime.Frame) -> None:
         self.latest_frame = frame
         s = self.session
         if s.handle is None:
@@ -505,7 +491,7 @@ class MainWindow(QtWidgets.QMainWindow):
                 self.landscape_view.set_pose(np.asarray(frame.part_pose))
                 self._maybe_request_landscape(np.asarray(frame.part_pose))
 
-    def _update_readouts(self, f: api.Frame, fn: float, tn: float) -> None:
+    def _update_readouts(self, f: runtime.Frame, fn: float, tn: float) -> None:
         r = self.readouts
         r.set("energy", f"{f.energy:.5g}")
         r.set("force", f"{fn:.4g}")
@@ -523,38 +509,24 @@ class MainWindow(QtWidgets.QMainWindow):
         if not self.landscape_view.needs_landscape(pose):
             return
         self._landscape_pending = True
-        rotvec = tuple(float(x) for x in pose[3:])
-        if self.session.process:
-            self.session.compute_landscape(rotvec)
-            self._landscape_pending = getattr(self.session, "_local_correlator", None) \
-                is not None
-        else:
-            self.session.send(api.RequestLandscape(rotvec))
+        self.session.send(runtime.RequestLandscape(tuple(float(x) for x in pose[3:])))
 
     def _handle_event(self, event) -> None:
-        if isinstance(event, api.ReadyEvent):
+        if isinstance(event, runtime.ReadyEvent):
             self.guidance_ready = bool(event.descriptors)
             self.params.set_progress(None, "ready")
-            if self.session.process and self.session.handle is not None:
-                # the engine process keeps its descriptors: load them here for the views
-                self.guidance_ready = self.session.handle.config.effects.guidance != "none"
-                if self.guidance_ready:
-                    self.session.load_descriptors(self.params.sigma.value(),
-                                                  self.params.penalty.value())
             self.readouts.set("backend", event.backend or "-")
             self.slice_view.set_descriptors(event.descriptors)
             self.engine_note = event.message
             self.statusBar().showMessage(event.message or "engine ready", 4000)
-        elif isinstance(event, api.DescriptorsSwapped):
-            self.guidance_ready = bool(event.descriptors) or self.session.process
-            if self.session.process:
-                self.session.load_descriptors(event.sigma or None, event.penalty or None)
+        elif isinstance(event, runtime.DescriptorsSwapped):
+            self.guidance_ready = bool(event.descriptors)
             self.slice_view.set_descriptors(event.descriptors)
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")
             self.landscape_view.set_landscape(None)
             self._landscape_pending = False
-        elif isinstance(event, api.ProgressEvent):
+        elif isinstance(event, runtime.ProgressEvent):
             if event.task == "descriptors":
                 if event.message == "cancelled":
                     self.params.set_progress(None, "cancelled")
@@ -567,16 +539,17 @@ class MainWindow(QtWidgets.QMainWindow):
             else:
                 self.statusBar().showMessage(
                     f"{event.task}: {event.fraction:.0%} {event.message}", 2000)
-        elif isinstance(event, api.LandscapeReady):
+        elif isinstance(event, runtime.LandscapeReady):
             self._landscape_pending = False
             self.landscape_view.set_landscape(event.landscape)
             if self.latest_frame is not None:
                 self.landscape_view.set_pose(np.asarray(self.latest_frame.part_pose))
-        elif isinstance(event, api.ErrorEvent):
-            if not self.guidance_ready and not event.fatal and "andscape" not in event.message:
+        elif isinstance(event, runtime.LandscapeFailed):
+            self._landscape_pending = False
+            self.statusBar().showMessage(f"landscape: {event.message}", 15000)
+        elif isinstance(event, runtime.ErrorEvent):
+            if not self.guidance_ready and not event.fatal:
                 self.guidance_error = event.message  # preparing the correlator failed
-            if "andscape" in event.message:
-                self._landscape_pending = False
             if event.fatal:
                 self.show_error(f"The engine stopped: {event.message}")
             else:
@@ -584,13 +557,13 @@ class MainWindow(QtWidgets.QMainWindow):
                     self.params.set_progress(None, "recompute failed")
                 self.statusBar().showMessage(f"{event.kind}: {event.message}", 15000)
                 self.last_error = event.message
-        elif isinstance(event, api.DeviceEvent):
+        elif isinstance(event, runtime.DeviceEvent):
             text = f"device {event.device}: {event.message}"
             if not event.connected:
                 text += f" (now using the {event.fallback})"
             self.statusBar().showMessage(text, 15000)
             self.readouts.set("device", event.fallback if not event.connected else event.device)
-        elif isinstance(event, api.StoppedEvent):
+        elif isinstance(event, runtime.StoppedEvent):
             if event.reason != "stopped":
                 self.show_error(f"The engine stopped: {event.reason}")
 

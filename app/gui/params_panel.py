@@ -1,6 +1,6 @@
 """The parameter panel: accuracy (m'), descriptor parameters, kappa, coupling and effects.
 
-It only emits engine commands (``engine.api`` dataclasses) through :attr:`command`; the
+It only emits engine commands (``engine.runtime`` dataclasses) through :attr:`command`; the
 window forwards them. m' applies at once; sigma and penalty are debounced (a slider drag
 sends one request when it settles) because each starts a background recompute, which the
 engine runs while the old descriptors stay in use.
@@ -13,7 +13,7 @@ from dataclasses import replace
 from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import SliderField
-from engine import api
+from engine import runtime
 from engine.params import AXES, GUIDANCE, CouplingParams, Effects
 
 
@@ -23,7 +23,7 @@ class ParamsPanel(QtWidgets.QWidget):
     Signals
     -------
     command(object)
-        An ``engine.api`` command to send.
+        An ``engine.runtime`` command to send.
     """
 
     command = QtCore.Signal(object)
@@ -117,7 +117,7 @@ class ParamsPanel(QtWidgets.QWidget):
         buttons.addWidget(self.pause)
         buttons.addWidget(self.reset)
         self.pause.toggled.connect(self._pause_toggled)
-        self.reset.clicked.connect(lambda: self.command.emit(api.Reset()))
+        self.reset.clicked.connect(lambda: self.command.emit(runtime.Reset()))
         lay.addLayout(buttons)
         lay.addStretch(1)
 
@@ -157,7 +157,7 @@ class ParamsPanel(QtWidgets.QWidget):
         for w in widgets:
             w.blockSignals(False)
         if emit:
-            self.command.emit(api.SetEffects(effects))
+            self.command.emit(runtime.SetEffects(effects))
 
     # ------------------------------------------------------------------ progress
     def set_progress(self, fraction: float | None, text: str = "", *,
@@ -178,12 +178,12 @@ class ParamsPanel(QtWidgets.QWidget):
 
     def _modes_changed(self, k: float) -> None:
         self._show_modes(int(k))
-        self.command.emit(api.SetModes(int(k)))
+        self.command.emit(runtime.SetModes(int(k)))
 
     def _send_descriptor_params(self) -> None:
         self.set_progress(0.0, "starting recompute")
         self.command.emit(
-            api.SetDescriptorParams(sigma=self.sigma.value(), penalty=self.penalty.value())
+            runtime.SetDescriptorParams(sigma=self.sigma.value(), penalty=self.penalty.value())
         )
 
     def flush(self) -> None:
@@ -194,19 +194,19 @@ class ParamsPanel(QtWidgets.QWidget):
 
     def _cancel(self) -> None:
         self._debounce.stop()
-        self.command.emit(api.CancelRecompute())
+        self.command.emit(runtime.CancelRecompute())
         self.set_progress(None, "cancelled")
 
     def _kappa_changed(self, *_args) -> None:
         custom = not self.kappa_default.isChecked()
         self.kappa.setEnabled(custom)
-        self.command.emit(api.SetKappa(self.kappa.value() if custom else None))
+        self.command.emit(runtime.SetKappa(self.kappa.value() if custom else None))
 
     def _coupling_changed(self, hz: float) -> None:
         # absolute gains would override the frequency; the slider speaks frequency only
         self._coupling = replace(self._coupling, frequency_hz=hz, stiffness=None,
                                  angular_stiffness=None, damping=None, angular_damping=None)
-        self.command.emit(api.SetCoupling(self._coupling))
+        self.command.emit(runtime.SetCoupling(self._coupling))
 
     def _effects_changed(self) -> None:
         axes = AXES if self.rotation.isChecked() else AXES[:3]
@@ -221,8 +221,8 @@ class ParamsPanel(QtWidgets.QWidget):
         effects = Effects(guidance=self.guidance.currentText(), axes=axes,
                           damping=self.damping.isChecked(), gravity=gravity)
         self._effects = effects
-        self.command.emit(api.SetEffects(effects))
+        self.command.emit(runtime.SetEffects(effects))
 
     def _pause_toggled(self, paused: bool) -> None:
         self.pause.setText("Resume" if paused else "Pause")
-        self.command.emit(api.Pause(paused))
+        self.command.emit(runtime.Pause(paused))

@@ -26,7 +26,7 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
 
     Parameters
     ----------
-    handle : engine.api.SceneHandle
+    handle : engine.runtime.SceneHandle
     path : Path
         Destination; ``.toml`` is appended when missing.
     moving_relative_pose : (6,) float, optional

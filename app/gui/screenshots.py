@@ -21,7 +21,7 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
 
     from app.gui.app import DEFAULT_SCENE, make_application
     from app.gui.main_window import MainWindow
-    from engine import api
+    from engine import runtime
 
     app = make_application()
     outdir = Path(outdir)
@@ -57,7 +57,7 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
     for f in np.linspace(0.0, 1.0, 30):
         pose = start + 0.2 * f * (goal - start)
         pose[0] += 0.35 * size * f
-        win.session.send(api.SetProxyPose(tuple(pose)))
+        win.session.send(runtime.SetProxyPose(tuple(pose)))
         spin(0.05)
     spin(2.0)
     view = win.slice_view

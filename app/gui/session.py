@@ -2,7 +2,7 @@
 
 Everything here runs on the GUI thread except :func:`_open_worker`, which loads a scene in
 a short-lived thread and hands the frozen ``SceneHandle`` (or the exception) back through a
-queued Qt signal. The engine thread is reached only through ``engine.api``: commands go in
+queued Qt signal. The engine thread is reached only through ``engine.runtime``: commands go in
 with :meth:`Session.send`, frames and events come out of :meth:`Session.poll`.
 """
 
@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from PySide6 import QtCore
 
-from engine import api
 from engine import pose as posemath
+from engine import runtime
 
 SCENE_SUFFIXES = (".toml",)
 PART_SUFFIXES = (".step", ".stp", ".stl", ".obj", ".ply", ".off")
@@ -30,18 +30,9 @@ FILE_FILTER = (
 
 
 def real_engine_available() -> bool:
-    """True when the engine's loop and scene loader are installed (not just the api)."""
-    return all(importlib.util.find_spec(m) is not None for m in ("engine.loop", "engine.scene"))
-
-
-def engine_backend():
-    """The module providing ``open_scene`` and ``start_engine``: ``engine.api``."""
-    if not real_engine_available():
-        raise RuntimeError(
-            "the engine's loop (engine.loop) or scene loader (engine.scene) is not installed; "
-            "reinstall skelasm"
-        )
-    return api
+    """True when the engine's runtime and scene reader are installed."""
+    return all(importlib.util.find_spec(m) is not None
+               for m in ("engine.runtime", "engine.scene"))
 
 
 @dataclass(frozen=True)
@@ -69,11 +60,6 @@ class Session(QtCore.QObject):
 
     opened = QtCore.Signal(object)
     open_failed = QtCore.Signal(str, str)
-    #: process engine only: descriptors loaded here for the slice view (tuple), and
-    #: landscapes computed here (Landscape) -- the engine process sends neither back
-    descriptors_loaded = QtCore.Signal(object)
-    landscape_computed = QtCore.Signal(object)
-    local_error = QtCore.Signal(str)
     _loaded = QtCore.Signal(object, object, str)  # handle or None, exception or None, path
 
     def __init__(self, parent=None, *, realtime: bool = True, engine_kwargs=None,
@@ -82,11 +68,10 @@ class Session(QtCore.QObject):
         #: optional callable SceneHandle -> SceneHandle applied before the engine starts
         #: (benchmarks lock rotation this way)
         self.handle_transform = handle_transform
-        self.backend = engine_backend()
         self.realtime = realtime
         self.engine_kwargs = dict(engine_kwargs or {})
-        self.handle: api.SceneHandle | None = None
-        self.engine: api.EngineHandle | None = None
+        self.handle: runtime.SceneHandle | None = None
+        self.engine: runtime.EngineHandle | None = None
         self.loading: str | None = None
         self._tmp = tempfile.TemporaryDirectory(prefix="skelasm-gui-")
         self._generated = 0
@@ -99,66 +84,8 @@ class Session(QtCore.QObject):
     @property
     def process(self) -> bool:
         """True when the engine runs in its own process (``start_engine(process=True)``)."""
-        return bool(self.engine_kwargs.get("process"))
-
-    # ------------------------------------------------------------------ process engine
-    def load_descriptors(self, sigma: float | None = None, penalty: float | None = None) -> None:
-        """Load (usually from the cache the engine just filled) the scene's descriptors in a
-        worker thread, and build a correlator here for landscapes; ``descriptors_loaded``
-        follows. For the process engine, whose ReadyEvent carries no descriptors."""
-        handle = self.handle
-        if handle is None:
-            return
-        modes = int(self.engine_kwargs.get("modes") or getattr(handle.scene, "modes", 16))
-        self._local_generation = getattr(self, "_local_generation", 0) + 1
-        generation = self._local_generation
-
-        def work() -> None:
-            try:
-                from dataclasses import replace
-
-                from engine.correlation import Correlator
-                from engine.descriptor import descriptors_for_scene
-
-                scene = handle.scene
-                changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
-                           if v is not None}
-                if changes:
-                    scene = replace(scene, descriptor=replace(scene.descriptor, **changes))
-                descs = descriptors_for_scene(scene, parts=handle.parts)
-                d1, d2 = descs[0], descs[1]
-                if handle.config.effects.guidance == "collision":
-                    from engine.descriptor import collision_descriptor
-
-                    d1 = collision_descriptor(d1, handle.parts[0])
-                    d2 = collision_descriptor(d2, handle.parts[1])
-                self._local_correlator = Correlator(d1, d2, modes=modes, rotation=True,
-                                                    backend="numpy", kappa=1.0)
-            except Exception as exc:  # noqa: BLE001 -- reported, the session goes on
-                self.local_error.emit(f"could not load descriptors for the views: "
-                                      f"{_message(exc)}")
-                return
-            if generation == self._local_generation:
-                self.descriptors_loaded.emit((d1, d2))
-
-        threading.Thread(target=work, name="gui-descriptors", daemon=True).start()
-
-    def compute_landscape(self, rotvec) -> None:
-        """Landscape at ``rotvec`` from the local correlator, in a worker thread."""
-        correlator = getattr(self, "_local_correlator", None)
-        if correlator is None:
-            return
-        from engine.pose import rotation_matrix
-
-        rot = rotation_matrix(np.asarray(rotvec, float))
-
-        def work() -> None:
-            try:
-                self.landscape_computed.emit(correlator.landscape(rot))
-            except Exception as exc:  # noqa: BLE001
-                self.local_error.emit(f"landscape failed: {_message(exc)}")
-
-        threading.Thread(target=work, name="gui-landscape", daemon=True).start()
+        return self.engine.process if self.engine is not None else bool(
+            self.engine_kwargs.get("process"))
 
     # ------------------------------------------------------------------ opening
     def open(self, path: str | Path) -> None:
@@ -180,7 +107,7 @@ class Session(QtCore.QObject):
         """Open in the calling thread (command line start-up, tests)."""
         path = Path(path)
         try:
-            handle = self.backend.open_scene(self._scene_path_for(path))
+            handle = runtime.open_scene(self._scene_path_for(path))
         except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
             self._on_loaded(None, exc, str(path))
             return
@@ -188,7 +115,7 @@ class Session(QtCore.QObject):
 
     def _open_worker(self, scene_path: Path, original: str) -> None:
         try:
-            handle = self.backend.open_scene(scene_path)
+            handle = runtime.open_scene(scene_path)
         except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
             self._loaded.emit(None, exc, original)
             return
@@ -258,7 +185,7 @@ class Session(QtCore.QObject):
         self.handle = handle
         if len(handle.parts) >= 2:
             try:
-                self.engine = self.backend.start_engine(
+                self.engine = runtime.start_engine(
                     handle, realtime=self.realtime, **self.engine_kwargs
                 )
             except Exception as exc:  # noqa: BLE001

@@ -13,11 +13,11 @@ from PySide6 import QtCore
 from app.gui import colormap
 from app.gui.session import real_engine_available
 from app.gui.slice_view import slice_values
-from engine import api
+from engine import runtime
 
 pytestmark = pytest.mark.skipif(
     not real_engine_available(),
-    reason="engine.loop / engine.scene not installed: the GUI tests need the real engine",
+    reason="engine.runtime / engine.scene not installed: the GUI tests need the real engine",
 )
 
 
@@ -147,7 +147,7 @@ def test_landscape_view_shows_a_section_that_follows_the_pose(ready_window, wait
     h = view.landscape.spacing
     target = np.asarray(win.latest_frame.part_pose).copy()
     target[1] += 4 * h
-    win.session.send(api.SetProxyPose(tuple(target)))
+    win.session.send(runtime.SetProxyPose(tuple(target)))
     wait_until(lambda: float(win.latest_frame.part_pose[1]) > y0 + 2 * h, 10000,
                "the part to move sideways")
     wait_until(lambda: not np.array_equal(view.canvas.field_rgb(), first), 5000,
@@ -184,13 +184,13 @@ def test_failed_recompute_and_missing_device_are_reported_and_the_session_goes_o
     win = ready_window
     old = win.slice_view._descriptors
     win.params.set_progress(0.0)  # as after a request from the panel
-    win.session.send(api.SetDescriptorParams(sigma=-1.0))  # no valid descriptor has this
+    win.session.send(runtime.SetDescriptorParams(sigma=-1.0))  # no valid descriptor has this
     wait_until(lambda: win.last_error is not None, 30000, "the recompute's error")
     assert "sigma" in win.last_error.lower()
     assert win.params.progress.format() == "recompute failed"
     assert win.slice_view._descriptors is old
     win.last_error = None
-    win.session.send(api.SetDevice("spacemouse"))  # none is plugged in here
+    win.session.send(runtime.SetDevice("spacemouse"))  # none is plugged in here
     wait_until(lambda: "spacemouse" in win.statusBar().currentMessage(), 10000,
                "the device message")
     assert "mouse" in win.statusBar().currentMessage()

@@ -1,4 +1,4 @@
-"""The main window against the real engine (``engine.api``), under Xvfb or a real display."""
+"""The main window against the real engine (``engine.runtime``), under Xvfb or a real display."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.gui.app import DEFAULT_SCENE as EXAMPLE_SCENE
-from engine import api
+from engine import runtime
 from engine import pose as posemath
 
 pytestmark = pytest.mark.skipif(
     not __import__("app.gui.session", fromlist=["x"]).real_engine_available(),
-    reason="engine.loop / engine.scene not installed: the GUI tests need the real engine",
+    reason="engine.runtime / engine.scene not installed: the GUI tests need the real engine",
 )
 
 
@@ -171,7 +171,7 @@ def test_save_scene_writes_the_current_pose(make_window, tmp_path, wait_until):
 
     win = make_window(EXAMPLE_SCENE)
     target = np.asarray(win.latest_frame.part_pose) + [3.0, 0, 0, 0, 0, 0]
-    win.session.send(api.SetProxyPose(tuple(target)))
+    win.session.send(runtime.SetProxyPose(tuple(target)))
     wait_until(lambda: abs(win.latest_frame.part_pose[0] - target[0]) < 0.3, 10000,
                "the part to reach the new proxy")
     win.params.modes.setValue(12)

@@ -209,14 +209,11 @@ def test_engine_renders_coupling_force_to_openhaptics_and_falls_back_when_unplug
     from fake_device_libs import FakeTouch, install_openhaptics
     from test_loop import make_loop
 
-    from engine import api
+    from engine import runtime
 
     touch = FakeTouch()
     install_openhaptics(monkeypatch, touch)
-    loop, _, _ = make_loop(realtime=True)
-    loop.device = open_device("openhaptics", loop.sim.proxy_pose)
-    loop.mouse = None
-    loop._apply_device_limits()
+    loop, _, _ = make_loop(realtime=True, device=open_device("openhaptics", np.zeros(6)))
     touch.move((0.3, 0.0, 0.0))  # pull the proxy 0.3 along x: the spring pulls the part
     loop.start()
     try:
@@ -229,5 +226,5 @@ def test_engine_renders_coupling_force_to_openhaptics_and_falls_back_when_unplug
         assert _wait(lambda: loop.sim.steps > steps + 10, timeout=10.0)  # and runs on
     finally:
         loop.stop()
-    lost = [e for e in loop.poll_events() if isinstance(e, api.DeviceEvent)]
+    lost = [e for e in loop.poll_events() if isinstance(e, runtime.DeviceEvent)]
     assert lost and lost[-1].fallback == "mouse" and "openhaptics" in lost[-1].message

@@ -8,10 +8,17 @@ from sim_fakes import well
 
 from engine.devices import TrajectoryDevice
 from engine.errors import InputError
-from engine.loop import EngineLoop
 from engine.params import Effects, SimConfig
-from engine.recording import COLUMNS, Recorder, load_recording, replay_device
+from engine.recording import COLUMNS, load_recording, replay_device
+from engine.runtime import EngineLoop, Recorder
 from engine.sim import CorrelatorField, RigidBody, Simulation, resolve_physics
+
+
+def spring_well():
+    """The spring well, named as the engine names a correlator's evaluator."""
+    c = well(stiffness=2.0)
+    c.backend, c.backend_name = "numpy", "spring well"
+    return c
 
 
 def make_sim():
@@ -19,7 +26,7 @@ def make_sim():
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     phys = resolve_physics(SimConfig(), v, f)
     body = RigidBody(phys.mass, phys.inertia, phys.center)
-    return Simulation(body, phys, Effects(), CorrelatorField(well(stiffness=2.0), phys.kappa),
+    return Simulation(body, phys, Effects(), CorrelatorField(spring_well(), phys.kappa),
                       np.zeros(6))
 
 
@@ -31,7 +38,7 @@ def test_replay_reproduces_final_pose(tmp_path, suffix):
     traj = TrajectoryDevice(np.column_stack([times, poses]))
 
     rec = Recorder(capacity=100)  # grows past its capacity
-    loop = EngineLoop(make_sim(), device=traj, realtime=False, on_step=rec.on_step)
+    loop = EngineLoop(make_sim(), device=traj, realtime=False, on_frame=rec.on_frame)
     loop.run(max_steps=1000)
     final = loop.sim.part_pose()
     path = rec.save(tmp_path / f"session{suffix}")

@@ -102,10 +102,9 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
     axis to the assembled depth in ``push_s``, then held. Returns a dict of errors."""
     from dataclasses import replace
 
-    from engine.api import open_scene
     from engine.devices import TrajectoryDevice
-    from engine.loop import EngineLoop
     from engine.pose import relative_pose
+    from engine.runtime import EngineLoop, open_scene
     from engine.sim import build_simulation
 
     handle = open_scene(ROOT / "assets" / name / "scene.toml")
@@ -189,7 +188,7 @@ def free_energy_run(axes, start, steps=2000):
     (total energy per step, its starting value, the largest kinetic energy)."""
     from dataclasses import replace
 
-    from engine.api import open_scene
+    from engine.runtime import open_scene
     from engine.sim import build_simulation, kinetic_energy
 
     handle = open_scene(PEG)

@@ -1,0 +1,244 @@
+"""The loop's geometric field and physics: what the user asked for, the background jobs that
+build it, and the hand-over between two steps.
+
+Data: the desired state (effects, coupling, kappa, K, descriptor sigma and penalty) and the
+descriptors in use (``engine.descriptor.Descriptor`` of part 1 and part 2). Everything that
+costs more than a step (descriptors, correlators, spectra, landscapes, a new K) is a frozen
+request to the :class:`engine.runtime.jobs.JobWorker`; cheap changes (physics gains, free
+axes) apply between two steps. Events go to the loop's event queue.
+"""
+
+from __future__ import annotations
+
+import collections
+from collections.abc import Callable
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from engine.errors import Cancelled
+from engine.params import CouplingParams, Effects, Physics
+from engine.pose import rotation_matrix
+from engine.runtime.jobs import (
+    FieldModel,
+    FieldRequest,
+    FieldResponse,
+    JobWorker,
+    LandscapeRequest,
+    LandscapeResponse,
+    Response,
+    build_field,
+    compute_landscape,
+    next_id,
+)
+from engine.runtime.messages import (
+    DescriptorsSwapped,
+    ErrorEvent,
+    Event,
+    LandscapeFailed,
+    LandscapeReady,
+    ProgressEvent,
+    ReadyEvent,
+    describe_error,
+)
+from engine.sim import CorrelatorField, GeometricField, LandscapeField, Simulation
+
+if TYPE_CHECKING:
+    from engine.descriptor import Descriptor
+
+__all__ = ["Guidance", "backend_name"]
+
+
+def backend_name(fld: GeometricField) -> str:
+    """The per-pose evaluator behind a field, in words."""
+    if isinstance(fld, (CorrelatorField, LandscapeField)):
+        return str(fld.correlator.backend_name or type(fld).__name__)
+    return type(fld).__name__
+
+
+class Guidance:
+    """Keeps a simulation's field and physics up to date with the user's commands.
+
+    Parameters
+    ----------
+    sim : Simulation
+    model : FieldModel or None
+        ``engine.sim.SceneModel`` of the scene.
+        Rebuilds physics and fields; None: a field handed in by the caller, which commands
+        that rebuild it (K, descriptors, guidance) cannot change (they answer ErrorEvent).
+    events : deque
+        Where events go.
+    """
+
+    def __init__(self, sim: Simulation, model: FieldModel | None,
+                 events: collections.deque[Event]):
+        self.sim = sim
+        self.model = model
+        self.events = events
+        self.worker = JobWorker()
+        self.effects = sim.effects
+        self.coupling: CouplingParams | None = None
+        self.kappa: float | None = None  # None: the scale-invariant default
+        self.sigma: float | None = None
+        self.penalty: float | None = None
+        self.modes = int(sim.field.modes)
+        self.descriptors: tuple[Descriptor, ...] = ()
+        self.recompute: float | None = None  # fraction done of a descriptor job
+        self.ready_message = ""
+        self._in_use: tuple[str, float | None, float | None] = ("", None, None)
+        self._field_id = 0  # newest field request
+        self._field_task = ""
+        self._landscape_id = 0
+        self._physics_dirty = False
+
+    # -- requests -------------------------------------------------------------------------------
+    def prepare(self, modes: int) -> None:
+        """Build the first field in the background (ReadyEvent when done)."""
+        self.modes = int(modes)
+        self._request("correlator")
+
+    def set_modes(self, modes: int) -> None:
+        """New K: a new field is built in the background; the old one steps meanwhile."""
+        self.modes = int(modes)
+        self._request("field")
+
+    def set_descriptor_params(self, sigma: float | None, penalty: float | None) -> None:
+        """New descriptor parameters: recompute in the background."""
+        if sigma is not None:
+            self.sigma = float(sigma)
+        if penalty is not None:
+            self.penalty = float(penalty)
+        self._request("descriptors")
+
+    def set_effects(self, effects: Effects) -> None:
+        """New effects: axes, damping and gravity at once; a new guidance kind or rotation lock
+        rebuilds the field in the background."""
+        old, self.effects = self.effects, effects
+        self._physics_dirty = True
+        if old.guidance != effects.guidance or old.rotation != effects.rotation:
+            self._request("descriptors" if old.guidance != effects.guidance else "field")
+
+    def set_coupling(self, coupling: CouplingParams) -> None:
+        """New coupling gains (applied by :meth:`apply_physics`)."""
+        self.coupling = coupling
+        self._physics_dirty = True
+
+    def set_kappa(self, kappa: float | None) -> None:
+        """New geometric gain (applied by :meth:`apply_physics`)."""
+        self.kappa = kappa
+        self._physics_dirty = True
+
+    def cancel_recompute(self) -> None:
+        """Cancel the running field job; the field in use stays, and so do the descriptor
+        parameters it was built with."""
+        if self.worker.cancel("field"):
+            self.events.append(ProgressEvent(self._field_task, 1.0, "cancelled"))
+        self._field_id = 0
+        self.recompute = None
+        _, self.sigma, self.penalty = self._in_use
+
+    def request_landscape(self, rotvec: tuple[float, ...] | None) -> None:
+        """Landscape at ``rotvec`` (default: the part's rotation), computed by the worker."""
+        fld = self.sim.field
+        if not isinstance(fld, (CorrelatorField, LandscapeField)):
+            self.events.append(LandscapeFailed("no landscape: guidance is off", "ValueError"))
+            return
+        rv = tuple(float(v) for v in (self.sim.part_pose()[3:] if rotvec is None else rotvec))
+        request = LandscapeRequest(next_id(), fld.correlator, rotation_matrix(np.array(rv)), rv)
+        self._landscape_id = request.id
+        self.worker.submit("landscape", lambda cancelled: compute_landscape(request))
+
+    def _request(self, task: str) -> None:
+        model = self.model
+        if model is None:
+            raise RuntimeError("this engine has no scene model to rebuild its field from")
+        key = (self.effects.guidance, self.sigma, self.penalty)
+        reuse = self.descriptors if key == self._in_use and task != "correlator" else ()
+        if not reuse and task == "field":
+            task = "descriptors"
+        fld = self.sim.field
+        backend = (fld.correlator.backend if isinstance(fld, (CorrelatorField, LandscapeField))
+                   else "")
+        rot = self.sim.state.rotation.copy()
+        rot.setflags(write=False)
+        request = FieldRequest(
+            next_id(), task, self.effects, self._physics().kappa, rot, self.modes,
+            self.sigma, self.penalty, reuse, backend,
+        )
+        self._field_id, self._field_task = request.id, task
+        report = task != "field"
+        self.recompute = 0.0 if task == "descriptors" else None
+
+        def progress(fraction: float) -> None:
+            if request.id == self._field_id:
+                if task == "descriptors":
+                    self.recompute = float(fraction)
+                self.events.append(ProgressEvent(task, float(fraction)))
+
+        def run(cancelled: Callable[[], bool]) -> Response:
+            try:
+                return build_field(model, request, progress=progress if report else None,
+                                   cancel=cancelled)
+            except Cancelled:
+                raise
+            except Exception as exc:  # delivered to the loop, never raised in the worker
+                return FieldResponse(request.id, request, error=exc)
+
+        self.worker.submit("field", run)
+
+    # -- between two steps (loop thread) --------------------------------------------------------
+    def apply_physics(self) -> None:
+        """Resolve and apply the physics if a command changed it (once per batch)."""
+        if self._physics_dirty:
+            self._physics_dirty = False
+            self.sim.set_effects(self.effects, self._physics())
+
+    def take_responses(self) -> None:
+        """Swap in finished fields, deliver landscapes; drop superseded answers."""
+        for response in self.worker.responses():
+            if isinstance(response, LandscapeResponse):
+                self._landscape(response)
+            else:
+                self._field(response)
+
+    def _landscape(self, r: LandscapeResponse) -> None:
+        if r.id != self._landscape_id:
+            return
+        if r.error is not None or r.landscape is None:
+            err = r.error or RuntimeError("no landscape")
+            self.events.append(LandscapeFailed(describe_error(err), type(err).__name__))
+        else:
+            self.events.append(LandscapeReady(r.landscape, r.rotvec))
+
+    def _field(self, r: FieldResponse) -> None:
+        if r.id != self._field_id:
+            return  # superseded
+        self.recompute = None
+        if r.error is not None or r.field is None:
+            err = r.error or RuntimeError("no field")
+            self.events.append(ErrorEvent(describe_error(err), type(err).__name__))
+            return
+        req = r.request
+        self.sim.set_field(r.field)
+        self.descriptors = r.descriptors
+        self._in_use = (req.effects.guidance, req.sigma, req.penalty)
+        if req.task == "correlator":
+            self.events.append(ReadyEvent(r.descriptors, backend_name(r.field),
+                                          self.ready_message))
+        elif req.task == "descriptors":
+            sigma, penalty = req.sigma or 0.0, req.penalty or 0.0
+            if r.descriptors:
+                sigma, penalty = r.descriptors[0].params.sigma, r.descriptors[0].params.penalty
+            self.events.append(DescriptorsSwapped(r.descriptors, float(sigma), float(penalty),
+                                                  r.seconds))
+
+    def _physics(self) -> Physics:
+        if self.model is None:
+            kappa = self.sim.physics.kappa if self.kappa is None else self.kappa
+            return replace(self.sim.physics, kappa=kappa)
+        return self.model.physics(self.effects, self.coupling, self.kappa)
+
+    def close(self) -> None:
+        """Cancel the jobs and stop the worker."""
+        self.worker.shutdown()

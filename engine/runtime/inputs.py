@@ -1,0 +1,127 @@
+"""The loop's input device: reading the proxy pose, rendering the force, falling back to the
+mouse when a device goes away, and switching devices on command.
+
+Data: proxy poses (6,) float64 relative to part 1; forces and torques (3,) float64 in part
+1's frame, already scaled and clamped by the simulation's haptic limits.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from engine.devices import Device, DeviceError, MouseDevice, open_device
+from engine.runtime.frames import encode_device_name
+from engine.runtime.messages import DeviceEvent, Event, SetDevice
+from engine.sim import Simulation
+
+__all__ = ["DeviceSlot"]
+
+
+class DeviceSlot:
+    """The device driving a simulation's proxy (owned by the loop thread).
+
+    Parameters
+    ----------
+    sim : Simulation
+    device : Device, optional
+        Default: a :class:`MouseDevice` at the proxy's pose.
+    events : deque
+        Where device events go.
+    base_dir : Path, optional
+        Relative device files (trajectories) are found from here.
+    """
+
+    def __init__(self, sim: Simulation, device: Device | None,
+                 events: collections.deque[Event], base_dir: Path | None = None):
+        self.sim = sim
+        self.events = events
+        self.base_dir = base_dir
+        self.limits = sim.limits  # the scene's limits, before any device's clamp
+        self.device: Device = device or MouseDevice(sim.proxy_pose)
+        self._use(self.device)
+
+    def _use(self, device: Device) -> None:
+        self.device = device
+        self.mouse = device if isinstance(device, MouseDevice) else None
+        self.name_code = encode_device_name(device.name)
+        # clamp the rendered force to the device's maximum unless the scene set a lower one
+        caps = device.capabilities
+        self.sim.limits = replace(
+            self.limits,
+            max_force=min(self.limits.max_force, caps.max_force),
+            max_torque=min(self.limits.max_torque, caps.max_torque),
+        )
+
+    @property
+    def name(self) -> str:
+        """The device's name."""
+        return self.device.name
+
+    def read(self) -> None:
+        """Move the proxy to the device's pose (if it moved); a lost device falls back."""
+        try:
+            pose = self.device.read_pose(self.sim.time)
+        except DeviceError as exc:
+            self._fall_back(str(exc))
+            return
+        except Exception as exc:  # noqa: BLE001 -- a driver's failure must not stop the loop
+            self._fall_back(f"{self.device.name}: {exc}")
+            return
+        if pose is not None:
+            self.sim.set_proxy(pose)
+
+    def write(self) -> None:
+        """Render the simulation's haptic force (devices with force feedback)."""
+        if not self.device.capabilities.force_feedback:
+            return
+        try:
+            self.device.write_force(self.sim.haptic_force, self.sim.haptic_torque)
+        except Exception as exc:  # noqa: BLE001 -- as in read
+            self._fall_back(str(exc))
+
+    def release(self) -> None:
+        """Send zero force (the loop ends)."""
+        try:
+            self.device.write_force(np.zeros(3), np.zeros(3))
+        except Exception:  # noqa: BLE001 -- it may be gone already
+            pass
+
+    def set_proxy(self, pose: tuple[float, ...]) -> None:
+        """A proxy pose from the GUI: the mouse's new pose, or (another device in use) the
+        proxy moved directly until the device moves it again."""
+        if self.mouse is not None:
+            self.mouse.set_pose(pose)
+        else:
+            self.sim.set_proxy(np.asarray(pose))
+
+    def reset(self) -> None:
+        """The proxy went back to the start: tell the mouse."""
+        if self.mouse is not None:
+            self.mouse.set_pose(self.sim.proxy_pose)
+
+    def switch(self, cmd: SetDevice) -> None:
+        """Open another device; on failure the current one stays (a DeviceEvent says why)."""
+        try:
+            dev = open_device(cmd.kind, self.sim.proxy_pose, dict(cmd.options), self.base_dir)
+        except DeviceError as exc:
+            self.events.append(DeviceEvent(cmd.kind, False, str(exc), fallback=self.name))
+            return
+        self._disconnect()
+        self._use(dev)
+        self.events.append(DeviceEvent(cmd.kind, True, f"{cmd.kind} connected", cmd.kind))
+
+    def _fall_back(self, message: str) -> None:
+        lost = self.device.name
+        self._disconnect()
+        self._use(MouseDevice())
+        self.events.append(DeviceEvent(lost, False, message, fallback="mouse"))
+
+    def _disconnect(self) -> None:
+        try:
+            self.device.disconnect()
+        except Exception:  # noqa: BLE001 -- a lost device may fail to close
+            pass

@@ -1,0 +1,290 @@
+"""Background work of the engine: frozen requests carrying ids, run by one worker thread,
+answered by frozen responses echoing the id.
+
+Data: a :class:`FieldRequest` captures everything needed to build a geometric field (effects,
+kappa, locked rotation (3, 3) float64, K, descriptor parameters, and the descriptors to reuse
+when only K or the rotation lock changed); a :class:`LandscapeRequest` a correlator and a
+rotation (3, 3) float64. Responses carry the built field and descriptors, or the landscape,
+or the error.
+
+One worker (:class:`JobWorker`, a ``ThreadPoolExecutor(max_workers=1)`` as napari's layer
+slicer uses): a newer request of the same kind supersedes the older one, which is cancelled
+(dropped if it has not started; told to stop through its ``cancel`` callback if it has), and
+the loop drops any response whose id is not the newest it asked for. Nothing here runs on
+the loop thread; the loop only collects finished responses between two steps.
+"""
+
+from __future__ import annotations
+
+import itertools
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from engine.correlation import Correlator
+from engine.errors import Cancelled
+from engine.params import CouplingParams, Effects, Physics, SimConfig
+from engine.sim import GeometricField, NullField, field_for_effects
+
+if TYPE_CHECKING:
+    from engine.correlation import Landscape
+    from engine.descriptor import Descriptor
+
+__all__ = [
+    "FieldModel",
+    "FieldRequest",
+    "FieldResponse",
+    "JobWorker",
+    "LandscapeRequest",
+    "LandscapeResponse",
+    "Response",
+    "build_field",
+    "compute_landscape",
+]
+
+_ids = itertools.count(1)
+
+
+def next_id() -> int:
+    """A fresh request id (increasing)."""
+    return next(_ids)
+
+
+class FieldModel(Protocol):
+    """What rebuilding physics and fields needs of a scene (``engine.sim.SceneModel`` is
+    one)."""
+
+    backend: str
+    modes: int
+    config: SimConfig
+
+    def physics(
+        self, effects: Effects, coupling: CouplingParams | None = None,
+        kappa: float | None = None,
+    ) -> Physics:
+        """Physics constants for ``effects`` (and a changed coupling or kappa)."""
+        ...
+
+    def field(
+        self,
+        effects: Effects,
+        kappa: float,
+        locked_rotation: np.ndarray,
+        *,
+        sigma: float | None = None,
+        penalty: float | None = None,
+        modes: int | None = None,
+        progress: Callable[[float], None] | None = None,
+        cancel: Callable[[], bool] | None = None,
+    ) -> tuple[GeometricField, tuple[Descriptor, ...]]:
+        """(field, descriptors) for ``effects``."""
+        ...
+
+
+@dataclass(frozen=True)
+class FieldRequest:
+    """Build the geometric field for these inputs.
+
+    Attributes
+    ----------
+    id : int
+    task : str
+        "correlator" (the first preparation), "descriptors" (new descriptor parameters or
+        guidance: progress is reported) or "modes" (new K or rotation lock only).
+    effects : Effects
+    kappa : float
+    locked_rotation : (3, 3) float64, read-only
+        The part's rotation when the request was made (used when rotation is locked).
+    modes : int
+        K, modes per axis.
+    sigma, penalty : float or None
+        Descriptor parameters replacing the scene's (None: the scene's).
+    descriptors : tuple of Descriptor
+        Reuse these (only K or the rotation lock changed); empty: compute them.
+    backend : str
+        Per-pose evaluator for a rebuilt correlator ("" : the model's).
+    """
+
+    id: int
+    task: str
+    effects: Effects
+    kappa: float
+    locked_rotation: np.ndarray
+    modes: int
+    sigma: float | None = None
+    penalty: float | None = None
+    descriptors: tuple[Descriptor, ...] = ()
+    backend: str = ""
+
+
+@dataclass(frozen=True)
+class FieldResponse:
+    """Answer to a :class:`FieldRequest` with the same ``id``; ``field`` is None when it
+    failed (``error``) or was cancelled (``cancelled``)."""
+
+    id: int
+    request: FieldRequest
+    field: GeometricField | None = None
+    descriptors: tuple[Descriptor, ...] = ()
+    seconds: float = 0.0
+    error: BaseException | None = None
+    cancelled: bool = False
+
+
+@dataclass(frozen=True)
+class LandscapeRequest:
+    """Compute the translational energy landscape of ``correlator`` at ``rotation``."""
+
+    id: int
+    correlator: Correlator
+    rotation: np.ndarray  # (3, 3) float64
+    rotvec: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class LandscapeResponse:
+    """Answer to a :class:`LandscapeRequest` with the same ``id``."""
+
+    id: int
+    rotvec: tuple[float, ...]
+    landscape: Landscape | None = None
+    error: BaseException | None = None
+    cancelled: bool = False
+
+
+Response = FieldResponse | LandscapeResponse
+
+
+def _warm(fld: GeometricField, rotation: np.ndarray) -> None:
+    """Evaluate once, so that tables built lazily on first use are built here, off the
+    loop, before the field is handed over."""
+    fld.evaluate(np.asarray(rotation, np.float64), np.zeros(3))
+
+
+def build_field(
+    model: FieldModel,
+    request: FieldRequest,
+    *,
+    progress: Callable[[float], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> FieldResponse:
+    """Run a :class:`FieldRequest` (in the worker): the field, warmed up, and its
+    descriptors."""
+    t0 = time.perf_counter()
+    r = request
+    if r.descriptors and r.effects.guidance != "none":
+        d1, d2 = r.descriptors[0], r.descriptors[1]
+        backend = r.backend or model.backend
+
+        def make(rotation: bool) -> Correlator:
+            return Correlator(d1, d2, modes=r.modes, rotation=rotation, backend=backend,
+                              kappa=1.0)
+
+        fld = field_for_effects(r.effects, make, kappa=r.kappa,
+                                locked_rotation=r.locked_rotation)
+        descs: tuple[Descriptor, ...] = (d1, d2)
+    else:
+        fld, descs = model.field(
+            r.effects, r.kappa, r.locked_rotation, sigma=r.sigma, penalty=r.penalty,
+            modes=r.modes, progress=progress, cancel=cancel,
+        )
+    if cancel is not None and cancel():
+        raise Cancelled("superseded")
+    if not isinstance(fld, NullField):
+        _warm(fld, r.locked_rotation)
+    return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0)
+
+
+def compute_landscape(request: LandscapeRequest) -> LandscapeResponse:
+    """Run a :class:`LandscapeRequest` (in the worker)."""
+    land = request.correlator.landscape(request.rotation)
+    return LandscapeResponse(request.id, request.rotvec, land)
+
+
+@dataclass
+class _Job:
+    future: Future[None]
+    cancel: threading.Event = field(default_factory=threading.Event)
+
+
+class JobWorker:
+    """One background thread for the engine's jobs; finished responses queue up for the
+    loop (:meth:`responses`).
+
+    Each job has a kind (``"field"``, ``"landscape"``); :meth:`submit` cancels the pending or
+    running job of the same kind before queueing the new one.
+    """
+
+    def __init__(self) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="skelasm-jobs")
+        self._jobs: dict[str, _Job] = {}
+        self._done: queue.SimpleQueue[Response] = queue.SimpleQueue()
+        self._closed = False
+
+    def submit(
+        self,
+        kind: str,
+        run: Callable[[Callable[[], bool]], Response],
+        on_cancel: Callable[[], Response] | None = None,
+    ) -> None:
+        """Queue ``run(cancelled)`` as the newest job of ``kind``.
+
+        ``run`` returns a response and may raise ``engine.errors.Cancelled`` when
+        ``cancelled()`` turns True; ``on_cancel`` makes the response then (none if None).
+        """
+        if self._closed:
+            return
+        self.cancel(kind)
+        flag = threading.Event()
+
+        def body() -> None:
+            if flag.is_set():
+                return
+            try:
+                response = run(flag.is_set)
+            except Cancelled:
+                if on_cancel is not None:
+                    self._done.put(on_cancel())
+                return
+            self._done.put(response)
+
+        self._jobs[kind] = _Job(self._pool.submit(body), flag)
+
+    def cancel(self, kind: str) -> bool:
+        """Cancel the job of ``kind``; True if one was pending or running."""
+        job = self._jobs.pop(kind, None)
+        if job is None or job.future.done():
+            return False
+        job.cancel.set()
+        job.future.cancel()  # succeeds only if it has not started
+        return True
+
+    def responses(self) -> list[Response]:
+        """Responses finished since the last call, in the order they finished."""
+        out: list[Response] = []
+        while True:
+            try:
+                out.append(self._done.get_nowait())
+            except queue.Empty:
+                return out
+
+    def wait_until_idle(self, timeout: float) -> bool:
+        """Wait for the submitted jobs; True when none is left."""
+        _, pending = wait([job.future for job in self._jobs.values()], timeout)
+        return not pending
+
+    def shutdown(self, timeout: float = 2.0) -> None:
+        """Cancel every job and stop the thread (waiting at most ``timeout`` seconds for a
+        running job to notice)."""
+        self._closed = True
+        running = [job.future for job in self._jobs.values()]
+        for kind in list(self._jobs):
+            self.cancel(kind)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        wait(running, timeout)
