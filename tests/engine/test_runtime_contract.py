@@ -1,0 +1,213 @@
+"""One contract for both transports: every test here runs on the thread engine and on the
+process engine (``start_engine(process=...)``), on a small real scene (the peg in hole on a
+coarse grid, K = 8).
+
+What the contract says: frames carry every field (``step_us``, ``paused``, period, device,
+recompute state) and keep coming while paused; preparation reports progress, then
+ReadyEvent brings the descriptors; landscapes and descriptors are answered by the engine;
+K changes and recomputes reach the frames; the simulated time advances by the loop's
+period through every command (a rate override holds).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine import runtime as rt
+from engine.descriptor import Descriptor
+
+ROOT = Path(__file__).resolve().parents[2]
+TRANSPORTS = ["thread", "process"]
+
+
+@pytest.fixture(scope="module")
+def small_scene(tmp_path_factory) -> Path:
+    """The peg in hole with a 16-sample grid and K = 8 (descriptors in about a second)."""
+    src = ROOT / "assets" / "peg_in_hole"
+    text = (src / "scene.toml").read_text()
+    lines = []
+    for line in text.splitlines():
+        key = line.split("=")[0].strip()
+        if key == "grid":
+            line = "grid = 16"
+        elif key == "modes":
+            line = "modes = 8"
+        elif key == "file":
+            name = line.split('"')[1]
+            line = f'file = "{(src / name).as_posix()}"'
+        lines.append(line)
+    path = tmp_path_factory.mktemp("contract") / "scene.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def start(scene: Path, transport: str, **kw) -> rt.EngineHandle:
+    handle = rt.open_scene(scene)
+    return rt.start_engine(handle, process=transport == "process", backend="numba", **kw)
+
+
+class Collector:
+    """Drains an engine's frames and events while waiting for something."""
+
+    def __init__(self, engine: rt.EngineHandle):
+        self.engine = engine
+        self.frames: list[rt.Frame] = []
+        self.events: list[rt.Event] = []
+
+    def drain(self) -> None:
+        self.frames += self.engine.poll_frames()
+        self.events += self.engine.poll_events()
+
+    def wait(self, predicate, timeout: float = 120.0) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.drain()
+            if predicate():
+                return True
+            time.sleep(0.01)
+        return False
+
+    def of(self, kind):
+        return [e for e in self.events if isinstance(e, kind)]
+
+    def ready(self) -> bool:
+        fatal = [e for e in self.of(rt.ErrorEvent) if e.fatal]
+        assert not fatal, fatal
+        return bool(self.of(rt.ReadyEvent))
+
+
+@pytest.fixture(params=TRANSPORTS)
+def transport(request) -> str:
+    return request.param
+
+
+def test_preparation_reports_progress_then_ready_with_descriptors(small_scene, transport):
+    engine = start(small_scene, transport)
+    seen = Collector(engine)
+    try:
+        assert seen.wait(seen.ready)
+        assert engine.process == (transport == "process")
+        progress = [e.fraction for e in seen.of(rt.ProgressEvent) if e.task == "correlator"]
+        assert progress and progress == sorted(progress) and progress[-1] == 1.0
+        first_ready = seen.events.index(seen.of(rt.ReadyEvent)[0])
+        assert all(seen.events.index(e) < first_ready for e in seen.of(rt.ProgressEvent))
+        ready = seen.of(rt.ReadyEvent)[0]
+        assert len(ready.descriptors) == 2
+        assert all(isinstance(d, Descriptor) and d.rho.ndim == 3 for d in ready.descriptors)
+        assert "numba" in ready.backend and "loop thread" in ready.message
+        # a landscape is answered by the engine, at the rotation asked for
+        engine.send(rt.RequestLandscape((0.0, 0.0, 0.2)))
+        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
+        answer = seen.of(rt.LandscapeReady)[0]
+        assert answer.rotvec == (0.0, 0.0, 0.2)
+        assert answer.landscape.energy.ndim == 3 and answer.landscape.modes == 8
+        # a new K is built off the loop and reaches the frames
+        engine.send(rt.SetModes(6))
+        assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 6, 60.0)
+    finally:
+        engine.stop()
+    assert not engine.running
+
+
+def test_frames_are_complete_and_keep_coming_while_paused(small_scene, transport):
+    # issue 10, bug 2: the process engine wrote neither step_us nor paused and sent no
+    # frames while paused
+    engine = start(small_scene, transport)
+    seen = Collector(engine)
+    try:
+        assert seen.wait(seen.ready)
+        assert seen.wait(lambda: seen.frames and seen.frames[-1].period.window >= 100, 30.0)
+        f = seen.frames[-1]
+        assert f.step_us > 0 and f.eval_us > 0 and f.period.rate_hz > 0
+        assert f.modes == 8 and f.device == "mouse" and not f.paused and f.recompute is None
+        assert f.time == pytest.approx(f.step * 1e-3)
+        assert f.part_pose.shape == (6,) and not f.part_pose.flags.writeable
+        engine.send(rt.Pause())
+        assert seen.wait(lambda: seen.frames[-1].paused, 10.0)
+        paused_at = len(seen.frames)
+        time.sleep(0.3)
+        seen.drain()
+        while_paused = seen.frames[paused_at:]
+        assert len(while_paused) > 10 and all(p.paused for p in while_paused)
+        assert len({p.step for p in while_paused}) == 1 and while_paused[-1].step_us > 0
+        engine.send(rt.Pause(False))
+        assert seen.wait(lambda: not seen.frames[-1].paused
+                         and seen.frames[-1].step > while_paused[-1].step, 10.0)
+        # a device that cannot be opened: the mouse stays, and the frames say so
+        engine.send(rt.SetDevice("trajectory", (("file", "no-such-file.csv"),)))
+        assert seen.wait(lambda: seen.of(rt.DeviceEvent), 10.0)
+        lost = seen.of(rt.DeviceEvent)[0]
+        assert not lost.connected and lost.fallback == "mouse"
+        assert seen.frames[-1].device == "mouse"
+    finally:
+        engine.stop()
+
+
+def test_recompute_and_rate_override_hold_through_every_command(small_scene, transport):
+    # issue 10, bug 1: start_engine(rate_hz=250) paced at 250 Hz but stepped 1 ms after
+    # SetKappa, SetCoupling, SetEffects and the descriptor hand-over. Checked without
+    # timing: the simulated time of every frame is its step times the 4 ms period
+    engine = start(small_scene, transport, rate_hz=250.0)
+    seen = Collector(engine)
+    handle = rt.open_scene(small_scene)
+    cfg = handle.config
+
+    def steps_at_4ms(since: int) -> bool:
+        frames = seen.frames[since:]
+        return bool(frames) and all(abs(f.time - f.step * 4e-3) < 1e-9 for f in frames)
+
+    try:
+        assert seen.wait(seen.ready)
+        commands = [
+            rt.SetKappa(2.0),
+            rt.SetCoupling(replace(cfg.coupling, frequency_hz=cfg.coupling.frequency_hz * 2)),
+            rt.SetEffects(replace(cfg.effects, damping=not cfg.effects.damping)),
+            rt.SetModes(6),
+            rt.SetKappa(None),
+            rt.Reset(),
+        ]
+        for command in commands:
+            mark = len(seen.frames)
+            engine.send(command)
+            assert seen.wait(lambda m=mark: len(seen.frames) > m + 20, 30.0)
+            assert steps_at_4ms(mark), command
+        # a recompute: progress in the frames and events, then the swap with descriptors
+        mark = len(seen.frames)
+        engine.send(rt.SetDescriptorParams(sigma=0.7))
+        assert seen.wait(lambda: seen.of(rt.DescriptorsSwapped), 120.0)
+        swapped = seen.of(rt.DescriptorsSwapped)[0]
+        assert swapped.sigma == pytest.approx(0.7) and len(swapped.descriptors) == 2
+        assert swapped.descriptors[0].params.sigma == pytest.approx(0.7)
+        assert [e for e in seen.of(rt.ProgressEvent) if e.task == "descriptors"]
+        during = [f.recompute for f in seen.frames[mark:] if f.recompute is not None]
+        assert during and all(0.0 <= r <= 1.0 for r in during)
+        assert seen.wait(lambda: seen.frames[-1].recompute is None, 10.0)
+        mark = len(seen.frames)
+        assert seen.wait(lambda: len(seen.frames) > mark + 20, 30.0)
+        assert steps_at_4ms(mark)
+    finally:
+        engine.stop()
+    assert any(isinstance(e, rt.StoppedEvent) for e in engine.poll_events() + seen.events)
+
+
+def test_engine_without_guidance_answers_landscape_requests_with_a_typed_failure(
+        small_scene, transport):
+    engine = start(small_scene, transport)
+    seen = Collector(engine)
+    handle = rt.open_scene(small_scene)
+    try:
+        assert seen.wait(seen.ready)
+        engine.send(rt.SetEffects(replace(handle.config.effects, guidance="none")))
+        assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 0, 30.0)
+        engine.send(rt.RequestLandscape())
+        assert seen.wait(lambda: seen.of(rt.LandscapeFailed), 10.0)
+        assert "guidance is off" in seen.of(rt.LandscapeFailed)[0].message
+        assert not seen.of(rt.ErrorEvent)
+        assert np.allclose(seen.frames[-1].force, 0.0)
+    finally:
+        engine.stop()
