@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Callable
+
+from engine.backend import CHOICES
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--modes", type=int, help="modes per axis K (m' = K^3); default: the "
                         "scene's [correlation] modes")
-    parser.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba", "opencl"),
+    parser.add_argument("--backend", default="auto", choices=CHOICES,
                         help="per-pose backend (auto measures the compiled ones and keeps the "
                         "faster)")
     parser.add_argument("--repeat", type=int, default=100,
@@ -43,7 +47,12 @@ def run(args: argparse.Namespace) -> int:
     if args.modes is not None and args.modes < 1:
         raise ValueError(f"--modes must be at least 1, got {args.modes}")
     pose = np.asarray(args.pose if args.pose is not None else scene.assembled_pose, dtype=float)
-    corr = correlator_for_scene(scene, modes=args.modes, backend=args.backend)
+    update, close = progress_bar("preparing", enabled=not args.json)
+    try:
+        corr = correlator_for_scene(scene, modes=args.modes, backend=args.backend,
+                                    progress=update)
+    finally:
+        close()
     rot = rotation_matrix(pose[3:])
     t = pose[:3]
     result = corr.evaluate(rot, t)
@@ -76,3 +85,25 @@ def run(args: argparse.Namespace) -> int:
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")
     return 0
+
+
+def progress_bar(
+    label: str, *, enabled: bool = True
+) -> tuple[Callable[[float], None] | None, Callable[[], None]]:
+    """A tqdm bar on stderr fed with fractions 0..1, when stderr is a terminal.
+
+    Returns the ``progress`` callback (None when there is no bar) and a function that
+    closes the bar.
+    """
+    if not enabled or not sys.stderr.isatty():
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=1000, desc=label, unit="", file=sys.stderr, leave=False,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
+
+    def update(fraction: float) -> None:
+        bar.n = int(round(1000 * min(max(fraction, 0.0), 1.0)))
+        bar.refresh()
+
+    return update, bar.close

@@ -27,6 +27,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from app.commands.evaluate import progress_bar
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.scene import load_scene
@@ -34,8 +35,16 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     fitted = np.asarray(scene.assembled_pose, dtype=float)
     rotvec = np.asarray(args.rotation if args.rotation is not None else fitted[3:], dtype=float)
-    corr = correlator_for_scene(scene, modes=args.modes, backend="numpy")
-    land = corr.landscape(rotation_matrix(rotvec), forces=False)
+    update, close = progress_bar("landscape")
+    try:
+        corr = correlator_for_scene(
+            scene, modes=args.modes, backend="numpy",
+            progress=None if update is None else (lambda f: update(0.8 * f)))
+        land = corr.landscape(rotation_matrix(rotvec), forces=False,
+                              progress=None if update is None else (
+                                  lambda f: update(0.8 + 0.2 * f)))
+    finally:
+        close()
     normal = {"xy": 2, "xz": 1, "yz": 0}[args.plane]
     offset = float(args.offset) if args.offset is not None else float(fitted[normal])
     section, u, v = land.section(args.plane, offset)

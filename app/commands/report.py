@@ -12,6 +12,8 @@ import argparse
 import time
 from pathlib import Path
 
+from engine.backend import CHOICES
+
 KS = (4, 8, 12, 16, 24, 32)
 
 
@@ -25,7 +27,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("scene", help="scene file (TOML)")
     parser.add_argument("-o", "--output", default="report", help="output folder (default: report)")
-    parser.add_argument("--backend", choices=("auto", "numpy", "numba", "opencl"), default="auto",
+    parser.add_argument("--backend", choices=CHOICES, default="auto",
                         help="per-pose backend (default: the fastest measured here)")
     parser.set_defaults(run=run)
 
@@ -82,9 +84,9 @@ def run(args: argparse.Namespace) -> int:
 
     from app.commands.landscape import write_section_png
     from engine.correlation import Correlator
+    from engine.descriptor import descriptors_for_scene
     from engine.pose import rotation_matrix
     from engine.scene import load_scene, load_scene_parts
-    from engine.descriptor import descriptors_for_scene
 
     scene = load_scene(args.scene)
     if len(scene.parts) < 2:

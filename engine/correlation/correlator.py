@@ -165,6 +165,7 @@ class Correlator:
         def stage(lo: float, hi: float) -> Callable[[float], None] | None:
             return None if progress is None else (lambda f: progress(lo + (hi - lo) * f))
 
+        per_pose.warm_up(backend, params.selection)  # compiles while the spectra are built
         self.params = params
         self.fixed_grid: Grid = g1
         self.moving_grid: Grid = g2

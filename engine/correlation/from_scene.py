@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from engine.correlation.correlator import Correlator
+from engine.correlation.per_pose import warm_up
 from engine.descriptor import descriptors_for_scene
 from engine.scene import Scene, load_scene
 
@@ -40,6 +41,7 @@ def correlator_for_scene(
     cancel : callable() -> bool, optional
         Raises :class:`engine.errors.Cancelled` when it returns True.
     """
+    warm_up(backend, "cube")  # the kernel compiles while the descriptors load
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     if len(scene.parts) < 2:

@@ -211,6 +211,22 @@ def kernel_function(kind: str, parallel: bool) -> Callable[..., Any]:
     return _KERNELS[key]
 
 
+def compile_now(kind: str) -> None:
+    """Compile (or load from numba's disk cache) the serial kernel of ``kind`` by calling it
+    once with arguments of the real types at a pose whose boxes are apart (it returns at
+    once). Lets a caller start the compilation early, on a worker thread."""
+    func = kernel_function(kind, False)
+    far = np.array([1e9, 0.0, 0.0])
+    zero, one = np.zeros(3), np.ones(3)
+    table = np.zeros((8, 8), dtype=np.float32)
+    if kind == "cube":
+        modes: tuple[Any, ...] = (np.zeros((1, 1, 1), dtype=np.complex64), table, 0,
+                                  np.zeros(1))
+    else:
+        modes = (np.zeros((1, 3)), np.zeros(1, dtype=np.complex64), table, 0)
+    func(np.eye(3), far, *modes, zero, zero, one, one, 1.0, 10.0, 1.0, 1.0, True)
+
+
 class NumbaKernel:
     """Per-pose sums compiled with numba; one thread unless asked for more.
 

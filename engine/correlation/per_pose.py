@@ -12,13 +12,14 @@ with the original error as its cause.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
 
-from engine.backend import BackendError, check_name, get_backend
+from engine.backend import BackendError, backend_problem, check_name, get_backend
 from engine.correlation.tables import ModeTable
 from engine.pose import rotation_matrix
 
@@ -67,6 +68,31 @@ def make_kernel(name: str, selection: str, rotation: bool) -> Kernel:
         raise BackendError(f"the {name} per-pose kernel cannot be built here: {first}") from exc
     raise ValueError(f"no compiled per-pose kernel is called {name!r}; valid: "
                      f"{', '.join(COMPILED)}")
+
+
+_warming: dict[str, threading.Thread] = {}
+_warming_lock = threading.Lock()
+
+
+def warm_up(name: str, selection: str) -> None:
+    """Start compiling the numba kernel on a worker thread, when ``name`` may use it.
+
+    The first compilation takes seconds (numba then keeps it on disk); started before the
+    spectra are computed, it overlaps with them. Does nothing when numba is absent, not
+    asked for, or already compiling or compiled.
+    """
+    if check_name(name) not in ("numba", "auto") or backend_problem("numba") is not None:
+        return
+    kind = "cube" if selection == "cube" else "list"
+    with _warming_lock:
+        if kind in _warming:
+            return
+        from engine.correlation.numba_kernels import compile_now
+
+        thread = threading.Thread(target=compile_now, args=(kind,), daemon=True,
+                                  name=f"skelasm-compile-{kind}")
+        _warming[kind] = thread
+        thread.start()
 
 
 def choose(

@@ -120,3 +120,26 @@ def test_report_writes_markdown_with_its_images(scene_file, tmp_path, capsys):
     # the separated pose is far out of reach: exactly zero energy, as the correlation promises
     row = next(line for line in text.splitlines() if line.startswith("| separated"))
     assert row.split("|")[4].strip() == "0"
+
+
+def test_evaluate_shows_progress_on_a_terminal(scene_file, monkeypatch, capsys):
+    """On a terminal the preparation (descriptors, spectra, tables, kernels) shows a bar
+    that reaches 100 %; without one (a pipe, --json) nothing is drawn."""
+    import io
+    import sys
+
+    from app.cli import main
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    assert main(["evaluate", str(scene_file), "--repeat", "1", "--modes", "6"]) == 0
+    drawn = terminal.getvalue()
+    assert "preparing" in drawn and "100%" in drawn
+    quiet = Terminal()
+    monkeypatch.setattr(sys, "stderr", quiet)
+    assert main(["evaluate", str(scene_file), "--repeat", "1", "--json"]) == 0
+    assert "preparing" not in quiet.getvalue()
