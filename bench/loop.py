@@ -16,7 +16,10 @@ interpreter:
 - ``--process``: the loop in its own process (``engine.runtime.ProcessEngine``) while the load
   runs in this one;
 - ``--switch-interval S``: ``sys.setswitchinterval`` while the loop runs (Python's default
-  5 ms lets another thread hold the GIL for that long).
+  5 ms lets another thread hold the GIL for that long);
+- ``--modes-sweep K1,K2,...``: change K every ``--sweep-period`` seconds while measuring
+  (the K slider): the new field is built by the engine's job worker, and the longest
+  period shows whether the loop felt it.
 
 Writes ``bench_loop.png`` (period histogram) unless ``--no-plot``.
 """
@@ -57,6 +60,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--thread", action="store_true",
                         help="with --gui: the engine in a thread of the window's process "
                              "(`skelasm gui --engine thread`)")
+    parser.add_argument("--modes-sweep", default="",
+                        help="comma-separated K values to cycle through while measuring")
+    parser.add_argument("--sweep-period", type=float, default=0.5,
+                        help="seconds between K changes of --modes-sweep")
+    parser.add_argument("--realtime-priority", action="store_true",
+                        help="thread engine: ask for real-time scheduling of the loop thread "
+                             "(the process engine always asks)")
     parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
 
 
@@ -85,6 +95,26 @@ def _vtk_load(stop: threading.Event, counter: list[int]) -> None:
         plotter.screenshot(return_img=True)  # a full render and read-back
         counter[0] += 1
     plotter.close()
+
+
+def sweep_modes(args: argparse.Namespace) -> list[int]:
+    """The K values of ``--modes-sweep``."""
+    return [int(k) for k in str(getattr(args, "modes_sweep", "") or "").split(",") if k.strip()]
+
+
+def _sweeper(args: argparse.Namespace, send, stop: threading.Event) -> threading.Thread:
+    """A thread sending SetModes through ``send`` every ``--sweep-period`` seconds."""
+    from engine.runtime import SetModes
+
+    ks = sweep_modes(args)
+
+    def body() -> None:
+        i = 0
+        while not stop.wait(args.sweep_period):
+            send(SetModes(ks[i % len(ks)]))
+            i += 1
+
+    return threading.Thread(target=body, name="bench-modes-sweep", daemon=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -122,14 +152,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"engine loop: {info['what']}, K = {args.modes} (m' = {args.modes ** 3}), "
           f"{info['field']}")
     interval = args.switch_interval
-    if interval is None and args.gui:
+    if interval is None and (args.gui or args.process):
         # the window starts its engine through start_engine, whose default this is
         from engine.runtime import DEFAULT_SWITCH_INTERVAL
 
         interval = DEFAULT_SWITCH_INTERVAL
     print(f"mode: {'process' if args.process else 'thread'}, load: {args.load}, "
           f"switch interval: {interval or sys.getswitchinterval()} s"
-          + (", GUI running" if args.gui else ""))
+          + (", GUI running" if args.gui else "")
+          + (f", K swept over {args.modes_sweep} every {args.sweep_period} s"
+             if sweep_modes(args) else ""))
+    if info.get("scheduling"):
+        print(f"loop thread scheduling: {info['scheduling']}")
     print()
     print("| steps | seconds | rate (Hz) | median (us) | p1 (us) | p99 (us) | max (us) "
           "| > 1.2 periods | eval median (us) |")
@@ -177,17 +211,26 @@ def _run_thread(args, load):
         sim.set_field(AnalyticWell(sim.physics.kappa))
     traj = TrajectoryDevice(bench_trajectory(sim, args.seconds + 2.0))
     loop = EngineLoop(sim, model=model, device=traj, realtime=True, keep_periods=True,
-                      switch_interval=args.switch_interval)
+                      switch_interval=args.switch_interval,
+                      raise_priority=bool(getattr(args, "realtime_priority", False)))
     if load is not None:
         load.start()
+    stop = threading.Event()
+    if sweep_modes(args):
+        _sweeper(args, loop.send, stop).start()
     warm = int(0.5 * args.rate)
-    loop.run(max_steps=warm + int(args.seconds * args.rate))
+    try:
+        loop.run(max_steps=warm + int(args.seconds * args.rate))
+    finally:
+        stop.set()
+        loop.guidance.close()
     frames = loop.poll_frames()
     eval_us = float(np.median([f.eval_us for f in frames])) if frames else float("nan")
     return np.asarray(loop.periods)[warm:], {
         "what": f"{handle.scene.name} ({Path(args.scene).name})",
         "field": backend_name(sim.field),
         "eval_us": eval_us,
+        "scheduling": loop.scheduling,
     }
 
 
@@ -213,14 +256,16 @@ def _report_from_frames(args, info) -> int:
 
 
 def _run_process(args, load):
-    from engine.runtime import EngineOptions, ProcessEngine
+    from engine.runtime import DEFAULT_SWITCH_INTERVAL, EngineOptions, ProcessEngine
 
+    interval = args.switch_interval
     options = EngineOptions(
         modes=args.modes,
         backend=args.backend,
         analytic=args.fake,
         rate_hz=args.rate,
-        switch_interval=args.switch_interval,
+        # as start_engine runs it: the engine process has a job worker beside the loop
+        switch_interval=DEFAULT_SWITCH_INTERVAL if interval is None else interval,
         raise_priority=True,  # as the GUI's engine process (SKELASM_REALTIME=0: off)
         keep_periods=True,
     )
@@ -229,7 +274,11 @@ def _run_process(args, load):
     ready = engine.wait_ready(timeout=1800)
     if load is not None:
         load.start()
+    stop = threading.Event()
+    if sweep_modes(args):
+        _sweeper(args, engine.send, stop).start()
     time.sleep(args.seconds + 0.5)
+    stop.set()
     periods, eval_us, field = engine.stop_and_collect()
     if not ready:
         raise RuntimeError("the engine process did not get ready")

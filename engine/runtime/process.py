@@ -148,6 +148,11 @@ class ProcessEngine:
         self._closed = False
 
     @property
+    def shared_memory_name(self) -> str:
+        """Name of the shared-memory block holding the frames."""
+        return self._shm.name
+
+    @property
     def pid(self) -> int | None:
         """The child's process id once started."""
         return self._proc.pid

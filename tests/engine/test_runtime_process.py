@@ -1,0 +1,122 @@
+"""The engine process dies with its parent, however the parent ends, and leaves nothing
+behind (no process, no shared memory): issue 9's orphaned engine spinning at real-time
+priority after the window crashed."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from engine.runtime.process import recv_message, send_message
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENE = ROOT / "assets" / "peg_in_hole" / "scene.toml"
+
+# a parent that starts a process engine (no guidance: nothing to prepare), says the
+# engine's pid and shared-memory name, and waits to be killed
+PARENT = textwrap.dedent(f"""
+    import time
+    from dataclasses import replace
+    from engine import runtime as rt
+
+    if __name__ == "__main__":
+        h = rt.open_scene({str(SCENE)!r})
+        cfg = h.config
+        h = replace(h, config=replace(cfg, effects=replace(cfg.effects, guidance="none")))
+        engine = rt.start_engine(h, process=True)
+        while not any(isinstance(e, rt.ReadyEvent) for e in engine.poll_events()):
+            time.sleep(0.05)
+        t = engine.transport
+        print(t.pid, t.shared_memory_name, flush=True)
+        time.sleep(600)
+""")
+
+
+def children_of(pid: int) -> set[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    out = set()
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.add(int(entry.name))
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def wait_for(pred, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux /proc")
+@pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGINT, signal.SIGTERM])
+def test_engine_process_ends_with_its_parent(tmp_path, how):
+    script = tmp_path / "parent.py"
+    script.write_text(PARENT)
+    with subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                          start_new_session=True) as parent:
+        try:
+            _kill_and_check(parent, how)
+        finally:
+            if parent.poll() is None:
+                parent.kill()
+
+
+def _kill_and_check(parent: subprocess.Popen, how: int) -> None:
+    """Kill ``parent`` (a process that started an engine) and check nothing is left."""
+    line = parent.stdout.readline()
+    assert line, parent.stderr.read()
+    engine_pid, shm_name = int(line.split()[0]), line.split()[1]
+    assert alive(engine_pid) and engine_pid in children_of(parent.pid)
+    helpers = children_of(parent.pid)  # the engine and multiprocessing's tracker
+    assert Path("/dev/shm", shm_name.lstrip("/")).exists()
+    if how == signal.SIGINT:
+        os.killpg(parent.pid, how)  # Ctrl+C reaches the whole process group
+    else:
+        os.kill(parent.pid, how)
+    _, errors = parent.communicate(timeout=10)
+    assert wait_for(lambda: not any(alive(p) for p in helpers), 5.0), [
+        p for p in helpers if alive(p)]
+    assert not Path("/dev/shm", shm_name.lstrip("/")).exists()
+    assert "leaked shared_memory" not in errors, errors
+
+
+def test_messages_carry_large_arrays_out_of_band():
+    import multiprocessing as mp
+
+    import numpy as np
+
+    read, write = mp.Pipe(duplex=False)
+    big = np.arange(300_000, dtype=np.float32).reshape(100, 3000)
+    sent = {"landscape": big, "note": "x"}
+    import threading
+
+    writer = threading.Thread(target=send_message, args=(write, sent))
+    writer.start()  # more than a pipe holds: the reader must read while it writes
+    got = recv_message(read)
+    writer.join()
+    np.testing.assert_array_equal(got["landscape"], big)
+    assert got["note"] == "x" and not got["landscape"].flags.writeable
