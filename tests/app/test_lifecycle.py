@@ -73,6 +73,7 @@ def gui(small_scene, tmp_path):
     yield proc
     if proc.poll() is None:
         proc.kill()
+    proc.communicate()  # reap it and close its pipes
     for pid in session_processes(proc.pid):
         os.kill(pid, signal.SIGKILL)
 
