@@ -14,6 +14,7 @@ BENCHMARKS = {
     "correlation": "microseconds per 6-DOF evaluation against accuracy, per mode count",
     "loop": "achieved engine rate and period distribution, headless or with the GUI",
     "soak": "the window with its engine and a dragged proxy for minutes (default 15)",
+    "seating": "real CAD pairs pushed misaimed: final errors, guided and collision-only",
 }
 
 
