@@ -132,8 +132,13 @@ def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
         out = out.with_suffix(".toml")
     out = out.resolve()
     text = tomli_w.dumps(scene_to_toml(scene, out.parent))
+    try:
+        # first: the relative part paths are checked through it ("../" needs it to exist)
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"{out}: cannot create its folder ({exc}); choose a folder you may "
+                         "write to", path=str(out)) from exc
     parse_scene(text, out)  # raises SceneError naming the line of what does not read back
-    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".part")
     try:
         tmp.write_text(text, encoding="utf-8")

@@ -285,8 +285,7 @@ def test_save_and_reload_round_trip_keeps_every_field(scene_dir, tmp_path):
     assert scene.config.effects.gravity == pytest.approx((0, -9810.0, 0))
     assert scene.parts[1].unit == "cm" and scene.config.masses[1].inertia[0][1] == 0.1
     assert scene.correlation.modes == 12 and scene.config.device.option("port")
-    out = tmp_path / "elsewhere" / "copy.toml"
-    out.parent.mkdir()
+    out = tmp_path / "elsewhere" / "deeper" / "copy.toml"  # folders made by the writer
     again = load_scene(save_scene(scene, out))
     assert_same_scene(again, scene)
     np.testing.assert_allclose(again.insertion_axis, [0, 0, -1])

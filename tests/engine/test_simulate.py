@@ -60,7 +60,7 @@ def test_bad_scene_names_the_line(tmp_path, capsys):
     assert main(["simulate", str(scene), "--guidance", "none"]) == 2
     err = capsys.readouterr().err
     line = next(i for i, l in enumerate(scene.read_text().splitlines(), 1) if "frequency_hz" in l)
-    assert f"scene.toml:{line}: [coupling] frequency_hz: must be positive" in err
+    assert f"scene.toml:{line}: frequency_hz in [coupling] must be a positive number" in err
 
 
 def test_missing_device_falls_back_to_mouse(tmp_path, capsys):
