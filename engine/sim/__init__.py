@@ -17,6 +17,7 @@ from engine.sim.build import (
     mass_properties,
     resolve_physics,
     rigid_body,
+    rotational_stiffness,
 )
 from engine.sim.coupling import clamp_norm, coupling_energy, coupling_wrench, haptic_reaction
 from engine.sim.fields import (
@@ -47,4 +48,5 @@ __all__ = [
     "mass_properties",
     "resolve_physics",
     "rigid_body",
+    "rotational_stiffness",
 ]

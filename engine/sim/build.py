@@ -109,6 +109,61 @@ def mass_properties(
     return float(mass), inertia, center
 
 
+#: Near a fit the geometric torque is left in charge of the part's orientation: the default
+#: rotational stiffness of the coupling is at most the geometric rotational stiffness at the
+#: assembled pose divided by this, so that a proxy tilted by ``theta`` leaves the seated part
+#: tilted by at most about ``theta / (1 + ROTATION_AUTHORITY)`` (3 degrees -> 0.27 degree)
+#: in a well that stiff.
+ROTATION_AUTHORITY = 10.0
+#: The rotational coupling is never softer than this fraction of the mass-based default
+#: ``I (2 pi f)^2`` (a tenth of the coupling frequency), so the user keeps the part's
+#: orientation in hand where a fit is nearly flat.
+MIN_ROTATION_FRACTION = 0.01
+#: Rotation step of the finite differences that measure the geometric rotational stiffness.
+STIFFNESS_STEP_RAD = math.radians(0.5)
+
+
+def rotational_stiffness(field: GeometricField, pose: np.ndarray) -> float | None:
+    """Geometric rotational stiffness of a field at a pose, per unit kappa.
+
+    The Hessian ``H = -dT/dtheta`` (3, 3) is taken by central differences of the torque
+    (rotation steps of :data:`STIFFNESS_STEP_RAD` about the world axes through the part's
+    origin) and symmetrised; the stiffness is the mean of its positive eigenvalues, the
+    directions the fit constrains (a free axis, such as a round peg's spin, has none).
+
+    Parameters
+    ----------
+    field : GeometricField
+        Must compute torque (``field.rotation``) with a non-zero ``kappa``.
+    pose : (6,) float64
+        Part 2 relative to part 1 (the assembled pose).
+
+    Returns
+    -------
+    float or None
+        Torque per radian per unit kappa; None when the field computes no torque or the
+        pose constrains no rotation.
+    """
+    if not field.rotation or field.kappa <= 0:
+        return None
+    p = np.asarray(pose, np.float64).reshape(6)
+    a = STIFFNESS_STEP_RAD
+    hessian = np.zeros((3, 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = a
+        plus = field.evaluate(rotation_matrix(p[3:] + d), p[:3]).torque
+        minus = field.evaluate(rotation_matrix(p[3:] - d), p[:3]).torque
+        if plus is None or minus is None:
+            return None
+        hessian[:, i] = -(np.asarray(plus) - np.asarray(minus)) / (2 * a)
+    eig = np.linalg.eigvalsh(0.5 * (hessian + hessian.T))
+    positive = eig[eig > 0]
+    if len(positive) == 0:
+        return None
+    return float(np.mean(positive)) / field.kappa
+
+
 def resolve_physics(
     config: SimConfig,
     vertices: np.ndarray,
@@ -117,8 +172,9 @@ def resolve_physics(
     part_index: int = 1,
     effects: Effects | None = None,
     kappa: float | None = None,
+    geometric_rotation: float | None = None,
 ) -> Physics:
-    """Scale the defaults to the moving part.
+    """Scale the defaults to the moving part (and to the fit, where it is known).
 
     Parameters
     ----------
@@ -132,6 +188,12 @@ def resolve_physics(
         Overrides ``config.effects`` (live changes from the GUI).
     kappa : float, optional
         Overrides the scene's / the default kappa.
+    geometric_rotation : float, optional
+        The field's rotational stiffness at the assembled pose per unit kappa
+        (:func:`rotational_stiffness`). The default rotational coupling stiffness is the
+        mass-based ``I (2 pi f)^2``, lowered to ``kappa * geometric_rotation /
+        ROTATION_AUTHORITY`` where the fit is softer than that (but not below
+        ``MIN_ROTATION_FRACTION`` of the mass-based one).
     """
     effects = effects or config.effects
     spec = config.mass_spec(part_index)
@@ -144,7 +206,16 @@ def resolve_physics(
     zeta = config.coupling.damping_ratio
     c = config.coupling
     k_lin = c.stiffness if c.stiffness is not None else mass * omega**2
-    k_rot = c.angular_stiffness if c.angular_stiffness is not None else i_mean * omega**2
+    if kappa is None:
+        kappa = config.simulation.kappa
+    if kappa is None:
+        kappa = config.simulation.guidance_gain * k_lin / length
+    k_rot = i_mean * omega**2
+    if c.angular_stiffness is not None:
+        k_rot = c.angular_stiffness
+    elif geometric_rotation is not None and geometric_rotation > 0 and kappa > 0:
+        k_fit = kappa * geometric_rotation / ROTATION_AUTHORITY
+        k_rot = max(min(k_rot, k_fit), MIN_ROTATION_FRACTION * k_rot)
     c_lin = c.damping if c.damping is not None else 2 * zeta * math.sqrt(k_lin * mass)
     c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
         k_rot * i_mean
@@ -154,10 +225,6 @@ def resolve_physics(
     body_c_rot = 2 * zb * math.sqrt(k_rot * i_mean)
     if not effects.damping:
         c_lin = c_rot = body_c_lin = body_c_rot = 0.0
-    if kappa is None:
-        kappa = config.simulation.kappa
-    if kappa is None:
-        kappa = config.simulation.guidance_gain * k_lin / length
     gravity = np.zeros(3) if effects.gravity is None else np.asarray(effects.gravity, float)
     return Physics(
         mass=mass,
@@ -210,14 +277,20 @@ class SceneModel:
         self.modes = int(modes or self.scene.modes)
         self.backend = backend
         self.start_pose = np.array(handle.start_pose, np.float64).reshape(6)
+        self.assembled_pose = np.array(handle.scene.assembled_pose, np.float64).reshape(6)
+        #: Rotational stiffness at the assembled pose, per unit kappa, of the field last
+        #: built (None: no field, or rotation locked); sets the default rotational coupling.
+        self.geometric_rotation: float | None = None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
     ) -> Physics:
-        """Physics constants for ``effects`` (and a changed coupling or kappa)."""
+        """Physics constants for ``effects`` (and a changed coupling or kappa), with the
+        rotational coupling scaled to the fit of the field last built."""
         config = self.config if coupling is None else replace(self.config, coupling=coupling)
         return resolve_physics(
-            config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa
+            config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa,
+            geometric_rotation=self.geometric_rotation,
         )
 
     def descriptors(
@@ -272,6 +345,9 @@ class SceneModel:
     ) -> tuple[GeometricField, tuple[Any, ...]]:
         """(field, descriptors) for ``effects``; nothing is built that effects switch off.
 
+        Also measures the field's rotational stiffness at the assembled pose
+        (:attr:`geometric_rotation`), which the physics resolved after this call uses.
+
         Parameters
         ----------
         effects : Effects
@@ -286,6 +362,7 @@ class SceneModel:
             Fraction done 0..1; True to stop (raises ``engine.errors.Cancelled``).
         """
         if effects.guidance == "none" or not self.has_pair:
+            self.geometric_rotation = None
             return NullField(), ()
         from engine.correlation import Correlator
 
@@ -305,6 +382,7 @@ class SceneModel:
             return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend, kappa=1.0)
 
         field = field_for_effects(effects, make, kappa=kappa, locked_rotation=locked_rotation)
+        self.geometric_rotation = rotational_stiffness(field, self.assembled_pose)
         if progress is not None:
             progress(1.0)
         return field, (d1, d2)
@@ -350,6 +428,7 @@ def build_simulation(
     field: GeometricField = NullField()
     if prepare:
         field, _ = model.field(effects, physics.kappa, rotation_matrix(model.start_pose[3:]))
+        physics = model.physics(effects)  # the rotational coupling scaled to the fit
     limits = HapticLimits.from_device(handle.config.device)
     sim = Simulation(rigid_body(physics), physics, effects, field, model.start_pose,
                      dt=1.0 / rate, limits=limits, coupled=coupled)

@@ -6,12 +6,15 @@ in part 1's frame; forces and torques (3,) float64 in part 1's frame, torques ab
 axes through part 2's origin (the correlation convention).
 
 The coupling is a six-axis spring-damper between the proxy frame and the part's frame,
-attached at the part's origin::
+attached at the part's centre of mass ``x = t + R c`` (``c`` the centre in the part's own
+frame), which the proxy places at ``x_proxy = t_proxy + R_proxy c``::
 
-    F_c = k (t_proxy - t) - c v_origin
+    F_c = k (x_proxy - x) - c v
     T_c = k_r rotvec(R_proxy R^T) - c_r omega
 
 (damping against the world: robust to jerky mouse input, which has no clean velocity).
+Holding the part at its centre of mass, not at its file's origin, keeps the lever of the
+geometric force against the rotational spring independent of where the file puts the origin.
 The device renders the reaction ``-F_c, -T_c`` scaled by ``force_scale`` and clamped in
 norm to ``max_force`` / ``max_torque``. The part itself feels the unclamped coupling.
 """
@@ -28,26 +31,27 @@ from engine.sim.body import rotvec_between
 
 def coupling_wrench(
     gains: Physics,
-    origin: np.ndarray,
+    point: np.ndarray,
     quat: np.ndarray,
-    origin_velocity: np.ndarray,
+    point_velocity: np.ndarray,
     omega: np.ndarray,
-    proxy_translation: np.ndarray,
+    proxy_point: np.ndarray,
     proxy_quat: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Force and torque the coupling applies at the part's origin.
+    """Force and torque the coupling applies at its attachment point on the part.
 
     Parameters
     ----------
     gains : Physics
         Reads ``k_lin``, ``c_lin``, ``k_rot``, ``c_rot``.
-    origin : (3,) float64
-        Part origin position.
+    point : (3,) float64
+        Position of the attachment point (the simulation's: the centre of mass).
     quat : (4,) float64
         Part orientation (w, x, y, z).
-    origin_velocity, omega : (3,) float64
-        Velocity of the part's origin and angular velocity (world axes).
-    proxy_translation : (3,) float64
+    point_velocity, omega : (3,) float64
+        Velocity of the attachment point and angular velocity (world axes).
+    proxy_point : (3,) float64
+        Where the proxy places the attachment point.
     proxy_quat : (4,) float64
         Proxy orientation (w, x, y, z).
 
@@ -55,20 +59,20 @@ def coupling_wrench(
     -------
     force, torque : (3,) float64
     """
-    force = gains.k_lin * (proxy_translation - origin) - gains.c_lin * origin_velocity
+    force = gains.k_lin * (proxy_point - point) - gains.c_lin * point_velocity
     torque = gains.k_rot * rotvec_between(proxy_quat, quat) - gains.c_rot * omega
     return force, torque
 
 
 def coupling_energy(
     gains: Physics,
-    origin: np.ndarray,
+    point: np.ndarray,
     quat: np.ndarray,
-    proxy_translation: np.ndarray,
+    proxy_point: np.ndarray,
     proxy_quat: np.ndarray,
 ) -> float:
     """Potential energy of the coupling's springs, ``k |d|^2 / 2 + k_r |r|^2 / 2``."""
-    d = proxy_translation - origin
+    d = proxy_point - point
     r = rotvec_between(proxy_quat, quat)
     return 0.5 * gains.k_lin * float(d @ d) + 0.5 * gains.k_rot * float(r @ r)
 

@@ -25,8 +25,7 @@ import numpy as np
 from engine.correlation import Evaluation
 
 if TYPE_CHECKING:
-    from engine.correlation import Correlator
-    from engine.landscape import Landscape
+    from engine.correlation import Correlator, Landscape
     from engine.params import Effects
 
 _ZERO3 = np.zeros(3)

@@ -16,7 +16,7 @@ import numpy as np
 from engine.correlation import Evaluation
 from engine.params import Effects, HapticLimits, Physics, SimulationParams
 from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
-from engine.sim.body import BodyState, RigidBody, drift, kick, kinetic_energy
+from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy
 from engine.sim.coupling import coupling_energy, coupling_wrench, haptic_reaction
 from engine.sim.fields import ZERO_EVALUATION, GeometricField
 
@@ -132,6 +132,8 @@ class Simulation:
         self._proxy_t = p[:3].copy()
         self._proxy_q = rotvec_to_quaternion(p[3:])
         self._proxy_R = quaternion_to_matrix(self._proxy_q)
+        # where the proxy wants the centre of mass: the coupling holds the part there
+        self._proxy_com = self._proxy_t + self._proxy_R @ self.body.center
 
     def part_pose(self) -> np.ndarray:
         """(6,) current pose of the part relative to part 1."""
@@ -142,8 +144,8 @@ class Simulation:
         e = kinetic_energy(self.body, self.state) + self.sample.energy
         e -= float(self._gravity_force @ self.state.com)
         if self.coupled:
-            e += coupling_energy(self.physics, self.state.origin(self.body), self.state.quat,
-                                 self._proxy_t, self._proxy_q)
+            e += coupling_energy(self.physics, self.state.com, self.state.quat,
+                                 self._proxy_com, self._proxy_q)
         return e
 
     def evaluate_field(self) -> Evaluation:
@@ -153,26 +155,29 @@ class Simulation:
 
     # -- stepping -------------------------------------------------------------------------------
     def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
-        """Force and torque on the part at its current state: the stored field sample,
-        gravity, the coupling to the proxy (sets the coupling and haptic outputs) and body
-        damping."""
+        """Force at the part's origin and torque about it, on the part at its current state:
+        the stored field sample (given at the origin), and gravity, the coupling to the
+        proxy and body damping, which act at the centre of mass (sets the coupling and
+        haptic outputs)."""
         state, body, sample, p = self.state, self.body, self.sample, self.physics
-        force = sample.force + self._gravity_force
+        at_com = self._gravity_force  # (3,) forces acting at the centre of mass
         torque = sample.torque if sample.torque is not None else _ZERO3
         if self.coupled:
             fc, tc = coupling_wrench(
-                p, state.origin(body), state.quat, state.origin_velocity(body), state.omega,
-                self._proxy_t, self._proxy_q,
+                p, state.com, state.quat, state.velocity, state.omega,
+                self._proxy_com, self._proxy_q,
             )
             self.coupling_force, self.coupling_torque = fc, tc
             self.haptic_force, self.haptic_torque = haptic_reaction(fc, tc, self.limits)
-            force = force + fc
+            at_com = at_com + fc
             torque = torque + tc
         if p.body_c_lin:
-            force = force - p.body_c_lin * state.velocity
+            at_com = at_com - p.body_c_lin * state.velocity
         if p.body_c_rot:
             torque = torque - p.body_c_rot * state.omega
-        return force, torque
+        # moved to the origin, where kick takes them: torque + (com - origin) x force
+        arm = state.rotation @ body.center
+        return sample.force + at_com, torque + cross3(arm, at_com)
 
     def step(self) -> Evaluation:
         """One fixed step, velocity Verlet: half a kick with the forces at the current pose

@@ -77,3 +77,24 @@ def well(center=(0.0, 0.0, 0.0), size=1.0, stiffness=50.0, **kw):
     """Three non-collinear springs: a full 6-DOF well at pose (center, identity)."""
     pts = size * np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, -1.0, 0.0]])
     return SpringCorrelator(pts, pts + np.asarray(center), stiffness, **kw)
+
+
+class UniformPull:
+    """A constant force ``F`` on the part's centre of mass ``c`` (part frame): the field of a
+    uniform pull, ``E = -F . (R c + t)``; force ``F`` and torque ``(R c) x F`` about the
+    part's origin (exact, conservative)."""
+
+    rotation = True
+    modes = 0
+
+    def __init__(self, force, center):
+        self.force = np.asarray(force, float).reshape(3)
+        self.center = np.asarray(center, float).reshape(3)
+
+    def evaluate(self, R, t):
+        arm = np.asarray(R, float) @ self.center
+        energy = -float(self.force @ (arm + np.asarray(t, float)))
+        return Evaluation(energy, self.force.copy(), np.cross(arm, self.force), 1.0, 0)
+
+    def set_modes(self, k):
+        self.modes = int(k)

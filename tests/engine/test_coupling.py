@@ -177,3 +177,50 @@ def test_verlet_step_is_second_order_and_beats_euler():
     # second order (measured 3.97; first order would give about 2, as Euler does: 2.5)
     assert 3.0 < coarse / fine < 5.0
     assert fine < 0.25 * euler  # measured 102 against 679 at the default 1 ms
+
+
+def test_coupling_holds_the_centre_of_mass():
+    """A pull through the centre of mass of a part whose origin lies off it moves the part
+    without turning it: the coupling holds the part at its centre of mass, so the pull has
+    no lever against the rotational spring (held at the origin, as before, the part turned
+    about the origin: 65 degrees here)."""
+    from sim_fakes import UniformPull
+
+    v, f = box_mesh()
+    v = v + np.array([0.0, 0.0, 3.0])  # the origin 3 units below the centre of the box
+    config = SimConfig()
+    phys = resolve_physics(config, v, f)
+    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    pull = np.array([0.3, 0.0, 0.0]) * phys.k_lin / phys.kappa  # the field scales by kappa
+    sim = Simulation(body, phys, config.effects, CorrelatorField(UniformPull(pull, body.center),
+                     1.0), np.zeros(6))
+    sim.run(3000)
+    pose = sim.part_pose()
+    np.testing.assert_allclose(pose[3:], 0.0, atol=1e-6)  # no turn
+    np.testing.assert_allclose(pose[:3], [0.3, 0.0, 0.0], atol=1e-4)  # k x = F
+
+
+def test_soft_fit_takes_over_the_rotation():
+    """Where the fit's rotational stiffness is low against the mass-based coupling, the
+    default rotational coupling drops to a tenth of the fit's: a proxy tilted 3 degrees
+    then leaves the part tilted a few tenths of a degree instead of keeping most of the
+    tilt."""
+    from engine.sim import rotational_stiffness
+
+    v, f = box_mesh()
+    config = SimConfig()
+    mass_based = resolve_physics(config, v, f)
+    tilts = {}
+    for scaled in (False, True):
+        # a spring well whose rotational stiffness is a fifth of the mass-based coupling's
+        a = 0.2 * mass_based.k_rot / (10.0 / 3.0)
+        field = CorrelatorField(well(stiffness=a), 1.0)
+        geo = rotational_stiffness(field, np.zeros(6)) if scaled else None
+        phys = resolve_physics(config, v, f, kappa=1.0, geometric_rotation=geo)
+        body = RigidBody(phys.mass, phys.inertia, phys.center)
+        sim = Simulation(body, phys, config.effects, field, np.zeros(6))
+        sim.set_proxy(np.array([0.0, 0.0, 0.0, math.radians(3.0), 0.0, 0.0]))
+        sim.run(4000)
+        tilts[scaled] = math.degrees(float(np.linalg.norm(sim.part_pose()[3:])))
+    assert tilts[False] > 2.0  # the mass-based spring keeps most of the proxy's tilt
+    assert tilts[True] < 0.5  # the fit is in charge

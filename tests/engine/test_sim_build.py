@@ -119,3 +119,32 @@ def test_scene_rate_sets_the_step_and_bad_steps_are_refused(tmp_path):
     for bad in (0.0, -1e-3, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="time step"):
             sim.dt = bad
+
+
+def test_rotational_stiffness_of_a_spring_well():
+    """Springs a (R p_i + t - p_i): the rotational Hessian at the rest pose is
+    a sum(|p|^2 I - p p^T) = a [[3, -1, 0], [-1, 3, 0], [0, 0, 4]] (eigenvalues 2, 4, 4),
+    whose positive eigenvalues average 10 a / 3; scaled by kappa, reported per unit kappa."""
+    from sim_fakes import well
+
+    from engine.sim import CorrelatorField, NullField, rotational_stiffness
+
+    field = CorrelatorField(well(stiffness=7.0), 2.5)
+    assert rotational_stiffness(field, np.zeros(6)) == pytest.approx(70.0 / 3.0, rel=1e-4)
+    assert rotational_stiffness(NullField(), np.zeros(6)) is None
+
+
+def test_fit_lowers_but_never_raises_the_rotational_coupling():
+    from engine.sim.build import MIN_ROTATION_FRACTION, ROTATION_AUTHORITY
+
+    v, f = box()
+    mass_based = resolve_physics(SimConfig(), v, f, kappa=2.0).k_rot
+    stiff_fit = resolve_physics(SimConfig(), v, f, kappa=2.0, geometric_rotation=1e9)
+    assert stiff_fit.k_rot == pytest.approx(mass_based)
+    soft = 0.3 * mass_based * ROTATION_AUTHORITY / 2.0
+    soft_fit = resolve_physics(SimConfig(), v, f, kappa=2.0, geometric_rotation=soft)
+    assert soft_fit.k_rot == pytest.approx(0.3 * mass_based)
+    flat = resolve_physics(SimConfig(), v, f, kappa=2.0, geometric_rotation=1e-9)
+    assert flat.k_rot == pytest.approx(MIN_ROTATION_FRACTION * mass_based)
+    # damping follows the stiffness (critical at the coupling's damping ratio)
+    assert soft_fit.c_rot == pytest.approx(math.sqrt(0.3) * stiff_fit.c_rot)

@@ -49,7 +49,14 @@ def test_no_trajectory_keeps_proxy_at_start(capsys):
     assert out["steps"] == 200
 
 
+@pytest.mark.slow
 def test_realtime_holds_rate(capsys):
+    """A timing check, so slow-marked and skipped on a loaded machine: behind schedule the
+    loop catches up with short periods and the median falls below the period."""
+    import os
+
+    if os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1):
+        pytest.skip(f"machine loaded (load average {os.getloadavg()[0]:.1f})")
     out = run_json(capsys, PEG, "--guidance", "none", "--seconds", 0.5, "--realtime")
     assert out["period_us"]["median"] == pytest.approx(1000.0, rel=0.05)
     assert out["wall_seconds"] >= 0.49
@@ -231,3 +238,22 @@ def test_energy_bounded_in_the_real_field_with_rotation(start):
     assert scale > 1000.0
     assert np.max(np.abs(energy - e0)) < 0.02 * scale
     assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.01 * scale
+
+
+@pytest.mark.slow
+def test_dovetail_holds_still_without_input():
+    """The dovetail's slide, left at its start pose with the proxy there, is drawn a few
+    millimetres towards the groove but stays nearly level over 2 s. Held by the coupling at
+    its file's origin (its front face, 15 mm ahead of its centre of mass), the geometric
+    pull on its body had a 15 mm lever against the rotational spring and tipped it 34
+    degrees; held at its centre of mass it tilts 7.5 degrees (the energy itself falls as the
+    slide's body swings down along the block's back face)."""
+    from engine.pose import relative_pose
+    from engine.runtime import open_scene
+    from engine.sim import build_simulation
+
+    handle = open_scene(ROOT / "assets" / "dovetail" / "scene.toml")
+    sim, _ = build_simulation(handle, prepare=True)
+    sim.run(2000)
+    moved = relative_pose(handle.start_pose, sim.part_pose())
+    assert np.degrees(np.linalg.norm(moved[3:])) < 10.0
