@@ -83,7 +83,7 @@ import engine.descriptor.constants as _c
 from engine.backend import Backend, get_backend
 from engine.descriptor.numba_kernels import evaluate as _evaluate_numba
 from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
-from engine.descriptor.tree import TriangleTree, build_tree
+from engine.descriptor.tree import TriangleTree, build_tree, pack_triangles, split_slivers
 from engine.errors import Cancelled, InputError, ResourceError
 from engine.grid import Grid
 from engine.params import DescriptorParams
@@ -198,11 +198,17 @@ class _Local:
 
 
 def _localise(triangles: np.ndarray, centre: np.ndarray, scale: float, use_tree: bool) -> _Local:
-    # Brute force keeps the tree's triangle order too, so that ties between equally near
-    # triangles (lowest index wins) resolve the same way in both methods.
+    """Move triangles to local units; the tree gets slivers cut into short pieces.
+
+    Brute force, the reference, sums over the triangles as given (no tree, no cutting).
+    """
     local = (triangles - centre) / scale
-    tree = build_tree(local)
-    return _Local(centre, scale, tree if use_tree else None, tree.tri)
+    if not use_tree:
+        return _Local(centre, scale, None, pack_triangles(local))
+    pieces, _ = split_slivers(local, floor=_c.SPLIT_FLOOR, width_factor=_c.SPLIT_WIDTH,
+                              budget=_c.SPLIT_BUDGET)  # fmt: skip
+    tree = build_tree(pieces)
+    return _Local(centre, scale, tree, tree.tri)
 
 
 def _run(

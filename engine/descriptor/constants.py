@@ -21,7 +21,7 @@ THETA_NODE = 0.35
 #: pieces no coarser than at the default sigma (the 1/r^2-like kernel needs them anyway).
 SIGMA_RESOLUTION = 0.5
 #: Barnes-Hut opening ratio for the winding number.
-THETA_WINDING = 0.5
+THETA_WINDING = 0.35
 #: Pieces and clusters beyond (1 + GAUSS_CUTOFF * sigma) |xi| are skipped.
 GAUSS_CUTOFF = 6.0
 #: Distances within TIE (grid cells) count as equal when picking the nearest triangle.
@@ -33,6 +33,14 @@ MAX_LEVEL = 90
 #: Explicit stack sizes (pieces: one per level + 1; nodes: tree depth + 1).
 PIECE_STACK = 96
 NODE_STACK = 64
+
+#: Slivers are cut across their length (engine.descriptor.tree.split_slivers) into pieces
+#: no longer than SPLIT_WIDTH times their width, but no shorter than SPLIT_FLOOR grid
+#: cells; at most SPLIT_BUDGET pieces (past it the floor grows). Well-shaped triangles
+#: (longest edge under SPLIT_WIDTH times the altitude onto it) are never cut.
+SPLIT_WIDTH = 3.0
+SPLIT_FLOOR = 0.1
+SPLIT_BUDGET = 1_000_000
 
 #: Evaluation methods: the accelerated hierarchy, or every triangle (the reference).
 METHODS = ("tree", "brute")
