@@ -190,7 +190,8 @@ def test_dropping_a_file_on_the_window_opens_it(make_window, small_scene, wait_u
     mime = QtCore.QMimeData()
     mime.setUrls([QtCore.QUrl.fromLocalFile(str(small_scene))])
     pos = QtCore.QPointF(win.width() / 2, win.height() / 2)
-    enter = QtGui.QDragEnterEvent(pos, QtCore.Qt.CopyAction, mime,
+    # QDragEnterEvent takes an integer point (PySide6 6.11), QDropEvent a float one
+    enter = QtGui.QDragEnterEvent(pos.toPoint(), QtCore.Qt.CopyAction, mime,
                                   QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
     QtWidgets.QApplication.sendEvent(win, enter)
     assert enter.isAccepted()
@@ -200,7 +201,7 @@ def test_dropping_a_file_on_the_window_opens_it(make_window, small_scene, wait_u
     wait_until(lambda: "Small test scene" in win.windowTitle(), 20000, "the dropped scene")
     # a file of an unknown kind is not accepted
     mime.setUrls([QtCore.QUrl.fromLocalFile(str(small_scene.with_suffix(".txt")))])
-    enter = QtGui.QDragEnterEvent(pos, QtCore.Qt.CopyAction, mime,
+    enter = QtGui.QDragEnterEvent(pos.toPoint(), QtCore.Qt.CopyAction, mime,
                                   QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
     enter.ignore()
     QtWidgets.QApplication.sendEvent(win, enter)
