@@ -164,7 +164,7 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
         tmp = np.einsum("cij,cj->ci", tmp, ey, optimize=True)
         exact[lo : lo + 512] = h**3 * np.einsum("ci,ci->c", tmp, ex)
     wrapped = np.mod(kept, corr.size)
-    a = corr.spectrum_fixed.values[np.ix_(wrapped, wrapped, wrapped)].ravel().astype(np.complex128)
+    a = corr.spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)].ravel().astype(np.complex128)
     weight = np.abs(a)
     spectral = float(np.sqrt(np.sum(weight * np.abs(approx - exact) ** 2)
                              / np.sum(weight * np.abs(exact) ** 2)))
@@ -176,6 +176,7 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
 
 def run(args: argparse.Namespace) -> int:
     from engine.correlation import Correlator
+    from engine.correlation.tables import cube_reach
     from engine.pose import rotation_matrix
 
     rng = np.random.default_rng(args.seed)
@@ -204,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
         setup = time.perf_counter() - start
         backends = args.backends or _present_backends(corr)
         print(f"\n## {name}: grids {d1.grid.shape} and {d2.grid.shape}, h = {d1.grid.spacing:.4g}, "
-              f"FFT size {corr.size} (x{corr.oversample_factor} for part 2), setup {setup:.1f} s")
+              f"FFT size {corr.size} (x{corr.spectra.oversample_factor} for part 2), "
+              f"setup {setup:.1f} s")
         timing_poses = _poses(fitted, spread, args.poses, rng)
         error_poses = _poses(fitted, spread, args.error_poses, rng)
         # reference: numpy at full modes
@@ -246,8 +248,9 @@ def run(args: argparse.Namespace) -> int:
             rot = rotation_matrix(np.array([1.0, 2.0, -1.5]) / np.linalg.norm([1, 2, -1.5]) * angle)
             for k in (16, 24, 32):
                 spectral, score = interpolation_error(corr, rot, k)
-                lattice = (f"refined x{corr.refine}" if corr.uses_fine_table(k)
-                           else f"q = {corr.oversample_factor}")
+                fine = corr.spectra.fine_for(cube_reach(k))
+                lattice = (f"refined x{corr.spectra.refine}" if fine
+                           else f"q = {corr.spectra.oversample_factor}")
                 interp_rows.append((name, angle, k, lattice, spectral, score))
         print(f"  picked by auto here: {_auto_pick(d1, d2, args)}")
 

@@ -33,7 +33,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,17 +42,19 @@ import engine.correlation.reference as reference
 from engine.backend import CHOICES, check_name
 from engine.correlation.finishing import Evaluation, boxes_overlap
 from engine.correlation.landscape import Landscape, compute_landscape
-from engine.correlation.spectrum import Spectrum, fast_size
+from engine.correlation.spectrum import fast_size
 from engine.correlation.tables import (
     ModeTable,
     PairGeometry,
     Spectra,
     build_spectra,
-    cube_reach,
     truncate,
 )
 from engine.grid import Grid
 from engine.params import CorrelationParams
+
+if TYPE_CHECKING:
+    from engine.correlation.rotation_cache import RotationCache
 
 #: Backend names a Correlator accepts.
 BACKEND_CHOICES = CHOICES
@@ -272,6 +274,25 @@ class Correlator:
                                  modes, forces=forces, table=table, progress=progress,
                                  cancel=cancel)
 
+    def rotation_cache(self, rotation: np.ndarray) -> RotationCache:
+        """Products kept at ``rotation`` for :meth:`evaluate_cached` (numba; any thread)."""
+        from engine.correlation.rotation_cache import build_rotation_cache  # needs numba
+
+        return build_rotation_cache(self.table, rotation)
+
+    def evaluate_cached(self, cache: RotationCache, rotation: np.ndarray,
+                        translation: np.ndarray) -> Evaluation:
+        """As :meth:`evaluate`, from a rotation cache (first order in the rotation since it
+        was built; force and torque the exact derivatives of the energy returned)."""
+        from engine.correlation.rotation_cache import cached_pose
+
+        start = time.perf_counter()
+        rot = np.ascontiguousarray(rotation, dtype=np.float64).reshape(3, 3)
+        out = cached_pose(cache, rot, np.ascontiguousarray(translation, dtype=np.float64))
+        return Evaluation(energy=float(out[0]), force=out[1:4], torque=out[4:7],
+                          microseconds=(time.perf_counter() - start) * 1e6,
+                          modes=cache.table.modes)
+
     # ------------------------------------------------------------------ backends
     @property
     def backend(self) -> str:
@@ -319,26 +340,6 @@ class Correlator:
         return self.spectra.selection
 
     @property
-    def oversample_factor(self) -> int:
-        """``q``: part 2's lattice is ``q`` times finer than part 1's."""
-        return self.spectra.oversample_factor
-
-    @property
-    def refine(self) -> int:
-        """Refinement of part 2's refined table."""
-        return self.spectra.refine
-
-    @property
-    def spectrum_fixed(self) -> Spectrum:
-        """Part 1's centred spectrum."""
-        return self.spectra.fixed
-
-    @property
-    def spectrum_moving(self) -> Spectrum:
-        """Part 2's centred spectrum (and moment spectra), computed on first use."""
-        return self.spectra.moving
-
-    @property
     def centre_fixed(self) -> np.ndarray:
         """(3,) centre of part 1's grid."""
         return self.spectra.geometry.centre_fixed
@@ -357,9 +358,3 @@ class Correlator:
     def half_moving(self) -> np.ndarray:
         """(3,) half extent of part 2's grid box."""
         return self.spectra.geometry.half_moving
-
-    def uses_fine_table(self, modes: int | None = None) -> bool:
-        """Whether the kept modes (or a cube of ``modes``) read the refined table."""
-        if modes is None:
-            return self.table.fine
-        return self.spectra.fine_for(cube_reach(int(modes)))

@@ -188,26 +188,37 @@ def _compiled(func: Callable[..., Any], **options: Any) -> Any:
     return numba.njit(fastmath=True, cache=True, nogil=True, **options)(copy)
 
 
+def compiled_helpers() -> dict[str, Any]:
+    """The namespace of the compiled interpolation and finishing helpers (built once)."""
+    if not _NAMESPACE:
+        _NAMESPACE.update({"__name__": __name__, "np": np, "prange": numba.prange})
+        inlined: tuple[Callable[..., Any], ...] = interpolation.FUNCTIONS
+        for helper in inlined:
+            _NAMESPACE[helper.__name__] = _compiled(helper, inline="always")
+        called: tuple[Callable[..., Any], ...] = (*finishing.FUNCTIONS, _sum_rows)
+        for helper in called:
+            _NAMESPACE[helper.__name__] = _compiled(helper)
+    return _NAMESPACE
+
+
+def compile_with_helpers(source: Callable[..., Any], name: str, *, parallel: bool = False
+                         ) -> Callable[..., Any]:
+    """``source`` compiled under ``name`` (its own entry in numba's on-disk cache), calling
+    the compiled helpers of :func:`compiled_helpers` by their names."""
+    namespace = compiled_helpers()
+    variant = types.FunctionType(source.__code__.replace(co_name=name), namespace, name)
+    variant.__qualname__ = name
+    variant.__doc__ = source.__doc__
+    return numba.njit(fastmath=True, cache=True, nogil=True, parallel=parallel)(variant)
+
+
 def kernel_function(kind: str, parallel: bool) -> Callable[..., Any]:
     """The compiled sum over the cube (``kind`` "cube") or a mode list ("list")."""
     key = (kind, parallel)
     if key not in _KERNELS:
-        if not _NAMESPACE:
-            _NAMESPACE.update({"__name__": __name__, "np": np, "prange": numba.prange})
-            inlined: tuple[Callable[..., Any], ...] = interpolation.FUNCTIONS
-            for helper in inlined:
-                _NAMESPACE[helper.__name__] = _compiled(helper, inline="always")
-            called: tuple[Callable[..., Any], ...] = (*finishing.FUNCTIONS, _sum_rows)
-            for helper in called:
-                _NAMESPACE[helper.__name__] = _compiled(helper)
         source = _pose_cube if kind == "cube" else _pose_list
-        # a distinct name per variant, so that the compiled versions get their own
-        # entries in numba's on-disk cache
         name = f"{source.__name__}_{'parallel' if parallel else 'serial'}"
-        variant = types.FunctionType(source.__code__.replace(co_name=name), _NAMESPACE, name)
-        variant.__qualname__ = name
-        _KERNELS[key] = numba.njit(fastmath=True, cache=True, nogil=True,
-                                   parallel=parallel)(variant)
+        _KERNELS[key] = compile_with_helpers(source, name, parallel=parallel)
     return _KERNELS[key]
 
 

@@ -365,7 +365,7 @@ def test_rotation_off_computes_no_moments(fields):
     corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8, rotation=False,
                       backend="numba", use_cache=False)
     assert corr.stats["moment_spectra"] == 0
-    assert corr.spectrum_moving.moments is None
+    assert corr.spectra.moving.moments is None
     assert corr.table.moving.shape[-1] == 2
     ev = corr.evaluate(rotation_matrix(np.array([0.1, 0.2, 0.3])), np.array([0.1, 0.0, 0.2]))
     assert ev.torque is None

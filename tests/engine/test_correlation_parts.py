@@ -204,3 +204,61 @@ def test_progress_is_reported_and_ends_at_one():
     assert seen == sorted(seen)
     with pytest.raises(Cancelled):
         Correlator(d1, d2, modes=6, backend="numpy", use_cache=False, cancel=lambda: True)
+
+
+# ------------------------------------------------------------------ rotation cache
+@pytest.fixture(scope="module")
+def cached():
+    pytest.importorskip("numba")
+    d1, d2 = pair()
+    corr = Correlator(d1, d2, modes=12, backend="numba", use_cache=False)
+    r0 = rotation_matrix(np.array([0.3, -0.2, 0.5]))
+    return corr, r0, corr.rotation_cache(r0)
+
+
+def test_rotation_cache_equals_the_full_path_at_its_rotation(cached):
+    corr, r0, cache = cached
+    for t in (np.array([0.2, -0.3, 0.1]), np.array([-0.6, 0.4, 0.3])):
+        full = corr.evaluate(r0, t)
+        fast = corr.evaluate_cached(cache, r0, t)
+        assert fast.energy == pytest.approx(full.energy, rel=1e-5)
+        np.testing.assert_allclose(fast.force, full.force, atol=1e-5 * np.linalg.norm(full.force))
+        np.testing.assert_allclose(fast.torque, full.torque,
+                                   atol=1e-5 * np.linalg.norm(full.torque))
+    far = corr.evaluate_cached(cache, r0, np.array([50.0, 0.0, 0.0]))
+    assert far.energy == 0.0 and not np.any(far.force) and not np.any(far.torque)
+
+
+def test_rotation_cache_error_is_second_order_in_the_rotation(cached):
+    corr, r0, cache = cached
+    t = np.array([0.2, -0.3, 0.1])
+    axis = np.array([0.6, 0.0, 0.8])
+    errors = []
+    for angle in (2e-3, 4e-3, 8e-3):
+        rot = rotation_matrix(angle * axis) @ r0
+        errors.append(abs(corr.evaluate_cached(cache, rot, t).energy
+                          - corr.evaluate(rot, t).energy))
+    assert errors[1] > 2.5 * errors[0] and errors[2] > 2.5 * errors[1]
+    assert errors[0] < 1e-4 * abs(corr.evaluate(r0, t).energy)
+
+
+def test_rotation_cache_force_and_torque_are_derivatives_of_its_energy(cached):
+    """The cached model is conservative: F and T are -dE/dt and -dE/dtheta of the energy it
+    reports, also away from the cache's rotation."""
+    corr, r0, cache = cached
+    rot = rotation_matrix(np.array([4e-3, -2e-3, 3e-3])) @ r0
+    t = np.array([0.2, -0.3, 0.1])
+    ev = corr.evaluate_cached(cache, rot, t)
+    eps = 1e-4
+    fd_t = np.empty(3)
+    fd_f = np.empty(3)
+    for a in range(3):
+        d = np.zeros(3)
+        d[a] = eps
+        plus = corr.evaluate_cached(cache, rotation_matrix(d) @ rot, t).energy
+        minus = corr.evaluate_cached(cache, rotation_matrix(-d) @ rot, t).energy
+        fd_t[a] = -(plus - minus) / (2 * eps)
+        fd_f[a] = -(corr.evaluate_cached(cache, rot, t + d).energy
+                    - corr.evaluate_cached(cache, rot, t - d).energy) / (2 * eps)
+    assert np.linalg.norm(ev.torque - fd_t) < 1e-3 * np.linalg.norm(fd_t)
+    assert np.linalg.norm(ev.force - fd_f) < 1e-3 * np.linalg.norm(fd_f)
