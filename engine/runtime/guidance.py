@@ -155,8 +155,8 @@ class Guidance:
             raise RuntimeError("this engine has no scene model to rebuild its field from")
         key = (self.effects.guidance, self.sigma, self.penalty)
         reuse = self.descriptors if key == self._in_use and task != "correlator" else ()
-        if not reuse and task == "field":
-            task = "descriptors"
+        if not reuse and task == "field" and self.effects.guidance != "none":
+            task = "descriptors"  # no descriptors to reuse: they are computed (or loaded)
         fld = self.sim.field
         backend = (fld.correlator.backend if isinstance(fld, (CorrelatorField, LandscapeField))
                    else "")

@@ -31,7 +31,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
-from typing import Any
 
 import numpy as np
 
@@ -54,7 +53,7 @@ from engine.runtime.messages import (
 )
 from engine.runtime.pacing import drop_realtime_priority
 from engine.runtime.scene_handle import SceneHandle
-from engine.sim import build_simulation
+from engine.sim import Simulation, build_simulation
 
 __all__ = ["EngineOptions", "ParentGuard", "ProcessEngine", "recv_message", "send_message"]
 
@@ -98,7 +97,7 @@ def send_message(conn: Connection, obj: object) -> None:
         conn.send_bytes(b.raw())
 
 
-def recv_message(conn: Connection) -> Any:
+def recv_message(conn: Connection) -> object:
     """Read one object written by :func:`send_message`."""
     data = conn.recv_bytes()
     count = int.from_bytes(data[:4], "little")
@@ -195,7 +194,7 @@ class ProcessEngine:
             if isinstance(message, _Result):
                 self._result = message
             else:
-                self._pending.append(message)
+                self._pending.append(message)  # type: ignore[arg-type]  # only events come
 
     def poll_events(self) -> list[Event]:
         """Events since the last call, oldest first."""
@@ -306,7 +305,7 @@ def _set_parent_death_signal(signum: int) -> bool:
         return False
 
 
-def _child_device(handle: SceneHandle, sim: Any, options: EngineOptions,
+def _child_device(handle: SceneHandle, sim: Simulation, options: EngineOptions,
                   notices: list[Event]) -> Device:
     if options.keep_periods:
         return TrajectoryDevice(bench_trajectory(sim, 3600.0)[:200000])
