@@ -99,7 +99,7 @@ def _vtk_load(stop: threading.Event, counter: list[int]) -> None:
 
 def sweep_modes(args: argparse.Namespace) -> list[int]:
     """The K values of ``--modes-sweep``."""
-    return [int(k) for k in str(getattr(args, "modes_sweep", "") or "").split(",") if k.strip()]
+    return [int(k) for k in args.modes_sweep.split(",") if k.strip()]
 
 
 def _sweeper(args: argparse.Namespace, send, stop: threading.Event) -> threading.Thread:
@@ -212,7 +212,7 @@ def _run_thread(args, load):
     traj = TrajectoryDevice(bench_trajectory(sim, args.seconds + 2.0))
     loop = EngineLoop(sim, model=model, device=traj, realtime=True, keep_periods=True,
                       switch_interval=args.switch_interval,
-                      raise_priority=bool(getattr(args, "realtime_priority", False)))
+                      raise_priority=args.realtime_priority)
     if load is not None:
         load.start()
     stop = threading.Event()

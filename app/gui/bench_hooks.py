@@ -141,7 +141,7 @@ def run_gui_for(seconds: float = 10.0, scene: str | Path | None = None, *,
                 "scene_name": handle.scene.name,
                 "backend": win.readouts.text("backend"),
                 "engine": win.session.engine_name,
-                "engine_note": getattr(win, "engine_note", ""),
+                "engine_note": win.engine_note,
                 "guidance_ready": bool(ready),
                 "guidance_error": win.guidance_error,
                 "seconds": elapsed,
@@ -192,13 +192,13 @@ def run_loop_benchmark(args, load=None):
     from dataclasses import replace
 
     kwargs = {"rate_hz": args.rate, "modes": args.modes, "backend": args.backend}
-    if getattr(args, "process", False):
+    if args.process:
         # the engine process keeps no period list for us: its frames carry its period stats
         kwargs["process"] = True
-    if getattr(args, "switch_interval", None) is not None:
+    if args.switch_interval is not None:
         kwargs["switch_interval"] = args.switch_interval
     transform = None
-    if getattr(args, "translation_only", False):
+    if args.translation_only:
         def transform(handle):
             effects = replace(handle.config.effects, axes=("x", "y", "z"))
             return replace(handle, config=replace(handle.config, effects=effects))
