@@ -14,6 +14,8 @@ spacing): part 1 fixed, part 2 moved by ``(R, t)``. Modules, bottom to top:
   :mod:`~engine.correlation.opencl_kernels`: the per-pose sums (numpy, numba, OpenCL);
 - :mod:`~engine.correlation.per_pose`: which per-pose path runs;
 - :mod:`~engine.correlation.landscape`: the energy over every translation at once;
+- :mod:`~engine.correlation.rotation_cache`: per-pose sums from products kept at a
+  reference rotation (only translation phases per pose);
 - :mod:`~engine.correlation.correlator`: :class:`Correlator`, which ties them together;
 - :mod:`~engine.correlation.from_scene`: a Correlator for a scene's two parts.
 
