@@ -157,9 +157,11 @@ class Simulation:
     def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
         """Force at the part's origin and torque about it, on the part at its current state:
         the stored field sample (given at the origin), and gravity, the coupling to the
-        proxy and body damping, which act at the centre of mass (sets the coupling and
-        haptic outputs)."""
+        proxy and body damping, which act at the centre of mass. Sets the coupling outputs
+        (about the part's origin) and the haptic ones (the reaction about the proxy's
+        origin, scaled and clamped)."""
         state, body, sample, p = self.state, self.body, self.sample, self.physics
+        arm = state.rotation @ body.center  # (3,) origin -> centre of mass
         at_com = self._gravity_force  # (3,) forces acting at the centre of mass
         torque = sample.torque if sample.torque is not None else _ZERO3
         if self.coupled:
@@ -167,8 +169,11 @@ class Simulation:
                 p, state.com, state.quat, state.velocity, state.omega,
                 self._proxy_com, self._proxy_q,
             )
-            self.coupling_force, self.coupling_torque = fc, tc
-            self.haptic_force, self.haptic_torque = haptic_reaction(fc, tc, self.limits)
+            self.coupling_force = fc
+            self.coupling_torque = tc + cross3(arm, fc)
+            self.haptic_force, self.haptic_torque = haptic_reaction(
+                fc, tc + cross3(self._proxy_com - self._proxy_t, fc), self.limits
+            )
             at_com = at_com + fc
             torque = torque + tc
         if p.body_c_lin:
@@ -176,7 +181,6 @@ class Simulation:
         if p.body_c_rot:
             torque = torque - p.body_c_rot * state.omega
         # moved to the origin, where kick takes them: torque + (com - origin) x force
-        arm = state.rotation @ body.center
         return sample.force + at_com, torque + cross3(arm, at_com)
 
     def step(self) -> Evaluation:
