@@ -140,7 +140,7 @@ def constrained_errors(error: np.ndarray, axis: np.ndarray, free: tuple[str, ...
     axis = axis / np.linalg.norm(axis)
     axial = float(t @ axis)
     lateral = float(np.linalg.norm(t - axial * axis))
-    rot = Rotation.from_rotvec(np.asarray(error[3:], float))
+    rot = Rotation.from_rotvec(np.array(error[3:], float))
     free_rot = [i for i, name in enumerate(_AXES[3:]) if name in free]
     if not free_rot:
         tilt = float(np.linalg.norm(error[3:]))
@@ -263,9 +263,13 @@ def run(args: argparse.Namespace) -> int:
     results: list[SeatingResult] = []
     for i, (name, guidance) in enumerate(jobs):
         bar.begin(i, f"{name} ({guidance})")
-        results.append(seating_run(name, guidance, seconds=args.seconds, modes=args.modes,
-                                   backend=args.backend, progress=bar))
-    bar.end()
+        r = seating_run(name, guidance, seconds=args.seconds, modes=args.modes,
+                        backend=args.backend, progress=bar)
+        results.append(r)
+        bar.end()
+        print(f"{name} ({guidance}): position {r.position_percent:.2f} % of the width, tilt "
+              f"{r.tilt_deg:.2f} deg, {'seated' if r.seated else 'not seated'} "
+              f"({r.wall_seconds:.0f} s)", file=sys.stderr, flush=True)
     print(table(results))
     _plot(results, args.output)
     print(f"\nplot: {args.output}")
