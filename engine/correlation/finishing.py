@@ -57,17 +57,29 @@ class Evaluation:
     modes: int
 
 
-def boxes_overlap(rot, t, c1, c2, half1, half2, h):
-    """Whether part 2's grid box, moved by ``(rot, t)`` and with one cell ``h`` of margin,
-    meets part 1's. Where it does not, the energy, force and torque are exactly zero.
+def overlap_bounds(rot, c1, c2, half1, half2, h):
+    """Where the grid boxes can meet: part 2's box, rotated by ``rot`` and with one cell
+    ``h`` of margin, meets part 1's exactly when ``|t_a + offset_a| < reach_a`` on every
+    axis ``a``. Returns ``(offset, reach)``, two (3,) float64: ``offset = R c2 - c1``,
+    ``reach = half1 + |R| half2 + h``. Where the boxes do not meet, the energy, force and
+    torque are exactly zero.
 
-    rot (3, 3); t, c1, c2 (grid centres), half1, half2 (half extents) (3,) float64.
+    rot (3, 3); c1, c2 (grid centres), half1, half2 (half extents) (3,) float64.
     """
+    offset = np.empty(3)
+    reach = np.empty(3)
     for a in range(3):
-        centre = rot[a, 0] * c2[0] + rot[a, 1] * c2[1] + rot[a, 2] * c2[2] + t[a]
-        extent = (abs(rot[a, 0]) * half2[0] + abs(rot[a, 1]) * half2[1]
-                  + abs(rot[a, 2]) * half2[2])
-        if abs(centre - c1[a]) >= half1[a] + extent + h:
+        offset[a] = rot[a, 0] * c2[0] + rot[a, 1] * c2[1] + rot[a, 2] * c2[2] - c1[a]
+        reach[a] = (half1[a] + abs(rot[a, 0]) * half2[0] + abs(rot[a, 1]) * half2[1]
+                    + abs(rot[a, 2]) * half2[2] + h)
+    return offset, reach
+
+
+def boxes_overlap(rot, t, c1, c2, half1, half2, h):
+    """Whether the grid boxes meet at the pose ``(rot, t)`` (see :func:`overlap_bounds`)."""
+    offset, reach = overlap_bounds(rot, c1, c2, half1, half2, h)
+    for a in range(3):
+        if abs(t[a] + offset[a]) >= reach[a]:
             return False
     return True
 
@@ -121,4 +133,4 @@ def finish(sums, rot, c2, kappa, n_h, scale, moments):
 
 
 #: The functions the numba kernels compile (callees of the kernels).
-FUNCTIONS = (boxes_overlap, phase_offset, torque_scale, finish)
+FUNCTIONS = (overlap_bounds, boxes_overlap, phase_offset, torque_scale, finish)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from engine.correlation.finishing import Evaluation
+from engine.correlation.finishing import Evaluation, overlap_bounds
 from engine.correlation.interpolation import hermite
 from engine.correlation.reference import interpolate_rows
 from engine.correlation.spectrum import FFT_WORKERS, kept_indices
@@ -302,14 +302,10 @@ def _landscape(
     t0 = g.centre_fixed - rot @ g.centre_moving
     axes = (t0[0] + h * (np.arange(n) - n // 2), t0[1] + h * (np.arange(n) - n // 2),
             t0[2] + h * (np.arange(n) - n // 2))
-    # zero where the grid boxes cannot overlap (as the per-pose path)
-    extent = np.abs(rot) @ g.half_moving
-    centre = rot @ g.centre_moving
-    masks = []
-    for a in range(3):
-        gap = np.abs(axes[a] + centre[a] - g.centre_fixed[a]) - (
-            g.half_fixed[a] + extent[a] + h)
-        masks.append(gap < 0)
+    # zero where the grid boxes cannot overlap (the per-pose path's test)
+    offset, reach = overlap_bounds(rot, g.centre_fixed, g.centre_moving, g.half_fixed,
+                                   g.half_moving, h)
+    masks = [np.abs(axes[a] + offset[a]) < reach[a] for a in range(3)]
     inside = masks[0][:, None, None] & masks[1][None, :, None] & masks[2][None, None, :]
     energy[~inside] = 0.0
     if force is not None:
