@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"engine loop: {info['what']}, K = {args.modes} (m' = {args.modes ** 3}), "
           f"{info['field']}")
     interval = args.switch_interval
-    if interval is None and (args.gui or args.process):
+    if interval is None and args.gui and args.thread:
         # the window starts its engine through start_engine, whose default this is
         from engine.runtime import DEFAULT_SWITCH_INTERVAL
 
@@ -256,16 +256,14 @@ def _report_from_frames(args, info) -> int:
 
 
 def _run_process(args, load):
-    from engine.runtime import DEFAULT_SWITCH_INTERVAL, EngineOptions, ProcessEngine
+    from engine.runtime import EngineOptions, ProcessEngine
 
-    interval = args.switch_interval
     options = EngineOptions(
         modes=args.modes,
         backend=args.backend,
         analytic=args.fake,
         rate_hz=args.rate,
-        # as start_engine runs it: the engine process has a job worker beside the loop
-        switch_interval=DEFAULT_SWITCH_INTERVAL if interval is None else interval,
+        switch_interval=args.switch_interval,
         raise_priority=True,  # as the GUI's engine process (SKELASM_REALTIME=0: off)
         keep_periods=True,
     )

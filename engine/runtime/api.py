@@ -33,8 +33,8 @@ from engine.sim import build_simulation
 
 __all__ = ["DEFAULT_SWITCH_INTERVAL", "EngineHandle", "Transport", "start_engine"]
 
-#: How long another thread may hold the interpreter lock before the loop thread gets it
-#: back (Python's default is 5 ms); see docs/runtime.md for the measurements.
+#: Thread engine: how long another thread may hold the interpreter lock before the loop
+#: thread gets it back (Python's default is 5 ms); see docs/runtime.md for the measurements.
 DEFAULT_SWITCH_INTERVAL = 5e-4
 
 
@@ -145,7 +145,11 @@ def start_engine(
         itself. None (default): a process when the scene's device renders force
         (``openhaptics``, ``udp``), else a thread.
     switch_interval : float or None
-        ``sys.setswitchinterval`` while the loop runs (None: leave Python's 5 ms).
+        Thread engine: ``sys.setswitchinterval`` while the loop runs (None: leave Python's
+        5 ms). The process engine keeps Python's 5 ms: there a shorter interval hands the
+        lock to the process's idle helper threads while the real-time loop thread spins,
+        and a helper preempted by other programs then stalls the loop for tens of
+        milliseconds (measured in docs/runtime.md).
     """
     if process is None:
         process = device is None and handle.config.device.kind in ("openhaptics", "udp")
@@ -154,8 +158,7 @@ def start_engine(
             raise ValueError("a process engine opens the scene's device itself; pass "
                              "process=False to drive it with a device object")
         options = EngineOptions(modes=modes, backend=backend, rate_hz=rate_hz,
-                                realtime=realtime, switch_interval=switch_interval,
-                                raise_priority=realtime)
+                                realtime=realtime, raise_priority=realtime)
         engine = ProcessEngine(handle, options)
         engine.start()
         return EngineHandle(engine)

@@ -226,6 +226,12 @@ class JobWorker:
         self._jobs: dict[str, _Job] = {}
         self._done: queue.SimpleQueue[Response] = queue.SimpleQueue()
         self._closed = False
+        self._queued = 0  # jobs submitted and not yet finished or dropped
+
+    @property
+    def busy(self) -> bool:
+        """True while a job is queued or running."""
+        return self._queued > 0
 
     def submit(
         self,
@@ -244,17 +250,27 @@ class JobWorker:
         flag = threading.Event()
 
         def body() -> None:
-            if flag.is_set():
-                return
             try:
-                response = run(flag.is_set)
-            except Cancelled:
-                if on_cancel is not None:
-                    self._done.put(on_cancel())
-                return
-            self._done.put(response)
+                if flag.is_set():
+                    return
+                try:
+                    response = run(flag.is_set)
+                except Cancelled:
+                    if on_cancel is not None:
+                        self._done.put(on_cancel())
+                    return
+                self._done.put(response)
+            finally:
+                self._queued -= 1
 
-        self._jobs[kind] = _Job(self._pool.submit(body), flag)
+        self._queued += 1
+        future = self._pool.submit(body)
+        future.add_done_callback(lambda f: self._dropped(f))
+        self._jobs[kind] = _Job(future, flag)
+
+    def _dropped(self, future: Future[None]) -> None:
+        if future.cancelled():  # never started: body() did not count it down
+            self._queued -= 1
 
     def cancel(self, kind: str) -> bool:
         """Cancel the job of ``kind``; True if one was pending or running."""

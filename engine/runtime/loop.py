@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import queue
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -96,6 +97,10 @@ class EngineLoop:
         Keep every period (seconds) in :attr:`periods` (benchmarks).
     switch_interval : float, optional
         If given, ``sys.setswitchinterval`` while the loop runs; restored at the end.
+    job_switch_interval : float, optional
+        If given, the switch interval while a background job runs (the worker then
+        competes with the loop thread for the interpreter lock and gives it back this
+        soon); ``switch_interval`` again when the worker is idle.
     raise_priority : bool
         Ask the OS to run the loop thread ahead of other work
         (:func:`engine.runtime.pacing.raise_thread_priority`); what was granted is in
@@ -119,6 +124,7 @@ class EngineLoop:
         on_frame: Callable[[np.ndarray], None] | None = None,
         keep_periods: bool = False,
         switch_interval: float | None = None,
+        job_switch_interval: float | None = None,
         raise_priority: bool = False,
         base_dir: Path | None = None,
     ):
@@ -139,6 +145,9 @@ class EngineLoop:
         self.on_frame = on_frame
         self.window = PeriodWindow(keep=keep_periods)
         self.switch_interval = switch_interval
+        self.job_switch_interval = job_switch_interval
+        self._jobs_running = False
+        self._base_interval = sys.getswitchinterval()
         self.raise_priority = raise_priority
         self.scheduling = "normal (not asked for)"
         self.started = threading.Event()  # set once the loop runs (scheduling is known)
@@ -233,6 +242,7 @@ class EngineLoop:
         reason = "stopped"
         steps = 0
         pacer = Pacer(self.sim.dt, realtime=self.realtime)
+        self._base_interval = sys.getswitchinterval()
         self.window.restart()
         try:
             with switch_interval(self.switch_interval):
@@ -246,6 +256,9 @@ class EngineLoop:
                     self.window.tick()
         finally:
             self.overruns += pacer.overruns
+            if self._jobs_running:
+                self._jobs_running = False
+                sys.setswitchinterval(self._base_interval)
             self.inputs.release()
             self.events.append(StoppedEvent(self.sim.steps, reason))
         return steps
@@ -256,6 +269,10 @@ class EngineLoop:
         if not self.commands.empty():
             self._apply_commands()
         self.guidance.take_responses()
+        if self.job_switch_interval is not None and self.guidance.worker.busy != self._jobs_running:
+            self._jobs_running = not self._jobs_running
+            interval = self.job_switch_interval if self._jobs_running else self.switch_interval
+            sys.setswitchinterval(interval if interval is not None else self._base_interval)
         self.inputs.read()
         stepped = not self.paused and not self._stop.is_set()
         if stepped:

@@ -59,6 +59,12 @@ __all__ = ["EngineOptions", "ParentGuard", "ProcessEngine", "recv_message", "sen
 
 #: Frame rows kept in shared memory.
 RING_ROWS = 64
+#: The switch interval while the job worker runs: the loop thread gets the interpreter lock
+#: back from the busy worker within this (otherwise Python's 5 ms, see start_engine).
+JOB_SWITCH_INTERVAL = 5e-4
+#: Seconds between the child's looks for events to send (each look takes the interpreter
+#: lock from the loop thread for a moment, so not more often than needed).
+EVENT_POLL = 0.05
 #: Seconds between the watchdog's looks at the parent.
 WATCH_PERIOD = 0.2
 #: Seconds the child gives its loop to end after losing its parent before it exits anyway.
@@ -73,7 +79,7 @@ class EngineOptions:
     backend: str = "auto"
     rate_hz: float | None = None
     realtime: bool = True
-    switch_interval: float | None = 5e-4
+    switch_interval: float | None = None  # Python's 5 ms (see start_engine)
     raise_priority: bool = False
     analytic: bool = False  # benchmarks: an analytic field instead of the correlator
     keep_periods: bool = False  # benchmarks: return every period at the end
@@ -356,6 +362,7 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
             prepare=not (blocking or options.analytic),
             on_frame=on_frame if options.keep_periods else None,
             keep_periods=options.keep_periods, switch_interval=options.switch_interval,
+            job_switch_interval=JOB_SWITCH_INTERVAL,
             raise_priority=options.raise_priority, base_dir=handle.path.parent,
         )
         loop.events.extend(notices)
@@ -377,7 +384,7 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
         while loop.is_alive() or loop.events:
             for event in loop.poll_events():
                 send_message(events, event)
-            loop.join(0.01)
+            loop.join(EVENT_POLL)
         if options.keep_periods:
             eval_us = float(np.median(eval_log)) if eval_log else float("nan")
             described = f"{backend_name(sim.field)}; engine thread scheduling: {loop.scheduling}"

@@ -418,3 +418,23 @@ def test_loop_holds_its_rate_on_a_quiet_machine():
     assert loop.overruns <= stalls.sum()
     kept = periods[~stalls]
     assert len(kept) / kept.sum() == pytest.approx(250.0, rel=0.15)
+
+
+def test_switch_interval_is_short_only_while_a_job_runs():
+    import sys
+
+    base = sys.getswitchinterval()
+    loop, _, model = make_loop(realtime=True, job_switch_interval=1e-4)
+    model.delay = 0.5
+    loop.start()
+    try:
+        assert wait_for(lambda: loop.frames_published > 5)
+        assert sys.getswitchinterval() == base  # idle worker: the process's own interval
+        loop.send(rt.SetDescriptorParams(sigma=0.7))
+        assert wait_for(lambda: abs(sys.getswitchinterval() - 1e-4) < 1e-9, 2.0)
+        assert wait_for(lambda: loop.sim.field.correlator in model.built, 5.0)
+        assert wait_for(lambda: sys.getswitchinterval() == base, 2.0)
+        assert not loop.guidance.worker.busy
+    finally:
+        loop.stop()
+    assert sys.getswitchinterval() == base
