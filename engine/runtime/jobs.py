@@ -233,16 +233,12 @@ class JobWorker:
         """True while a job is queued or running."""
         return self._queued > 0
 
-    def submit(
-        self,
-        kind: str,
-        run: Callable[[Callable[[], bool]], Response],
-        on_cancel: Callable[[], Response] | None = None,
-    ) -> None:
+    def submit(self, kind: str, run: Callable[[Callable[[], bool]], Response]) -> None:
         """Queue ``run(cancelled)`` as the newest job of ``kind``.
 
-        ``run`` returns a response and may raise ``engine.errors.Cancelled`` when
-        ``cancelled()`` turns True; ``on_cancel`` makes the response then (none if None).
+        ``run`` returns a response, or raises ``engine.errors.Cancelled`` once
+        ``cancelled()`` turns True (then there is no response: the caller knows it
+        cancelled).
         """
         if self._closed:
             return
@@ -256,8 +252,6 @@ class JobWorker:
                 try:
                     response = run(flag.is_set)
                 except Cancelled:
-                    if on_cancel is not None:
-                        self._done.put(on_cancel())
                     return
                 self._done.put(response)
             finally:
