@@ -87,8 +87,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "device is there, else numba)")
     parser.add_argument("--device", metavar="D",
                         help="OpenCL device: part of its name, or PLATFORM:DEVICE indices")
-    parser.add_argument("--method", choices=("tree", "brute"), default="tree",
-                        help="accelerated hierarchy (default) or every triangle (reference)")
+    parser.add_argument("--method", choices=("adaptive", "tree", "brute"), default="adaptive",
+                        help="hierarchy with adaptive sampling (default: exact where the "
+                        "field is rough, interpolated elsewhere), hierarchy at every point, "
+                        "or every triangle (the reference)")
     parser.add_argument("--no-cache", action="store_true",
                         help="compute even if cached, and store nothing in the cache")
     parser.add_argument("-o", "--output", metavar="OUT",

@@ -81,6 +81,7 @@ import numpy as np
 
 import engine.descriptor.constants as _c
 from engine.backend import Backend, get_backend
+from engine.descriptor.adaptive import sample_grid
 from engine.descriptor.numba_kernels import evaluate as _evaluate_numba
 from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
 from engine.descriptor.tree import TriangleTree, build_tree, pack_triangles, split_slivers
@@ -263,9 +264,10 @@ def _run(
 
 
 def _method(method: str) -> bool:
+    """Whether ``method`` uses the tree (``ValueError`` for an unknown one)."""
     if method not in _c.METHODS:
         raise ValueError(f"unknown method {method!r}; valid: {', '.join(_c.METHODS)}")
-    return method == "tree"
+    return method != "brute"
 
 
 def compute_descriptor(
@@ -275,7 +277,7 @@ def compute_descriptor(
     params: DescriptorParams = DescriptorParams(),  # noqa: B008 - frozen, so shared safely
     *,
     backend: BackendLike = None,
-    method: str = "tree",
+    method: str = "adaptive",
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> np.ndarray:
@@ -293,8 +295,10 @@ def compute_descriptor(
         sigma, penalty and lambda_out.
     backend : None, Backend or {"numba", "opencl", "auto"}
         Compute backend; None picks as :func:`resolve_backend`.
-    method : {"tree", "brute"}
-        Accelerated hierarchy or every triangle (the reference).
+    method : {"adaptive", "tree", "brute"}
+        The hierarchy with adaptive sampling (exact where the field is rough, interpolated
+        with a bounded error elsewhere; :mod:`engine.descriptor.adaptive`), the hierarchy
+        at every grid point, or every triangle at every point (the reference).
     progress : callable(float), optional
         Called with the fraction done after each chunk of points.
     cancel : callable() -> bool, optional
@@ -321,6 +325,15 @@ def compute_descriptor(
     be = resolve_backend(backend)
     centre = grid.center
     local = _localise(triangles, centre, grid.spacing, use_tree)
+    if method == "adaptive":
+
+        def evaluate(points: np.ndarray,
+                     part: Callable[[float], None] | None) -> np.ndarray:  # fmt: skip
+            return _run(local, points, 2, params, be, progress=part, cancel=cancel)
+
+        xs, ys, zs = ((a - c) / grid.spacing for a, c in zip(grid.axes(), centre, strict=True))
+        sampled, _, _ = sample_grid(xs, ys, zs, evaluate, progress=progress)
+        return sampled.astype(np.complex64)
     points = ((grid.points().reshape(-1, 3) - centre) / grid.spacing).astype(np.float64)
     out = _run(local, points, 2, params, be, progress=progress, cancel=cancel)
     rho = (out[:, 0] + 1j * out[:, 1]).astype(np.complex64)
@@ -414,7 +427,8 @@ def descriptor_at_points(
     spacing : float
         The grid spacing ``h`` the regularisation refers to (floor ``1e-3 h``).
     backend : None, Backend or {"numba", "opencl", "auto"}
-    method : {"tree", "brute"}
+    method : {"tree", "brute", "adaptive"}
+        ``"adaptive"`` samples grids only: here it means ``"tree"`` (every point exact).
 
     Returns
     -------

@@ -42,8 +42,17 @@ SPLIT_WIDTH = 3.0
 SPLIT_FLOOR = 0.1
 SPLIT_BUDGET = 1_000_000
 
-#: Evaluation methods: the accelerated hierarchy, or every triangle (the reference).
-METHODS = ("tree", "brute")
+#: Adaptive sampling (engine.descriptor.adaptive): coarse levels below the grid, the
+#: largest estimated trilinear error of an interpolated sample (a fraction of the RMS of
+#: rho), and the clearance from the surface of an interpolated cube (in cube sides).
+ADAPTIVE_LEVELS = 2
+ADAPTIVE_TOLERANCE = 3e-3
+ADAPTIVE_CLEARANCE = 1.0
+
+#: Evaluation methods: the hierarchy with adaptive sampling of grids (exact where the
+#: field is rough, interpolated elsewhere), the hierarchy at every point, or every
+#: triangle at every point (the reference).
+METHODS = ("adaptive", "tree", "brute")
 #: Points evaluated between progress reports / cancel checks.
 CHUNK_POINTS = 32768
 

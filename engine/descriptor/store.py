@@ -64,7 +64,7 @@ class Descriptor:
     name : str
         The part's name.
     method : str
-        ``"tree"`` or ``"brute"``.
+        ``"adaptive"``, ``"tree"`` or ``"brute"`` (see ``compute_descriptor``).
     compute_seconds : float
         Wall time the computation itself took (when it was computed, even if now cached).
     """
@@ -231,7 +231,7 @@ def descriptor_for_part(
     params: DescriptorParams | None = None,
     *,
     backend: BackendLike = None,
-    method: str = "tree",
+    method: str = "adaptive",
     use_cache: bool = True,
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
@@ -248,7 +248,7 @@ def descriptor_for_part(
         Default ``DescriptorParams()``.
     backend : None, str or engine.backend.Backend
         As :func:`engine.descriptor.compute.resolve_backend`; not part of the cache key.
-    method : {"tree", "brute"}
+    method : {"adaptive", "tree", "brute"}
     use_cache : bool
         False computes and stores nothing.
     progress, cancel : callables, optional
@@ -295,7 +295,7 @@ def descriptors_for_scene(
     *,
     parts: Sequence[Part] | None = None,
     backend: BackendLike = None,
-    method: str = "tree",
+    method: str = "adaptive",
     use_cache: bool = True,
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,

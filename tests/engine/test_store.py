@@ -93,7 +93,7 @@ def test_no_cache(fake_compute, private_cache):
 
 def test_bad_method(fake_compute):
     part = box_part()
-    with pytest.raises(ValueError, match="unknown method 'fast'; valid: tree, brute"):
+    with pytest.raises(ValueError, match="unknown method 'fast'; valid: adaptive, tree, brute"):
         descriptor_for_part(part, grid_for_part(part, samples=6, padding=1), method="fast")
 
 
