@@ -323,7 +323,7 @@ class SceneModel:
             # the picked compute backend failed (an OpenCL driver that cannot build the
             # kernels, say): the reference path computes the same values
             descs = descriptors_for_scene(
-                scene, parts=parts, backend="numpy", progress=progress, cancel=cancel
+                scene, parts=parts, backend="numba", progress=progress, cancel=cancel
             )
         d1, d2 = descs[0], descs[1]
         if effects.guidance == "collision":
