@@ -315,8 +315,11 @@ def _plot(results: list[SeatingResult], path: str) -> None:
         axes[1].barh(y + off, tilt, height=0.36, label=label)
     axes[0].axvline(100 * SEAT_FRACTION, color="k", ls="--", lw=1)
     axes[1].axvline(SEAT_DEGREES, color="k", ls="--", lw=1)
-    axes[0].set_xlabel("position error, % of width (constrained axes)")
-    axes[1].set_xlabel("tilt, degrees (constrained axes)")
+    for ax in axes:  # errors span from hundredths to hundreds
+        ax.set_xscale("log")
+        ax.set_xlim(left=0.01)
+    axes[0].set_xlabel("position error, % of width (constrained axes; log)")
+    axes[1].set_xlabel("tilt, degrees (constrained axes; log)")
     axes[0].set_yticks(y, names)
     axes[0].invert_yaxis()
     axes[0].legend(loc="lower right")
