@@ -438,3 +438,33 @@ def test_switch_interval_is_short_only_while_a_job_runs():
     finally:
         loop.stop()
     assert sys.getswitchinterval() == base
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_another_thread_can_take_real_time_priority_away(monkeypatch):
+    # what the engine process's parent watchdog does to the loop thread when the parent dies
+    from engine.runtime.pacing import current_native_id, drop_realtime_priority
+
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+    raised, dropped, done = threading.Event(), threading.Event(), threading.Event()
+    seen = {}
+
+    def loop_thread():
+        seen["said"] = raise_thread_priority()
+        seen["tid"] = current_native_id()
+        seen["before"] = os.sched_getscheduler(0)
+        raised.set()
+        dropped.wait(5)
+        seen["after"] = os.sched_getscheduler(0)
+        done.set()
+
+    threading.Thread(target=loop_thread).start()
+    assert raised.wait(5)
+    if not seen["said"].startswith("real-time"):
+        done.wait(0)
+        dropped.set()
+        pytest.skip(f"real-time scheduling not granted here: {seen['said']}")
+    assert seen["before"] == os.SCHED_FIFO
+    drop_realtime_priority(seen["tid"])
+    dropped.set()
+    assert done.wait(5) and seen["after"] == os.SCHED_OTHER
