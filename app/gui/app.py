@@ -95,6 +95,8 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
     from app.gui.main_window import MainWindow
 
     window = MainWindow(engine_kwargs={"process": True} if engine_process else None)
+    # from here on Ctrl+C closes the window, also while the scene is still loading
+    interrupted = _quit_on_signals(app, window)
     window.show()
     path = Path(scene) if scene else DEFAULT_SCENE
     window.open_path(path, wait=True)
@@ -113,8 +115,10 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
             app.quit()
 
         QtCore.QTimer.singleShot(int(quit_after * 1000), finish)
-    interrupted = _quit_on_signals(app, window)
-    app.exec()
+    if interrupted:  # Ctrl+C while the scene loaded: the event loop need not start
+        window.close()
+    else:
+        app.exec()
     # a second Ctrl+C while background work winds down leaves at once, without a traceback
     signal.signal(signal.SIGINT, lambda *_: os._exit(130))
     if interrupted:

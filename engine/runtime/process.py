@@ -163,8 +163,20 @@ class ProcessEngine:
         return self._proc.pid
 
     def start(self) -> None:
-        """Start the child process."""
-        self._proc.start()
+        """Start the child process.
+
+        The child ignores Ctrl+C from its first instruction, not only once its imports are
+        done: SIGINT ignored while it is spawned stays ignored across ``exec`` (Ctrl+C
+        reaches the whole terminal group, and the parent decides when the engine stops).
+        """
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            self._proc.start()
+        finally:
+            if main:
+                signal.signal(signal.SIGINT,
+                              previous if previous is not None else signal.default_int_handler)
         for end in self._child_ends:
             end.close()  # the child has its own copies; EOF then means it is gone
 
