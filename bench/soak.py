@@ -4,10 +4,10 @@ Runs what ``skelasm gui`` runs (the window with the engine in its own process) o
 while the proxy is dragged along a circle through the path a mouse drag takes, for
 ``--minutes`` (default 15), in a child process so that a hard crash of the window (a binding
 fault that frees ``None`` aborts the interpreter) is seen and reported, not taken down with
-the benchmark. Once a minute it prints the time done and left, the child's memory and
-whether it is alive; at the end the window's figures (frames received and rendered, engine
-rate, evaluation cost) and the exit status. Exit 0 only if the window ran the whole time
-and closed cleanly.
+the benchmark. Once a minute it prints (on stderr) the time done and left, the child's
+memory and whether it is alive; at the end the window's figures (frames received and
+rendered, engine rate, evaluation cost) and the exit status. Exit 0 only if the window ran
+the whole time and closed cleanly.
 
 Not part of the test suite (it takes a quarter of an hour): run it before a release and
 after changing the Qt binding or the engine transport.
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                 if elapsed >= next_report:
                     print(f"soak: {elapsed / 60:5.1f} min, about "
                           f"{max(0.0, seconds - elapsed) / 60:4.1f} min left; window alive, "
-                          f"{_rss_mib(child.pid):.0f} MiB", flush=True)
+                          f"{_rss_mib(child.pid):.0f} MiB", file=sys.stderr, flush=True)
                     next_report += 60.0
             if child.poll() is None:
                 child.kill()

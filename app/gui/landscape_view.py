@@ -1,7 +1,7 @@
 """Energy landscape view: a 2D section of the translational energy E(t) at a fixed rotation.
 
 The engine computes the landscape (one inverse FFT) off its loop when asked
-(``RequestLandscape``) and answers with an ``engine.landscape.Landscape``. This view cuts
+(``RequestLandscape``) and answers with an ``engine.correlation.Landscape``. This view cuts
 it with a plane through the part's current translation, marks the current pose (cross) and
 the section's minimum (star), and re-cuts as the part moves; the window asks for a new
 landscape only when the part's rotation has turned by more than :attr:`ROTATION_TOLERANCE`.
