@@ -145,6 +145,7 @@ def test_fit_lowers_but_never_raises_the_rotational_coupling():
     soft_fit = resolve_physics(SimConfig(), v, f, kappa=2.0, geometric_rotation=soft)
     assert soft_fit.k_rot == pytest.approx(0.3 * mass_based)
     flat = resolve_physics(SimConfig(), v, f, kappa=2.0, geometric_rotation=1e-9)
+    assert 0.0 < MIN_ROTATION_FRACTION < 0.3
     assert flat.k_rot == pytest.approx(MIN_ROTATION_FRACTION * mass_based)
     # damping follows the stiffness (critical at the coupling's damping ratio)
     assert soft_fit.c_rot == pytest.approx(math.sqrt(0.3) * stiff_fit.c_rot)
