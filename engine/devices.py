@@ -2,7 +2,7 @@
 
 Data: proxy poses are (6,) float64 ``(tx, ty, tz, rx, ry, rz)`` relative to part 1 in scene
 units; forces and torques (3,) float64 in part 1's frame, already scaled and clamped by the
-coupling (:class:`engine.coupling.HapticLimits`).
+coupling (:class:`engine.params.HapticLimits`, applied by :mod:`engine.sim`).
 
 Devices: :class:`MouseDevice` (fed by the GUI), :class:`TrajectoryDevice` (CSV
 ``t,tx,ty,tz,rx,ry,rz``, linearly interpolated, held after the last row),
