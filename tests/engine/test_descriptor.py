@@ -313,16 +313,22 @@ def test_progress_and_cancel(monkeypatch):
     v, f = _box()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=6, padding=1)
     seen: list[float] = []
-    compute_descriptor(v, f, grid, backend="numba", progress=seen.append)
+    compute_descriptor(v, f, grid, backend="numba", method="tree", progress=seen.append)
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == math.ceil(grid.size / 100)
-    calls = []
+    # Adaptive sampling reports its levels in order, ending at 1.
+    big = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=16, padding=6)
+    seen = []
+    compute_descriptor(v, f, big, backend="numba", method="adaptive", progress=seen.append)
+    assert seen == sorted(seen) and seen[-1] == pytest.approx(1.0) and len(seen) > 3
+    for method in ("tree", "adaptive"):
+        calls: list[int] = []
 
-    def cancel():
-        calls.append(1)
-        return len(calls) > 2
+        def cancel(calls: list[int] = calls) -> bool:
+            calls.append(1)
+            return len(calls) > 2
 
-    with pytest.raises(Cancelled):
-        compute_descriptor(v, f, grid, backend="numba", cancel=cancel)
+        with pytest.raises(Cancelled):
+            compute_descriptor(v, f, big, backend="numba", method=method, cancel=cancel)
 
 
 # --------------------------------------------------------------------------- CAD slivers
