@@ -374,7 +374,7 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
 
     The centroid term ``w(eta) N.u`` (eta at its mean, the factor of _radial, as in
     _term) plus the first-order correction ``sum_ab J_ab S_ab`` with ``J`` the Jacobian of
-    ``V(q) = w(eta) (q - p)/eta`` and ``S`` the cluster's first moment (engine.bvh), which
+    ``V(q) = w(eta) (q - p)/eta`` and ``S`` the cluster's first moment (see tree.py), which
     removes the O(r/d) error of clusters whose normals differ (edges, corners, thin walls):
     ``J_ab = (w' - w/eta) u_a u_b + (w/eta) delta_ab``, ``w'/w = -2i/zeta - x/(sigma^2 |xi|)``.
     """
