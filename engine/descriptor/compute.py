@@ -141,10 +141,7 @@ def _check_memory(n_points: int, what: str) -> None:
 
 
 def _numba_backend() -> Backend:
-    try:
-        return get_backend("numba")
-    except ValueError:  # the registry does not name "numba" yet
-        return Backend("numba", "numba (CPU)")
+    return get_backend("numba")
 
 
 def resolve_backend(backend: BackendLike = None) -> Backend:
