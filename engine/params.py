@@ -486,7 +486,7 @@ class Physics:
     """Resolved constants of the moving body and its coupling (MuJoCo's "model").
 
     The one type for the coupling gains: the spring-damper reads ``k_lin``, ``c_lin``,
-    ``k_rot``, ``c_rot`` from here. ``engine.scene.resolve_physics`` derives every field
+    ``k_rot``, ``c_rot`` from here. ``engine.sim.resolve_physics`` derives every field
     from a scene's :class:`SimConfig` and the moving part's mesh; the body fields default
     to a unit mass and inertia so that a coupling alone can be written
     ``Physics(k_lin=10.0, c_lin=0.0, k_rot=2.0, c_rot=0.0)``.
@@ -509,8 +509,8 @@ class Physics:
         Geometric force gain.
     gravity : (3,) float64
         Gravity acceleration (zeros when off; read-only).
-    dt : float
-        Fixed time step in seconds.
+
+    The time step is not here: :class:`engine.sim.Simulation` owns it, set once.
     """
 
     k_lin: float
@@ -525,12 +525,11 @@ class Physics:
     body_c_rot: float = 0.0
     kappa: float = 1.0
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    dt: float = 1.0 / DEFAULT_RATE_HZ
 
     def __post_init__(self) -> None:
         for name in ("k_lin", "c_lin", "k_rot", "c_rot", "body_c_lin", "body_c_rot", "kappa"):
             object.__setattr__(self, name, _at_least("physics", name, getattr(self, name), 0.0))
-        for name in ("mass", "length", "dt"):
+        for name in ("mass", "length"):
             object.__setattr__(self, name, _positive("physics", name, getattr(self, name)))
         object.__setattr__(self, "inertia", _readonly(self.inertia, (3, 3)))
         object.__setattr__(self, "center", _readonly(self.center, (3,)))

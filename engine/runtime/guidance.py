@@ -221,6 +221,7 @@ class Guidance:
             return
         req = r.request
         self.sim.set_field(r.field)
+        self._physics_dirty = True  # the fit's stiffness, measured with the new field
         self.descriptors = r.descriptors
         self._in_use = (req.effects.guidance, req.sigma, req.penalty)
         if req.task == "correlator":

@@ -241,7 +241,6 @@ def resolve_physics(
         body_c_rot=float(body_c_rot),
         kappa=float(kappa),
         gravity=gravity,
-        dt=config.simulation.dt,
     )
 
 
