@@ -7,8 +7,8 @@ import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.gui.app import DEFAULT_SCENE as EXAMPLE_SCENE
-from engine import runtime
 from engine import pose as posemath
+from engine import runtime
 
 pytestmark = pytest.mark.skipif(
     not __import__("app.gui.session", fromlist=["x"]).real_engine_available(),
