@@ -83,6 +83,7 @@ class Device:
 
     @property
     def name(self) -> str:
+        """The device's name, from its capabilities (``"mouse"``, ``"udp"``, ...)."""
         return self.capabilities.name
 
     def connect(self) -> None:
@@ -123,6 +124,7 @@ class MouseDevice(Device):
         self._pose = _pose_tuple(pose)
 
     def read_pose(self, time_s: float) -> np.ndarray | None:
+        """The pose last set by :meth:`set_pose`, or None when unchanged since the last read."""
         pose = self._pose
         if pose is None or pose is self._seen:
             return None
@@ -205,8 +207,9 @@ def read_trajectory(path: str | Path) -> np.ndarray:
 
 
 class TrajectoryDevice(Device):
-    """A scripted proxy: poses linearly interpolated in time, held after the last row
-    (and before the first).
+    """A scripted proxy: poses linearly interpolated in time.
+
+    The pose is held after the last row (and before the first).
 
     Parameters
     ----------
@@ -231,6 +234,7 @@ class TrajectoryDevice(Device):
 
     @property
     def duration(self) -> float:
+        """Time of the last row in seconds; the pose is held after it."""
         return float(self.times[-1])
 
     def pose_at(self, time_s: float) -> np.ndarray:
@@ -248,6 +252,7 @@ class TrajectoryDevice(Device):
         return (1.0 - a) * self.poses[i] + a * self.poses[i + 1]
 
     def read_pose(self, time_s: float) -> np.ndarray:
+        """The trajectory's pose at ``time_s`` (:meth:`pose_at`)."""
         return self.pose_at(time_s)
 
 
@@ -256,9 +261,11 @@ class TrajectoryDevice(Device):
 
 
 class SpaceMouseDevice(Device):
-    """A 3D mouse (3Dconnexion) through pyspacemouse, a rate-control device: its deflection
-    moves the proxy with speed ``translation_speed`` (scene units per second at full
-    deflection) and ``rotation_speed`` (radians per second)."""
+    """A 3D mouse (3Dconnexion) through pyspacemouse, a rate-control device.
+
+    Its deflection moves the proxy with speed ``translation_speed`` (scene units per second at
+    full deflection) and ``rotation_speed`` (radians per second).
+    """
 
     capabilities = DeviceCapabilities("spacemouse", dof=6, rate_hz=0.0)
 
@@ -271,6 +278,11 @@ class SpaceMouseDevice(Device):
         self._last_time: float | None = None
 
     def connect(self) -> None:
+        """Open the 3D mouse through pyspacemouse.
+
+        Raises DeviceError when the package is missing, the device cannot be opened or none is
+        plugged in.
+        """
         try:
             import pyspacemouse  # type: ignore[import-not-found]
         except ImportError:
@@ -289,6 +301,7 @@ class SpaceMouseDevice(Device):
         self._module = pyspacemouse
 
     def disconnect(self) -> None:
+        """Close the device (idempotent); errors of an unplugged device are ignored."""
         if self._module is not None:
             try:
                 self._module.close()
@@ -297,6 +310,12 @@ class SpaceMouseDevice(Device):
             self._module = None
 
     def read_pose(self, time_s: float) -> np.ndarray:
+        """The proxy pose (6,) float64, moved by the deflection since the last read.
+
+        Deflection times ``translation_speed`` (``rotation_speed``), times the seconds since the
+        last read (zero on the first read), is added to the pose. Raises DeviceError when the
+        device stops answering or was unplugged.
+        """
         if self._module is None:
             raise DeviceError("spacemouse: not connected")
         try:
@@ -355,6 +374,11 @@ class OpenHapticsDevice(Device):
         self._origin: np.ndarray | None = None
 
     def connect(self) -> None:
+        """Start the servo callback and wait (up to 1 s) for its first stylus sample.
+
+        The stylus at that moment is the origin the proxy moves from. Raises DeviceError when the
+        libraries are missing, the device cannot be opened or it sends no data.
+        """
         try:
             import pyOpenHaptics.hd as hd  # type: ignore[import-not-found]
             from pyOpenHaptics.hd_callback import hd_callback  # type: ignore[import-not-found]
@@ -389,6 +413,7 @@ class OpenHapticsDevice(Device):
         self._origin = self._sample[1].reshape(4, 4).T.copy()  # the stylus at connect time
 
     def disconnect(self) -> None:
+        """Zero the force, close the device (idempotent) and forget the stylus origin."""
         if self._device is not None:
             self._force = [0.0, 0.0, 0.0]
             try:
@@ -400,6 +425,11 @@ class OpenHapticsDevice(Device):
         self._origin = None
 
     def read_pose(self, time_s: float) -> np.ndarray:
+        """The proxy pose (6,) float64 from the stylus transform the servo callback sampled last.
+
+        See the class docstring for the mapping. Raises DeviceError when not connected or when
+        the newest sample is older than :attr:`stale_after` seconds.
+        """
         sample = self._sample
         if self._device is None or sample is None:
             raise DeviceError("openhaptics: not connected")
@@ -418,6 +448,10 @@ class OpenHapticsDevice(Device):
         return pose
 
     def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
+        """Hand ``force`` (3,) to the servo callback, which renders it; the torque is not rendered.
+
+        Raises DeviceError for a non-finite force.
+        """
         if not np.all(np.isfinite(force)):
             raise DeviceError("openhaptics: refusing to send a non-finite force")
         self._force = [float(force[0]), float(force[1]), float(force[2])]
@@ -470,6 +504,10 @@ class UdpBridgeDevice(Device):
         return self._sock.getsockname()
 
     def connect(self) -> None:
+        """Listen on ``host:port`` with a non-blocking UDP socket.
+
+        Raises DeviceError when the address cannot be bound (port taken, bad host).
+        """
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             sock.bind((self.host, self.port))
@@ -481,11 +519,18 @@ class UdpBridgeDevice(Device):
         self._sock = sock
 
     def disconnect(self) -> None:
+        """Close the socket (idempotent)."""
         if self._sock is not None:
             self._sock.close()
             self._sock = None
 
     def read_pose(self, time_s: float) -> np.ndarray | None:
+        """The newest pose (6,) float64 among the waiting packets, or None when none came.
+
+        Packets of the wrong size are skipped. The newest packet sets the sequence number and the
+        address :meth:`write_force` answers to. Raises DeviceError when no packet came for
+        ``timeout`` seconds after the last one.
+        """
         if self._sock is None:
             raise DeviceError("udp: not connected")
         newest = None
@@ -516,6 +561,11 @@ class UdpBridgeDevice(Device):
         return None
 
     def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
+        """Send ``force`` (3,) and ``torque`` (3,) to the sender of the newest pose.
+
+        The packet carries that pose's sequence number; nothing is sent before a first pose, and
+        a datagram that cannot be sent is dropped (the next step sends another).
+        """
         if self._sock is None or self._peer is None:
             return
         packet = FORCE_PACKET.pack(self._seq, *map(float, force), *map(float, torque))

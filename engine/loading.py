@@ -804,8 +804,11 @@ def _weld(v: np.ndarray, f: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndar
 
 
 def _heights(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(m,) height of each triangle over its longest side, and (m,) which corner (0..2)
-    lies opposite that side."""
+    """Height of each triangle over its longest side, and the corner opposite that side.
+
+    Returns two (m,) arrays: the heights (float64) and which corner (0..2) lies opposite the
+    longest side (int64).
+    """
     p = v[f]  # (m, 3, 3)
     sides = np.stack([p[:, 2] - p[:, 1], p[:, 0] - p[:, 2], p[:, 1] - p[:, 0]], axis=1)
     lengths = np.linalg.norm(sides, axis=2)  # (m, 3): side k is opposite corner k

@@ -410,8 +410,10 @@ class DeviceConfig:
 
 @dataclass(frozen=True)
 class MassSpec:
-    """Per-part ``mass``, ``density``, ``inertia`` (3x3 about the centre of mass) and
-    ``center_of_mass`` (part frame); None: computed from the mesh.
+    """Per-part mass properties; None: computed from the mesh.
+
+    ``mass``, ``density``, ``inertia`` (3x3 about the centre of mass) and ``center_of_mass``
+    (part frame).
     """
 
     mass: float | None = None

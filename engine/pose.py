@@ -149,8 +149,10 @@ def pivot_to_origin(pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
 
 
 def origin_to_pivot(pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
-    """(6,) pivot pose of an origin pose: ``t = t_origin - c + R c`` (inverse of
-    :func:`pivot_to_origin`)."""
+    """(6,) pivot pose of an origin pose: ``t = t_origin - c + R c``.
+
+    The inverse of :func:`pivot_to_origin`.
+    """
     p = np.asarray(pose, dtype=np.float64).reshape(6)
     c = np.asarray(pivot, dtype=np.float64).reshape(3)
     return np.concatenate([p[:3] - c + rotation_matrix(p[3:]) @ c, p[3:]])

@@ -1,5 +1,6 @@
-"""Record and replay a session: per step, the input (proxy) trajectory, the part's pose and
-the forces.
+"""Record and replay a session.
+
+Per step, a recording holds the input (proxy) trajectory, the part's pose and the forces.
 
 Data: one row per step, float64 columns :data:`COLUMNS`: ``t`` (simulated seconds at
 the start of the step), the proxy pose used by the step (``tx..rz``: the columns a

@@ -282,8 +282,11 @@ class Correlator:
 
     def evaluate_cached(self, cache: RotationCache, rotation: np.ndarray,
                         translation: np.ndarray) -> Evaluation:
-        """As :meth:`evaluate`, from a rotation cache (first order in the rotation since it
-        was built; force and torque the exact derivatives of the energy returned)."""
+        """As :meth:`evaluate`, from a rotation cache.
+
+        First order in the rotation since the cache was built; force and torque are the exact
+        derivatives of the energy returned.
+        """
         from engine.correlation.rotation_cache import cached_pose
 
         start = time.perf_counter()

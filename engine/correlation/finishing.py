@@ -58,9 +58,10 @@ class Evaluation:
 
 
 def overlap_bounds(rot, c1, c2, half1, half2, h):
-    """Where the grid boxes can meet: part 2's box, rotated by ``rot`` and with one cell
-    ``h`` of margin, meets part 1's exactly when ``|t_a + offset_a| < reach_a`` on every
-    axis ``a``. Returns ``(offset, reach)``, two (3,) float64: ``offset = R c2 - c1``,
+    """Where the grid boxes can meet: ``(offset, reach)``, two (3,) float64.
+
+    Part 2's box, rotated by ``rot`` and with one cell ``h`` of margin, meets part 1's exactly
+    when ``|t_a + offset_a| < reach_a`` on every axis ``a``, with ``offset = R c2 - c1`` and
     ``reach = half1 + |R| half2 + h``. Where the boxes do not meet, the energy, force and
     torque are exactly zero.
 
@@ -93,8 +94,11 @@ def phase_offset(rot, t, c1, c2):
 
 
 def torque_scale(scale, n_h):
-    """``a / (2 pi)`` with ``a = scale N h`` lattice steps per unit of frequency: the
-    factor from the lattice-derivative sums ``S_u`` to the moment sums ``S_m``."""
+    """The factor ``a / (2 pi)`` from the lattice-derivative sums ``S_u`` to the moment sums.
+
+    ``a = scale N h`` is the number of lattice steps per unit of frequency; the moment sums
+    are ``S_m``.
+    """
     return scale * n_h / (2.0 * np.pi)
 
 

@@ -26,8 +26,11 @@ import numpy as np
 
 
 def cell(ux, uy, uz, radius, side):
-    """Lattice cell of the point ``(ux, uy, uz)`` in a table of ``side^3`` rows whose index 0
-    lies at ``radius``: ``(b00, b01, b10, b11, tx, ty, tz)``."""
+    """Lattice cell of the point ``(ux, uy, uz)``: ``(b00, b01, b10, b11, tx, ty, tz)``.
+
+    The table has ``side^3`` rows and its index 0 lies at ``radius``. ``bij`` are the row
+    indices of the cell's corners, ``t*`` the fractional position inside it.
+    """
     fx = np.floor(ux)
     fy = np.floor(uy)
     fz = np.floor(uz)
@@ -37,8 +40,10 @@ def cell(ux, uy, uz, radius, side):
 
 
 def bilinear(d00, d01, d10, d11, u, v):
-    """Bilinear interpolation of four corner values ``d[i][j]`` (``i`` along ``u``, ``j``
-    along ``v``) at ``(u, v)``, and its two derivatives: ``(value, d/du, d/dv)``."""
+    """Bilinear interpolation at ``(u, v)`` and its two derivatives: ``(value, d/du, d/dv)``.
+
+    Interpolates the four corner values ``d[i][j]`` (``i`` along ``u``, ``j`` along ``v``).
+    """
     l0 = d00 + v * (d01 - d00)
     l1 = d10 + v * (d11 - d10)
     return l0 + u * (l1 - l0), l1 - l0, (d01 - d00) + u * ((d11 - d10) - (d01 - d00))
@@ -56,8 +61,10 @@ def lerp(table, col, cell):
 
 
 def hermite(table, col, cell):
-    """Gradient-enhanced interpolation of one real component (``col`` 0: real part, 1:
-    imaginary part) in ``cell``: ``(G, dG/dux, dG/duy, dG/duz)``.
+    """Gradient-enhanced interpolation of one real component: ``(G, dG/dux, dG/duy, dG/duz)``.
+
+    ``col`` picks the component (0: real part, 1: imaginary part); ``cell`` is the lattice
+    cell from :func:`cell`.
 
     Columns ``col`` (value ``v``) and ``col + 2``, ``col + 4``, ``col + 6`` (the lattice
     derivatives along x, y, z, from the moment spectra) give
@@ -118,8 +125,10 @@ def hermite(table, col, cell):
 
 
 def mode_terms(table, cell, c_re, c_im, rk0, rk1, rk2, moments):
-    """One mode's contributions to the raw sums: ``Re(c G)``, ``Im(c G)`` and, with
-    ``moments``, the torque terms ``Re(c dG/du) x R^T k`` (zeros without).
+    """One mode's contributions to the raw sums.
+
+    These are ``Re(c G)``, ``Im(c G)`` and, with ``moments``, the torque terms
+    ``Re(c dG/du) x R^T k`` (zeros without).
 
     ``c`` is the mode's coefficient (part 1's spectrum times the phase), ``G`` part 2's
     interpolated spectrum at the cell (gradient-enhanced with ``moments``, trilinear

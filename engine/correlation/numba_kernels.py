@@ -180,8 +180,10 @@ _KERNELS: dict[tuple[str, bool], Callable[..., Any]] = {}
 
 
 def _compiled(func: Callable[..., Any], **options: Any) -> Any:
-    """``func`` compiled, as a copy whose globals are the shared compiled namespace (so the
-    helpers it calls by name are the compiled ones)."""
+    """``func`` compiled, as a copy whose globals are the shared compiled namespace.
+
+    The helpers it calls by name are then the compiled ones.
+    """
     copy = types.FunctionType(func.__code__, _NAMESPACE, func.__name__)
     copy.__qualname__ = func.__qualname__
     copy.__doc__ = func.__doc__
@@ -203,8 +205,10 @@ def compiled_helpers() -> dict[str, Any]:
 
 def compile_with_helpers(source: Callable[..., Any], name: str, *, parallel: bool = False
                          ) -> Callable[..., Any]:
-    """``source`` compiled under ``name`` (its own entry in numba's on-disk cache), calling
-    the compiled helpers of :func:`compiled_helpers` by their names."""
+    """``source`` compiled under ``name``, with its own entry in numba's on-disk cache.
+
+    The variant calls the compiled helpers of :func:`compiled_helpers` by their names.
+    """
     namespace = compiled_helpers()
     variant = types.FunctionType(source.__code__.replace(co_name=name), namespace, name)
     variant.__qualname__ = name
@@ -223,9 +227,11 @@ def kernel_function(kind: str, parallel: bool) -> Callable[..., Any]:
 
 
 def compile_now(kind: str) -> None:
-    """Compile (or load from numba's disk cache) the serial kernel of ``kind`` by calling it
-    once with arguments of the real types at a pose whose boxes are apart (it returns at
-    once). Lets a caller start the compilation early, on a worker thread."""
+    """Compile (or load from numba's disk cache) the serial kernel of ``kind``.
+
+    Calls it once with arguments of the real types at a pose whose boxes are apart (it
+    returns at once). Lets a caller start the compilation early, on a worker thread.
+    """
     func = kernel_function(kind, False)
     far = np.array([1e9, 0.0, 0.0])
     zero, one = np.zeros(3), np.ones(3)

@@ -135,8 +135,10 @@ def choose(
 
 
 def _tune_threads(kernel: Any, table: ModeTable) -> None:
-    """Let a kernel with a parallel variant use it only where it is clearly faster (below
-    three quarters of the serial time, measured interleaved)."""
+    """Let a kernel with a parallel variant use it only where it is clearly faster.
+
+    Clearly faster means below three quarters of the serial time, measured interleaved.
+    """
     if not getattr(kernel, "can_parallel", False) or not kernel.supports(table):
         return
     serial, parallel = [], []
@@ -152,8 +154,10 @@ def measure(
     kernels: dict[str, Kernel], table: ModeTable, *, rounds: int = 4, calls: int = 5,
     progress: Callable[[float], None] | None = None,
 ) -> dict[str, float]:
-    """Median microseconds per pose of each kernel, in interleaved rounds (so that load from
-    other processes hits all alike)."""
+    """Median microseconds per pose of each kernel, measured in interleaved rounds.
+
+    Interleaving makes load from other processes hit all kernels alike.
+    """
     samples: dict[str, list[float]] = {k: [] for k in kernels}
     for r in range(rounds):
         for name, kernel in kernels.items():

@@ -150,8 +150,10 @@ class Spectra:
         return self.fine_scale if fine else float(self.oversample_factor)
 
     def radial_profile(self) -> np.ndarray:
-        """(R,) float64 RMS of ``|rho2c^|`` on spheres ``|k| = 0, 1, ...`` (part 1's steps):
-        a rotation-invariant estimate of what part 2 contributes at each frequency."""
+        """(R,) float64 RMS of ``|rho2c^|`` on spheres ``|k| = 0, 1, ...`` (part 1's steps).
+
+        A rotation-invariant estimate of what part 2 contributes at each frequency.
+        """
         with self._lock:
             profile = self._lazy.get("radial")
         if profile is None:

@@ -67,7 +67,10 @@ def sample_grid(
     levels: int | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-    """rho and xi on the grid ``xs x ys x zs``, exact where needed.
+    """The skeletal density rho and signed distance xi on the grid ``xs x ys x zs``.
+
+    Samples are evaluated exactly where needed and interpolated from coarser levels where
+    the estimated error allows (see the module docstring).
 
     Parameters
     ----------

@@ -66,7 +66,8 @@ exact per point and the tree's clusters carry their first moment.
 
 Numbers used by both implementations (:mod:`engine.descriptor.numba_kernels` and
 :mod:`engine.descriptor.opencl_kernels`) live in :mod:`engine.descriptor.constants`, so
-they agree to float32 precision."""
+they agree to float32 precision.
+"""
 
 from __future__ import annotations
 

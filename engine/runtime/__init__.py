@@ -1,6 +1,7 @@
-"""The engine at run time: the loop that steps the simulation at a fixed rate, its background
-job worker, the two transports (a thread, or a process of its own), the one frame layout,
-and the typed interface the GUI uses.
+"""The engine at run time: the loop that steps the simulation at a fixed rate.
+
+Beside the loop: its background job worker, the two transports (a thread, or a process of
+its own), the one frame layout, and the typed interface the GUI uses.
 
 Modules, bottom to top: :mod:`~engine.runtime.messages` (frozen commands, events, Frame),
 :mod:`~engine.runtime.frames` (the frame layout, packed and unpacked in one place, and the

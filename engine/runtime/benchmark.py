@@ -18,8 +18,9 @@ __all__ = ["AnalyticWell", "bench_proxy_motion", "bench_trajectory"]
 
 
 class AnalyticWell:
-    """A geometric field in closed form (a quadratic well and a rotational spring, times
-    ``kappa``): the loop without the modal sum.
+    """A geometric field in closed form: the loop without the modal sum.
+
+    A quadratic well and a rotational spring, times ``kappa``.
     """
 
     rotation = True

@@ -1,5 +1,7 @@
-"""The loop's geometric field and physics: what the user asked for, the background jobs that
-build it, and the hand-over between two steps.
+"""The loop's geometric field and physics.
+
+What the user asked for, the background jobs that build it, and the hand-over between two
+steps.
 
 Data: the desired state (effects, coupling, kappa, K, descriptor sigma and penalty) and the
 descriptors in use (``engine.descriptor.Descriptor`` of part 1 and part 2). Everything that
@@ -112,8 +114,10 @@ class Guidance:
         self._request("descriptors")
 
     def set_effects(self, effects: Effects) -> None:
-        """New effects: axes, damping and gravity at once; a new guidance kind or rotation lock
-        rebuilds the field in the background."""
+        """New effects: axes, damping and gravity at once.
+
+        A new guidance kind or rotation lock rebuilds the field in the background.
+        """
         old, self.effects = self.effects, effects
         self._physics_dirty = True
         if old.guidance != effects.guidance or old.rotation != effects.rotation:
@@ -130,8 +134,10 @@ class Guidance:
         self._physics_dirty = True
 
     def cancel_recompute(self) -> None:
-        """Cancel the running field job; the field in use stays, and so do the descriptor
-        parameters it was built with."""
+        """Cancel the running field job.
+
+        The field in use stays, and so do the descriptor parameters it was built with.
+        """
         if self.worker.cancel("field"):
             self.events.append(ProgressEvent(self._field_task, 1.0, "cancelled"))
         self._field_id = 0

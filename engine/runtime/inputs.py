@@ -1,5 +1,7 @@
-"""The loop's input device: reading the proxy pose, rendering the force, falling back to the
-mouse when a device goes away, and switching devices on command.
+"""The loop's input device.
+
+Reading the proxy pose, rendering the force, falling back to the mouse when a device goes
+away, and switching devices on command.
 
 Data: proxy poses (6,) float64 relative to part 1; forces and torques (3,) float64 in part
 1's frame, already scaled and clamped by the simulation's haptic limits.
@@ -91,8 +93,11 @@ class DeviceSlot:
             pass
 
     def set_proxy(self, pose: tuple[float, ...]) -> None:
-        """A proxy pose from the GUI: the mouse's new pose, or (another device in use) the
-        proxy moved directly until the device moves it again."""
+        """A proxy pose from the GUI.
+
+        It is the mouse's new pose, or (another device in use) the proxy moved directly until the
+        device moves it again.
+        """
         if self.mouse is not None:
             self.mouse.set_pose(pose)
         else:

@@ -1,5 +1,6 @@
-"""Background work of the engine: frozen requests carrying ids, run by one worker thread,
-answered by frozen responses echoing the id.
+"""Background work of the engine, on one worker thread.
+
+Frozen requests carry ids; the worker answers each by a frozen response echoing the id.
 
 Data: a :class:`FieldRequest` captures everything needed to build a geometric field (effects,
 kappa, locked rotation (3, 3) float64, K, descriptor parameters, and the descriptors to reuse
@@ -57,8 +58,10 @@ def next_id() -> int:
 
 
 class FieldModel(Protocol):
-    """What rebuilding physics and fields needs of a scene (``engine.sim.SceneModel`` is
-    one)."""
+    """What rebuilding physics and fields needs of a scene.
+
+    ``engine.sim.SceneModel`` is one.
+    """
 
     backend: str
     modes: int
@@ -125,8 +128,10 @@ class FieldRequest:
 
 @dataclass(frozen=True)
 class FieldResponse:
-    """Answer to a :class:`FieldRequest` with the same ``id``; ``field`` is None when it
-    failed (``error``) or was cancelled (``cancelled``)."""
+    """Answer to a :class:`FieldRequest` with the same ``id``.
+
+    ``field`` is None when it failed (``error``) or was cancelled (``cancelled``).
+    """
 
     id: int
     request: FieldRequest
@@ -162,8 +167,10 @@ Response = FieldResponse | LandscapeResponse
 
 
 def _warm(fld: GeometricField, rotation: np.ndarray) -> None:
-    """Evaluate once, so that tables built lazily on first use are built here, off the
-    loop, before the field is handed over."""
+    """Evaluate once, so that tables built lazily on first use are built here.
+
+    That is off the loop, before the field is handed over.
+    """
     fld.evaluate(np.asarray(rotation, np.float64), np.zeros(3))
 
 
@@ -174,8 +181,7 @@ def build_field(
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> FieldResponse:
-    """Run a :class:`FieldRequest` (in the worker): the field, warmed up, and its
-    descriptors."""
+    """Run a :class:`FieldRequest` (in the worker): the field, warmed up, and its descriptors."""
     t0 = time.perf_counter()
     r = request
     if r.descriptors and r.effects.guidance != "none":
@@ -214,8 +220,9 @@ class _Job:
 
 
 class JobWorker:
-    """One background thread for the engine's jobs; finished responses queue up for the
-    loop (:meth:`responses`).
+    """One background thread for the engine's jobs.
+
+    Finished responses queue up for the loop (:meth:`responses`).
 
     Each job has a kind (``"field"``, ``"landscape"``); :meth:`submit` cancels the pending or
     running job of the same kind before queueing the new one.
@@ -290,8 +297,10 @@ class JobWorker:
         return not pending
 
     def shutdown(self, timeout: float = 2.0) -> None:
-        """Cancel every job and stop the thread (waiting at most ``timeout`` seconds for a
-        running job to notice)."""
+        """Cancel every job and stop the thread.
+
+        Waits at most ``timeout`` seconds for a running job to notice.
+        """
         self._closed = True
         running = [job.future for job in self._jobs.values()]
         for kind in list(self._jobs):

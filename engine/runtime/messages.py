@@ -210,8 +210,12 @@ class SetKappa:
 
 @dataclass(frozen=True)
 class SetDevice:
-    """Switch the input device (``"mouse"``, ``"spacemouse"``, ``"openhaptics"``, ``"udp"``,
-    ``"trajectory"``); on failure a :class:`DeviceEvent` says why and the old one stays."""
+    """Switch the input device.
+
+    ``kind`` is ``"mouse"``, ``"spacemouse"``, ``"openhaptics"``, ``"udp"`` or
+    ``"trajectory"``, ``options`` its settings as ``(name, value)`` pairs; on failure a
+    :class:`DeviceEvent` says why and the old one stays.
+    """
 
     kind: str
     options: tuple[tuple[str, str | float | int | bool], ...] = ()
@@ -219,9 +223,11 @@ class SetDevice:
 
 @dataclass(frozen=True)
 class RequestLandscape:
-    """Ask for the translational energy landscape at the part's current rotation (or
-    ``rotvec``); answered off the loop by :class:`LandscapeReady` or
-    :class:`LandscapeFailed`. A newer request supersedes an unanswered one."""
+    """Ask for the translational energy landscape at the part's current rotation (or ``rotvec``).
+
+    Answered off the loop by :class:`LandscapeReady` or :class:`LandscapeFailed`. A newer
+    request supersedes an unanswered one.
+    """
 
     rotvec: tuple[float, ...] | None = None
 
@@ -270,8 +276,11 @@ COMMAND_TYPES: tuple[type, ...] = Command.__args__  # type: ignore[attr-defined]
 
 @dataclass(frozen=True)
 class ProgressEvent:
-    """Progress of a background task (``task``: "correlator" while preparing after start,
-    "descriptors" for a recompute); ``message`` is "cancelled" when it was."""
+    """Progress of a background task.
+
+    ``task`` is "correlator" while preparing after start, "descriptors" for a recompute;
+    ``message`` is "cancelled" when it was.
+    """
 
     task: str
     fraction: float
@@ -280,9 +289,12 @@ class ProgressEvent:
 
 @dataclass(frozen=True)
 class ReadyEvent:
-    """The engine has its field and steps; ``descriptors`` for slice views (read-only
-    descriptors of part 1 and part 2, empty when guidance is off), ``backend`` names the
-    per-pose evaluator picked, ``message`` the loop thread's scheduling."""
+    """The engine has its field and steps.
+
+    ``descriptors`` for slice views (read-only descriptors of part 1 and part 2, empty when
+    guidance is off), ``backend`` names the per-pose evaluator picked, ``message`` the loop
+    thread's scheduling.
+    """
 
     descriptors: tuple[Descriptor, ...] = ()
     backend: str = ""
@@ -327,8 +339,10 @@ class DeviceEvent:
 
 @dataclass(frozen=True)
 class ErrorEvent:
-    """Something failed in the engine (recompute, command, step); the session goes on when
-    ``fatal`` is False. ``kind`` is the exception class name."""
+    """Something failed in the engine (recompute, command, step).
+
+    The session goes on when ``fatal`` is False. ``kind`` is the exception class name.
+    """
 
     message: str
     kind: str = "Error"
@@ -356,8 +370,11 @@ Event = (
 
 
 def describe_error(exc: BaseException) -> str:
-    """The message of an :class:`ErrorEvent` for ``exc``: its text, and for an unexpected
-    error (not a ValueError or OSError, whose messages name the problem) where it arose."""
+    """The message of an :class:`ErrorEvent` for ``exc``.
+
+    Its text, and for an unexpected error (not a ValueError or OSError, whose messages name
+    the problem) where it arose.
+    """
     text = str(exc) or type(exc).__name__
     if not isinstance(exc, (ValueError, OSError)):
         tb = traceback.extract_tb(exc.__traceback__)

@@ -104,8 +104,9 @@ class Pacer:
 
 
 class PeriodWindow:
-    """The last :data:`STATS_WINDOW` periods and their statistics (and, for benchmarks,
-    every period).
+    """The last :data:`STATS_WINDOW` periods and their statistics.
+
+    For benchmarks, it also keeps every period (``keep``).
 
     Parameters
     ----------

@@ -116,9 +116,10 @@ def recv_message(conn: Connection) -> object:
 
 
 class ProcessEngine:
-    """The engine loop in a child process; same reader interface as
-    :class:`engine.runtime.loop.EngineLoop` (``send``, ``poll_frames``, ``poll_events``,
-    ``is_alive``, ``stop``).
+    """The engine loop in a child process.
+
+    Same reader interface as :class:`engine.runtime.loop.EngineLoop` (``send``,
+    ``poll_frames``, ``poll_events``, ``is_alive``, ``stop``).
 
     Start it from a thread that lives as long as the engine (the GUI's main thread): on Linux
     the child's parent-death signal follows the thread that started it.
@@ -234,8 +235,10 @@ class ProcessEngine:
         return False
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Stop the child (Stop, then terminate after ``timeout``) and free the shared
-        memory."""
+        """Stop the child and free the shared memory.
+
+        Sends Stop, then terminates the child if it is still alive after ``timeout`` seconds.
+        """
         if self._closed:
             return
         self.send(_STOP)

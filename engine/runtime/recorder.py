@@ -18,8 +18,9 @@ __all__ = ["Recorder"]
 
 
 class Recorder:
-    """Collects one recording row per step; pass :meth:`on_frame` to
-    ``EngineLoop(on_frame=...)``.
+    """Collects one recording row per step.
+
+    Pass :meth:`on_frame` to ``EngineLoop(on_frame=...)``.
 
     Runs in the loop thread; rows go to a preallocated float64 buffer that doubles when
     full.

@@ -206,7 +206,7 @@ class _Table:
         return str(value)
 
     def boolean(self, key: str, default: bool) -> bool:
-        """true or false."""
+        """A boolean, true or false."""
         if key not in self.values:
             return default
         value = self.values[key]

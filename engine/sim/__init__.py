@@ -1,6 +1,8 @@
-"""The simulation: the moving part as a rigid body, the geometric fields acting on it, the
-virtual coupling to the input proxy, the coupled system stepped at a fixed time step, and
-building all of it from a loaded scene.
+"""The simulation: the moving part as a rigid body, stepped with the fields acting on it.
+
+The package holds the rigid body, the geometric fields acting on it, the virtual coupling
+to the input proxy, the coupled system stepped at a fixed time step, and building all of
+it from a loaded scene.
 
 Modules: :mod:`~engine.sim.body` (rigid body, state, integrator pieces),
 :mod:`~engine.sim.fields` (Correlator, landscape and null fields),

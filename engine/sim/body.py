@@ -280,9 +280,11 @@ def step(
     translation_mask: np.ndarray | None = None,
     rotation_mask: np.ndarray | None = None,
 ) -> None:
-    """Advance ``state`` in place by one symplectic Euler step: :func:`kick` by ``dt``, then
-    :func:`drift` by ``dt`` (arguments as there). The simulation composes the two as
-    velocity Verlet instead (:meth:`engine.sim.Simulation.step`)."""
+    """Advance ``state`` in place by one symplectic Euler step.
+
+    :func:`kick` by ``dt``, then :func:`drift` by ``dt`` (arguments as there). The simulation
+    composes the two as velocity Verlet instead (:meth:`engine.sim.Simulation.step`).
+    """
     kick(body, state, force, torque, dt, translation_mask=translation_mask,
          rotation_mask=rotation_mask)
     drift(body, state, dt, translation_mask=translation_mask, rotation_mask=rotation_mask)

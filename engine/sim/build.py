@@ -1,6 +1,7 @@
-"""Building a :class:`~engine.sim.Simulation` from a loaded scene: the moving part's mass
-properties, the physics constants scaled to its size, the geometric field the effects ask
-for, and the simulation itself.
+"""Building a :class:`~engine.sim.Simulation` from a loaded scene.
+
+The moving part's mass properties, the physics constants scaled to its size, the
+geometric field the effects ask for, and the simulation itself.
 
 Data: the moving part's mesh (vertices (n, 3) float64, faces (m, 3) int64, own frame), the
 scene's validated simulation settings, and poses (6,) float64 relative to part 1.
@@ -46,16 +47,20 @@ class LoadedScene(Protocol):
     """What building a simulation reads of a loaded scene (the runtime's scene handle)."""
 
     @property
-    def scene(self) -> Any: ...  # engine.scene.Scene
+    def scene(self) -> Any:
+        """The scene file as read (an ``engine.scene.Scene``)."""
 
     @property
-    def config(self) -> SimConfig: ...
+    def config(self) -> SimConfig:
+        """The simulation settings of the scene."""
 
     @property
-    def parts(self) -> Sequence[Part]: ...
+    def parts(self) -> Sequence[Part]:
+        """The loaded parts: part 1 (fixed) and, in a pair, part 2 (moving)."""
 
     @property
-    def start_pose(self) -> np.ndarray: ...  # (6,) float64
+    def start_pose(self) -> np.ndarray:
+        """(6,) float64 start pose of the moving part relative to part 1."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -254,9 +259,10 @@ def rigid_body(physics: Physics) -> RigidBody:
 
 
 class SceneModel:
-    """Builds the physics and geometric fields of a loaded scene (constant data, no state);
-    the engine loop keeps one to rebuild them when the user changes effects, coupling,
-    kappa or descriptor parameters.
+    """Builds the physics and geometric fields of a loaded scene (constant data, no state).
+
+    The engine loop keeps one to rebuild them when the user changes effects, coupling, kappa
+    or descriptor parameters.
 
     Parameters
     ----------
@@ -286,8 +292,10 @@ class SceneModel:
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
     ) -> Physics:
-        """Physics constants for ``effects`` (and a changed coupling or kappa), with the
-        rotational coupling scaled to the fit of the field last built."""
+        """Physics constants for ``effects`` (and a changed coupling or kappa).
+
+        The rotational coupling is scaled to the fit of the field last built.
+        """
         config = self.config if coupling is None else replace(self.config, coupling=coupling)
         return resolve_physics(
             config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa,

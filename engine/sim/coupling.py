@@ -1,5 +1,6 @@
-"""Virtual coupling between the input proxy and the moving part, and the reaction a device
-renders.
+"""Virtual coupling between the input proxy and the moving part.
+
+Also the reaction a device renders.
 
 Data: positions (3,) float64 and orientations as unit quaternions (w, x, y, z) (4,) float64
 in part 1's frame; forces and torques (3,) float64 in part 1's frame, torques about world

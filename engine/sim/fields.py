@@ -1,5 +1,6 @@
-"""Geometric force fields acting on the moving part: what the simulation asks of the
-correlation engine at one pose.
+"""Geometric force fields acting on the moving part.
+
+What the simulation asks of the correlation engine at one pose.
 
 Data: the part's rotation (3, 3) float64 and origin (3,) float64 relative to part 1; each
 field returns an :class:`engine.correlation.Evaluation` already scaled by its gain
@@ -106,8 +107,11 @@ class CorrelatorField:
 
 
 class LandscapeField:
-    """Rotation locked: the translational energy landscape at the locked rotation, computed
-    once (an inverse FFT over all translations) and looked up per step, times ``kappa``."""
+    """Rotation locked: the translational energy landscape at the locked rotation.
+
+    Computed once (an inverse FFT over all translations) and looked up per step, times
+    ``kappa``.
+    """
 
     rotation = False
 

@@ -1,5 +1,7 @@
-"""The coupled system: input proxy -- spring-damper -- rigid part, with the geometric force
-field of the correlation engine acting on the part, stepped at a fixed time step.
+"""The coupled system: input proxy -- spring-damper -- rigid part.
+
+The geometric force field of the correlation engine acts on the part, and the system is
+stepped at a fixed time step.
 
 Data: poses (6,) float64 relative to part 1 (translation, rotation vector), forces and
 torques (3,) float64 in part 1's frame, torques about world axes through part 2's origin.
@@ -89,8 +91,10 @@ class Simulation:
         self._sample_fresh = False  # kappa may have changed
 
     def set_effects(self, effects: Effects, physics: Physics | None = None) -> None:
-        """New effects (free axes, damping, gravity) and, with them, the physics resolved for
-        them (the time step is kept)."""
+        """New effects (free axes, damping, gravity) and the physics resolved for them.
+
+        The time step is kept.
+        """
         self.effects = effects
         tmask = effects.translation_mask
         rmask = effects.rotation_mask
@@ -105,8 +109,11 @@ class Simulation:
         self.field_changed()
 
     def field_changed(self) -> None:
-        """Say that the field changed (new modes, new descriptors): the next step evaluates it
-        afresh instead of reusing the sample from the end of the last step."""
+        """Say that the field changed (new modes, new descriptors).
+
+        The next step evaluates it afresh instead of reusing the sample from the end of the last
+        step.
+        """
         self._sample_fresh = False
 
     # -- state ----------------------------------------------------------------------------------
@@ -155,11 +162,13 @@ class Simulation:
 
     # -- stepping -------------------------------------------------------------------------------
     def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
-        """Force at the part's origin and torque about it, on the part at its current state:
-        the stored field sample (given at the origin), and gravity, the coupling to the
-        proxy and body damping, which act at the centre of mass. Sets the coupling outputs
-        (about the part's origin) and the haptic ones (the reaction about the proxy's
-        origin, scaled and clamped)."""
+        """Force at the part's origin and torque about it, on the part at its current state.
+
+        Sums the stored field sample (given at the origin), and gravity, the coupling to the
+        proxy and body damping, which act at the centre of mass. Sets the coupling outputs (about
+        the part's origin) and the haptic ones (the reaction about the proxy's origin, scaled and
+        clamped).
+        """
         state, body, sample, p = self.state, self.body, self.sample, self.physics
         arm = state.rotation @ body.center  # (3,) origin -> centre of mass
         at_com = self._gravity_force  # (3,) forces acting at the centre of mass
@@ -184,12 +193,14 @@ class Simulation:
         return sample.force + at_com, torque + cross3(arm, at_com)
 
     def step(self) -> Evaluation:
-        """One fixed step, velocity Verlet: half a kick with the forces at the current pose
-        (the field sample from the end of the last step, the coupling to the proxy as it is
-        now), a drift, the field at the new pose, half a kick with the new forces. One field
-        evaluation per step; second order, so a free part keeps its energy far better than
-        with symplectic Euler at the same step. Returns the field sample at the new pose
-        (also in :attr:`sample`)."""
+        """One fixed step, velocity Verlet; returns the field sample at the new pose.
+
+        Half a kick with the forces at the current pose (the field sample from the end of the last
+        step, the coupling to the proxy as it is now), a drift, the field at the new pose, half a
+        kick with the new forces. One field evaluation per step; second order, so a free part
+        keeps its energy far better than with symplectic Euler at the same step. The sample is
+        also in :attr:`sample`.
+        """
         state, body, dt = self.state, self.body, self._dt
         if not self._sample_fresh:
             self.evaluate_field()
