@@ -1,3 +1,5 @@
+"""``python -m app``: the ``skelasm`` command line, as installed by the package."""
+
 import sys
 
 from app.cli import main

@@ -58,9 +58,12 @@ _PR_SET_PDEATHSIG = 1
 
 
 def _die_with_parent() -> None:
-    """In the forked child before exec: ask the kernel for SIGTERM when the parent dies, and
-    leave the terminal's process group, so that Ctrl+C reaches the window (which then closes
-    cleanly and stops this server) rather than killing the screen under it."""
+    """In the forked child before exec: die with the parent, and leave its process group.
+
+    Asks the kernel for SIGTERM when the parent dies, and leaves the terminal's process
+    group, so that Ctrl+C reaches the window (which then closes cleanly and stops this server)
+    rather than killing the screen under it.
+    """
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     os.setpgid(0, 0)

@@ -19,6 +19,11 @@ BENCHMARKS = {
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm bench BENCHMARK`` with one subcommand per benchmark of :data:`BENCHMARKS`.
+
+    A benchmark whose module cannot be imported (an optional dependency missing) still gets
+    its subcommand, which then says what is missing.
+    """
     parser = sub.add_parser("bench", help="run a benchmark, print its table, write its plot")
     which = parser.add_subparsers(dest="benchmark", metavar="BENCHMARK")
     which.required = True

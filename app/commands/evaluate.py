@@ -10,6 +10,7 @@ from engine.backend import CHOICES
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm evaluate`` (energy, force and torque at one pose) to ``sub``."""
     parser = sub.add_parser(
         "evaluate",
         help="energy, force and torque of part 2 at one pose relative to part 1",
@@ -35,6 +36,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Evaluate energy, force and torque at the pose asked for and print them.
+
+    Prints JSON with ``--json``. Returns the exit status.
+    """
     import json
 
     import numpy as np

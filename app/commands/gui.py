@@ -9,6 +9,7 @@ import argparse
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm gui`` (the desktop application) to ``sub``."""
     parser = sub.add_parser(
         "gui",
         help="open the desktop application (drag parts, watch forces, tune parameters)",
@@ -32,6 +33,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Open the window on the scene asked for; returns its exit status.
+
+    Raises RuntimeError naming the packages to install when the GUI's dependencies are
+    missing.
+    """
     if args.quit_after is not None and args.quit_after < 0:
         raise ValueError(f"--quit-after must be zero or positive, got {args.quit_after}")
     try:

@@ -6,6 +6,7 @@ import argparse
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm landscape`` (an image of the translational energy landscape) to ``sub``."""
     parser = sub.add_parser(
         "landscape",
         help="image of the translational energy landscape in one plane",
@@ -25,6 +26,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Compute the landscape at the rotation asked for and write its section as an image.
+
+    Returns the exit status.
+    """
     import numpy as np
 
     from app.commands.evaluate import progress_bar

@@ -53,6 +53,7 @@ def _grid_samples(text: str) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm precompute`` (a part's or a scene's descriptors to .npz) to ``sub``."""
     parser = sub.add_parser(
         "precompute",
         help="compute a part's skeletal density descriptor and write it to an .npz file",
@@ -103,6 +104,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Compute the descriptors of a scene's parts (a .toml path) or of one part file.
+
+    Returns the exit status.
+    """
     path = Path(args.part)
     if path.suffix.lower() == ".toml":
         return _run_scene(args, path)

@@ -18,6 +18,7 @@ KS = (4, 8, 12, 16, 24, 32)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm report`` (a Markdown report of a scene) to ``sub``."""
     parser = sub.add_parser(
         "report",
         help="write a Markdown report of a scene (parts, descriptors, energies, landscapes)",
@@ -80,6 +81,7 @@ def _slice_png(path: Path, descriptor, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Write ``OUTPUT/report.md`` and its figures for a scene with two parts; returns 0."""
     import numpy as np
 
     from app.commands.landscape import write_section_png

@@ -9,6 +9,7 @@ import sys
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``skelasm simulate`` (a headless run with a scripted proxy) to ``sub``."""
     p = sub.add_parser(
         "simulate",
         help="run a scene headless (scripted proxy) and report the final pose and timing",
@@ -39,6 +40,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Step the scene's simulation headless and print the final pose and timing.
+
+    Returns the exit status.
+    """
     from dataclasses import replace
 
     import numpy as np

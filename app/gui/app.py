@@ -12,8 +12,10 @@ DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" /
 
 
 def make_application(argv: list[str] | None = None):
-    """The QApplication (created once), with the organisation and application names that
-    QSettings uses."""
+    """The QApplication, created once.
+
+    It carries the organisation and application names that QSettings uses.
+    """
     from PySide6 import QtWidgets
 
     from app.gui.main_window import APPLICATION, ORGANISATION

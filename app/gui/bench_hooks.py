@@ -1,5 +1,6 @@
-"""The GUI half of ``skelasm bench loop --gui``: run the window on a scene for a while and
-measure what the user sees.
+"""The GUI half of ``skelasm bench loop --gui``.
+
+Runs the window on a scene for a while and measures what the user sees.
 
 :func:`run_gui_for` opens the main window, waits for the engine, then for ``seconds`` moves
 the proxy along a circle through the same path a mouse drag takes (``SetProxyPose`` from the
@@ -223,6 +224,10 @@ def run_loop_benchmark(args, load=None):
 
 
 def main() -> None:  # python -m app.gui.bench_hooks [SECONDS] [SCENE]
+    """Run the window for ``SECONDS`` on ``SCENE`` (command-line arguments) and print its figures.
+
+    The figures are printed as JSON, without the individual periods.
+    """
     import json
     import sys
 

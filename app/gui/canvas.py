@@ -1,5 +1,7 @@
-"""A 2D field viewer: a colour-mapped (nu, nv) array with a colour bar, line and point
-overlays, painted with QPainter. Used by the descriptor slice and the energy landscape views.
+"""A 2D field viewer: a colour-mapped (nu, nv) array painted with QPainter.
+
+The canvas adds a colour bar and line and point overlays. Used by the descriptor slice and
+the energy landscape views.
 
 Coordinates: the array's first index runs along the horizontal axis u, the second along the
 vertical axis v (up); ``extent = (u0, u1, v0, v1)`` are the centres of the corner samples.
@@ -17,6 +19,12 @@ from app.gui import colormap
 
 @dataclass(frozen=True)
 class Marker:
+    """A point marked on a :class:`FieldCanvas`, in field coordinates ``(u, v)``.
+
+    ``shape`` is ``"cross"``, ``"star"`` or ``"circle"``; ``colour`` a Qt colour name; an
+    optional ``label`` is written beside it.
+    """
+
     u: float
     v: float
     shape: str  # "cross" or "star" or "circle"
@@ -25,8 +33,11 @@ class Marker:
 
 
 class FieldCanvas(QtWidgets.QWidget):
-    """Paints one field; emits ``scrolled(int)`` on the wheel and ``dragged(float)`` with the
-    vertical drag distance as a fraction of the widget height (for moving a slice plane)."""
+    """Paints one colour-mapped field, with its overlays and colour bar.
+
+    Emits ``scrolled(int)`` on the wheel and ``dragged(float)`` with the vertical drag
+    distance as a fraction of the widget height (for moving a slice plane).
+    """
 
     scrolled = QtCore.Signal(int)
     dragged = QtCore.Signal(float)
@@ -71,6 +82,7 @@ class FieldCanvas(QtWidgets.QWidget):
         self.update()
 
     def clear(self, message: str = "no data") -> None:
+        """Drop the field and show ``message`` in its place."""
         self._image, self._rgb, self._message = None, None, message
         self.update()
 
@@ -80,6 +92,7 @@ class FieldCanvas(QtWidgets.QWidget):
         self.update()
 
     def set_markers(self, markers: list[Marker]) -> None:
+        """Replace the markers drawn over the field."""
         self._markers = list(markers)
         self.update()
 
@@ -101,6 +114,10 @@ class FieldCanvas(QtWidgets.QWidget):
                              avail.top() + (avail.height() - h) / 2, w, h)
 
     def to_widget(self, u: np.ndarray, v: np.ndarray, rect: QtCore.QRectF):
+        """Widget coordinates ``(x, y)`` of field points ``(u, v)`` in the plot rectangle ``rect``.
+
+        ``u`` and ``v`` may be arrays of any one shape; ``x`` and ``y`` have that shape.
+        """
         u0, u1, v0, v1 = self._extent
         x = rect.left() + (np.asarray(u) - u0) / (u1 - u0 or 1.0) * rect.width()
         y = rect.bottom() - (np.asarray(v) - v0) / (v1 - v0 or 1.0) * rect.height()
@@ -108,6 +125,7 @@ class FieldCanvas(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ painting
     def paintEvent(self, event) -> None:  # noqa: N802 (Qt API)
+        """Paint the field image, the line overlays, the markers and the colour bar."""
         p = QtGui.QPainter(self)
         p.fillRect(self.rect(), self.palette().window())
         if self._image is None:
@@ -195,22 +213,26 @@ class FieldCanvas(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ mouse
     def wheelEvent(self, event) -> None:  # noqa: N802
+        """Emit ``scrolled`` with the wheel's direction (+1 or -1)."""
         steps = int(np.sign(event.angleDelta().y()))
         if steps:
             self.scrolled.emit(steps)
         event.accept()
 
     def mousePressEvent(self, event) -> None:  # noqa: N802
+        """Start a vertical drag on the left button."""
         if event.button() == QtCore.Qt.LeftButton:
             self._drag_y = event.position().y()
             self.setCursor(QtCore.Qt.SizeVerCursor)
 
     def mouseMoveEvent(self, event) -> None:  # noqa: N802
+        """Emit ``dragged`` with the vertical move since the last event, per widget height."""
         if self._drag_y is not None:
             dy = self._drag_y - event.position().y()
             self._drag_y = event.position().y()
             self.dragged.emit(dy / max(self.height(), 1))
 
     def mouseReleaseEvent(self, event) -> None:  # noqa: N802
+        """End the drag."""
         self._drag_y = None
         self.unsetCursor()

@@ -26,6 +26,14 @@ def rotation_angle_between(r1: np.ndarray, r2: np.ndarray) -> float:
 
 
 class LandscapeView(QtWidgets.QWidget):
+    """Dock view: a plane section of the translational energy landscape through the part.
+
+    Shows the energy in the chosen plane through the current pose of part 2, with the
+    section's minimum and the part marked. A landscape holds for one rotation: the window asks
+    for a new one when the part has turned more than :attr:`ROTATION_TOLERANCE` from it
+    (:meth:`needs_landscape`).
+    """
+
     ROTATION_TOLERANCE = np.radians(3.0)
 
     def __init__(self, parent=None):
@@ -55,6 +63,7 @@ class LandscapeView(QtWidgets.QWidget):
 
     @property
     def landscape(self):
+        """The landscape shown (from the engine's ``LandscapeReady``), or None."""
         return self._landscape
 
     def needs_landscape(self, pose: np.ndarray) -> bool:
@@ -65,6 +74,7 @@ class LandscapeView(QtWidgets.QWidget):
         return rotation_angle_between(r, self._landscape.rotation) > self.ROTATION_TOLERANCE
 
     def set_landscape(self, landscape) -> None:
+        """Show a new landscape from the engine."""
         self._landscape = landscape
         self.refresh()
 
@@ -84,6 +94,7 @@ class LandscapeView(QtWidgets.QWidget):
         return self._landscape.section(plane, offset)
 
     def refresh(self) -> None:
+        """Redraw the section, its markers and the summary line (only while visible)."""
         if self._landscape is None or not self.isVisible():
             return
         plane = self.plane.currentText()
@@ -108,5 +119,6 @@ class LandscapeView(QtWidgets.QWidget):
         )
 
     def showEvent(self, event) -> None:  # noqa: N802
+        """Refresh on showing, as nothing is drawn while hidden."""
         super().showEvent(event)
         self.refresh()

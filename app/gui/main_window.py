@@ -1,5 +1,7 @@
-"""The main window: 3D view in the centre, docks for readouts, parameters, descriptor
-slices and the energy landscape; menus, shortcuts, recent files and remembered layout.
+"""The main window: 3D view in the centre, docks around it.
+
+The docks hold readouts, parameters, descriptor slices and the energy landscape; the
+window also owns the menus, shortcuts, recent files and remembered layout.
 
 One QTimer (:attr:`MainWindow.TICK_MS`) drives the GUI side of the loop: drain the engine's
 frames and events, move actors, update readouts (throttled) and render once if anything
@@ -63,6 +65,7 @@ class LatencyMonitor(QtCore.QObject):
         self._last = None
 
     def start(self) -> None:
+        """Start the timer; lateness counts from now."""
         self._last = time.perf_counter()
         self._timer.start(int(self.interval * 1000))
 
@@ -73,6 +76,7 @@ class LatencyMonitor(QtCore.QObject):
         self._last = now
 
     def reset(self) -> None:
+        """Forget the recorded lateness samples."""
         self.samples.clear()
 
 
@@ -246,11 +250,13 @@ class MainWindow(QtWidgets.QMainWindow):
                          QtCore.Qt.Vertical)
 
     def save_layout(self) -> None:
+        """Save the window geometry and the dock layout to the settings."""
         self.settings.setValue("window/geometry", self.saveGeometry())
         self.settings.setValue("window/state", self.saveState())
         self.settings.sync()
 
     def recent_files(self) -> list[str]:
+        """The recently opened files from the settings, newest first."""
         value = self.settings.value("recent", [])
         if isinstance(value, str):
             value = [value]
@@ -275,6 +281,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ------------------------------------------------------------------ files
     def open_dialog(self) -> None:
+        """Ask for a scene or part file and open it."""
         start = str(self.settings.value("last_dir", str(Path.cwd())))
         path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Open scene or part", start,
                                                         FILE_FILTER)
@@ -290,6 +297,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.session.open(path)
 
     def save_dialog(self) -> None:
+        """Ask where to save the scene and save it (or say that there is none)."""
         if self.session.handle is None:
             self.show_error("There is no scene to save.")
             return
@@ -319,6 +327,7 @@ class MainWindow(QtWidgets.QMainWindow):
         return out
 
     def screenshot_dialog(self) -> None:
+        """Ask where to save a screenshot of the window and save it."""
         path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save screenshot",
                                                         "skelasm.png", "PNG images (*.png)")
         if path:
@@ -337,10 +346,12 @@ class MainWindow(QtWidgets.QMainWindow):
         return path
 
     def dragEnterEvent(self, event) -> None:  # noqa: N802
+        """Accept a drag that carries a file the window can open."""
         if any(_droppable(u) for u in event.mimeData().urls()):
             event.acceptProposedAction()
 
     def dropEvent(self, event) -> None:  # noqa: N802
+        """Open the first dropped file the window can open."""
         for url in event.mimeData().urls():
             if _droppable(url):
                 self.open_path(url.toLocalFile())
@@ -416,6 +427,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.params.modes.setValue(self.params.modes.value() + delta)
 
     def reset_camera(self) -> None:
+        """Fit the camera to the scene again."""
         self.viewport.plotter.reset_camera()
         self.viewport.request_render()
 
@@ -569,6 +581,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ------------------------------------------------------------------ closing
     def closeEvent(self, event) -> None:  # noqa: N802
+        """Save the layout, stop the engine and the 3D view, then close."""
         self.save_layout()
         self._tick_timer.stop()
         self.session.close()

@@ -144,6 +144,11 @@ class ParamsPanel(QtWidgets.QWidget):
         self.set_progress(None)
 
     def set_effects(self, effects: Effects, *, emit: bool = True) -> None:
+        """Show ``effects`` in the panel's controls; with ``emit``, send them to the engine.
+
+        The controls are updated without emitting their own signals, so setting effects from the
+        engine's state does not echo back as a command.
+        """
         self._effects = effects
         if effects.gravity is not None:
             self._gravity_vector = effects.gravity

@@ -17,6 +17,11 @@ import numpy as np
 
 def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: float = 600.0,
          slice_part: int = 0) -> list[Path]:
+    """Open the window on ``scene`` and save the screenshots for the documentation in ``outdir``.
+
+    Waits up to ``wait_ready`` seconds for the engine's descriptors; ``slice_part`` picks the
+    part shown in the descriptor slice. Returns the paths of the PNG files written.
+    """
     from PySide6 import QtCore
 
     from app.gui.app import DEFAULT_SCENE, make_application

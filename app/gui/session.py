@@ -79,6 +79,7 @@ class Session(QtCore.QObject):
 
     @property
     def engine_name(self) -> str:
+        """How the GUI names the engine in messages: ``"engine process"`` or ``"engine"``."""
         return "engine process" if self.process else "engine"
 
     @property
@@ -194,6 +195,7 @@ class Session(QtCore.QObject):
 
     # ------------------------------------------------------------------ running
     def send(self, command) -> None:
+        """Send a command to the engine (dropped while none runs)."""
         if self.engine is not None:
             self.engine.send(command)
 
@@ -204,6 +206,11 @@ class Session(QtCore.QObject):
         return self.engine.poll_frames(), self.engine.poll_events()
 
     def part_views(self) -> list[PartView]:
+        """What the 3D view shows of the open scene: one :class:`PartView` per part.
+
+        Part 2 (the moving one) is placed at the start pose, the others at their scene poses;
+        an empty list when no scene is open.
+        """
         if self.handle is None:
             return []
         views = []
@@ -218,15 +225,19 @@ class Session(QtCore.QObject):
         return views
 
     def world(self, relative_pose: np.ndarray) -> np.ndarray:
+        """World pose (6,) float64 of a pose relative to part 1."""
         return self.handle.world_pose(relative_pose)
 
     def relative(self, world_pose: np.ndarray) -> np.ndarray:
+        """Pose relative to part 1, (6,) float64, of a world pose."""
         return self.handle.relative_pose(world_pose)
 
     def part1_rotation(self) -> np.ndarray:
+        """(3, 3) float64 world rotation of part 1."""
         return posemath.rotation_matrix(self.handle.part1_world_pose[3:])
 
     def close(self) -> None:
+        """Stop the engine, wait for its background workers and remove the temporary files."""
         if self.engine is not None:
             self.engine.stop()
             self.engine = None

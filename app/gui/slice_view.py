@@ -143,6 +143,10 @@ class SliceView(QtWidgets.QWidget):
                 float(d.grid.origin[a] + d.grid.spacing * self.offset.value()))
 
     def current_values(self) -> np.ndarray | None:
+        """The current slice of the chosen part's descriptor, or None when no part is chosen.
+
+        A (nu, nv) float array of the chosen component of rho in the chosen plane.
+        """
         d = self._current()
         if d is None:
             return None
@@ -151,6 +155,7 @@ class SliceView(QtWidgets.QWidget):
 
     # ------------------------------------------------------------------ drawing
     def refresh(self) -> None:
+        """Redraw the slice, its range and colour map, and the part's outline in the plane."""
         d = self._current()
         if d is None:
             return
@@ -196,9 +201,11 @@ class SliceView(QtWidgets.QWidget):
         self.plane_changed.emit(corners @ m[:3, :3].T + m[:3, 3])
 
     def showEvent(self, event) -> None:  # noqa: N802
+        """Announce the slice plane, so that the 3D view shows it."""
         super().showEvent(event)
         self._emit_plane()
 
     def hideEvent(self, event) -> None:  # noqa: N802
+        """Hide the slice plane in the 3D view (``plane_changed(None)``)."""
         super().hideEvent(event)
         self.plane_changed.emit(None)

@@ -11,9 +11,11 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 
 def value_range(values: np.ndarray) -> tuple[float, float]:
-    """The vertical range for finite ``values``: their span, widened to at least 2 % of their
-    magnitude (a part resting in a fit jitters by parts per thousand, which a tight
-    autoscale would blow up into what looks like noise)."""
+    """The vertical range ``(lo, hi)`` for finite ``values``.
+
+    Their span, widened to at least 2 % of their magnitude (a part resting in a fit jitters by
+    parts per thousand, which a tight autoscale would blow up into what looks like noise).
+    """
     lo, hi = float(np.min(values)), float(np.max(values))
     floor = max(0.02 * max(abs(lo), abs(hi)), 1e-12)
     if hi - lo < floor:
@@ -52,6 +54,7 @@ class StripChart(QtWidgets.QWidget):
         self._next += 1
 
     def clear(self) -> None:
+        """Drop every sample."""
         self._t[:] = np.nan
         self._v[:] = np.nan
         self._next = 0
@@ -67,6 +70,7 @@ class StripChart(QtWidgets.QWidget):
         return t[keep], v[keep]
 
     def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt API)
+        """Paint both traces over the last :attr:`seconds`, each with its own range and label."""
         p = QtGui.QPainter(self)
         p.fillRect(self.rect(), self.palette().base())
         w, h = self.width(), self.height()

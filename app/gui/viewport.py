@@ -269,11 +269,15 @@ class Viewport(QtCore.QObject):
         self._dirty = True
 
     def request_render(self) -> None:
+        """Mark the view as changed; the next :meth:`render_if_dirty` renders it."""
         self._dirty = True
 
     def render_if_dirty(self, *, force: bool = False) -> bool:
-        """Render once if anything changed since the last render and the last render is at
-        least :attr:`min_render_interval` old (or ``force``); True if it rendered."""
+        """Render once if anything changed and the last render is old enough; True if it rendered.
+
+        Renders only when something changed since the last render and that render is at least
+        :attr:`min_render_interval` old (or ``force``).
+        """
         if not self._dirty or not self.plotter.isVisible():
             return False
         now = time.perf_counter()
@@ -289,10 +293,12 @@ class Viewport(QtCore.QObject):
 
     @property
     def proxy_pose(self) -> np.ndarray:
+        """(6,) float64 world pose of the proxy (the ghost), a copy."""
         return self._proxy_pose.copy()
 
     @property
     def part_pose(self) -> np.ndarray:
+        """(6,) float64 world pose of the moving part, a copy."""
         return self._part_pose.copy()
 
     # ----------------------------------------------------------------- picking
@@ -332,6 +338,12 @@ class Viewport(QtCore.QObject):
 
     # ----------------------------------------------------------------- dragging
     def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt API)
+        """Drag the proxy with the left mouse button when the press hits the moving part.
+
+        While dragging, mouse moves and the release move the proxy and the wheel changes the drag
+        depth. Returns True for events it used, which the 3D view then does not see (so the
+        camera does not turn while a part is dragged).
+        """
         et = event.type()
         if et == QtCore.QEvent.MouseButtonPress and event.button() == QtCore.Qt.LeftButton:
             if self.pick_moving(event.position()):
@@ -417,9 +429,11 @@ class Viewport(QtCore.QObject):
 
     @property
     def dragging(self) -> bool:
+        """True while the user drags the proxy."""
         return self._drag is not None
 
     def close(self) -> None:
+        """Stop filtering the 3D view's events and close it."""
         self.plotter.removeEventFilter(self)
         self.plotter.close()
 

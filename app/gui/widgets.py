@@ -90,6 +90,7 @@ class SliderField(QtWidgets.QWidget):
             self.valueChanged.emit(v)
 
     def value(self) -> float:
+        """The current value, within the slider's range."""
         return self._value
 
     def setValue(self, v: float) -> None:  # noqa: N802 (Qt naming)
@@ -122,9 +123,11 @@ class Readouts(QtWidgets.QWidget):
             self.labels[key] = label
 
     def set(self, key: str, text: str) -> None:
+        """Show ``text`` for the value named ``key`` (the label is touched only when it changes)."""
         label = self.labels[key]
         if label.text() != text:
             label.setText(text)
 
     def text(self, key: str) -> str:
+        """The text shown for the value named ``key``."""
         return self.labels[key].text()
