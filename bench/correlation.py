@@ -27,6 +27,7 @@ DEFAULT_MODES = ("4", "8", "16", "24", "32", "full")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``skelasm bench correlation`` to ``parser``."""
     parser.add_argument("--scenes", nargs="*", default=None,
                         help="scene files (default: assets/*/scene.toml)")
     parser.add_argument("--synthetic", action="store_true",
@@ -175,6 +176,11 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
 
 
 def run(args: argparse.Namespace) -> int:
+    """Measure time and accuracy per pair, mode count and backend; print the tables, write the plot.
+
+    Each pair's full-mode numpy result is the reference for the errors of every other row.
+    Returns the exit status (0).
+    """
     from engine.correlation import Correlator
     from engine.correlation.tables import cube_reach
     from engine.pose import rotation_matrix

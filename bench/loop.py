@@ -38,6 +38,7 @@ DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "assets" / "peg_in_hole" /
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``skelasm bench loop`` to ``parser``."""
     parser.add_argument("--seconds", type=float, default=10.0, help="measured seconds (>= 10 "
                         "for the reported figures)")
     parser.add_argument("--modes", type=int, default=16, help="K, modes per axis (m' = K^3)")
@@ -118,6 +119,12 @@ def _sweeper(args: argparse.Namespace, send, stop: threading.Event) -> threading
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the engine loop as the options ask (thread, process or beside the GUI) and report it.
+
+    Prints the period statistics as a markdown table and whether the rate goal was met, and
+    writes the period histogram unless ``--no-plot``. Returns the exit status (1 when no step
+    was measured).
+    """
     from engine.runtime import period_stats
 
     stop = threading.Event()
@@ -235,8 +242,11 @@ def _run_thread(args, load):
 
 
 def _report_from_frames(args, info) -> int:
-    """The GUI with the engine in its own process: the engine's own period statistics, as its
-    frames carried them (medians over the measured time), beside the window's figures."""
+    """Print the report for the GUI with the engine in its own process.
+
+    Shows the engine's own period statistics, as its frames carried them (medians over the
+    measured time), beside the window's figures.
+    """
     rate, p99 = float(info["engine_rate_hz"]), float(info["engine_p99_us"])
     print(f"engine loop: {info['what']}, K = {args.modes} (m' = {args.modes ** 3}), "
           f"{info['field']}")

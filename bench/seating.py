@@ -1,4 +1,4 @@
-"""`skelasm bench seating`: does each real pair seat from a misaimed push?
+"""`skelasm bench seating`: whether each real pair seats from a misaimed push.
 
 For each pair of the real-fit suite (``assets/real/*/scene.toml``): the proxy is aimed 3 %
 of the moving part's width sideways and tilted 3 degrees, then pushed along the insertion

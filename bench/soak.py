@@ -37,6 +37,7 @@ with open(sys.argv[3], "w") as out:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``skelasm bench soak`` to ``parser``."""
     parser.add_argument("--minutes", type=float, default=15.0,
                         help="how long the window runs with a dragged proxy (default 15)")
     parser.add_argument("--scene", default=str(DEFAULT_SCENE),
@@ -55,6 +56,11 @@ def _rss_mib(pid: int) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the window in a child process for ``--minutes`` and report how it went.
+
+    Prints progress once a minute on stderr and a summary at the end (JSON with ``--json``).
+    Returns 0 only if the window ran the whole time and closed cleanly, else 1.
+    """
     if not args.minutes > 0:
         raise ValueError(f"--minutes must be positive, got {args.minutes}")
     scene = Path(args.scene)
