@@ -1,5 +1,6 @@
 """The engine's shape: importable without the GUI stack, no import circles (imports inside
-functions count), the layers contract kept, no oversized class."""
+functions count), the layers contract kept, no oversized class.
+"""
 
 import ast
 import pathlib
@@ -40,7 +41,8 @@ def engine_modules() -> dict[str, pathlib.Path]:
 def imported_engine_modules(name: str, path: pathlib.Path, modules) -> set[str]:
     """The engine modules ``name`` imports anywhere in its file (functions included); an
     import of a name from a package counts as an import of that package unless the name is
-    itself a module."""
+    itself a module.
+    """
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):

@@ -93,7 +93,8 @@ def qapp_args():
 @pytest.fixture(scope="session", autouse=True)
 def _workers_finish():
     """At the end, wait for engine workers that closed windows cancelled: one still in
-    compiled parallel code when the interpreter exits aborts the process."""
+    compiled parallel code when the interpreter exits aborts the process.
+    """
     yield
     from app.gui.session import wait_for_workers
 
@@ -135,7 +136,8 @@ def _box(lo, hi):
 @pytest.fixture(scope="session")
 def small_scene(tmp_path_factory) -> Path:
     """A small scene (a block above a plate) on a coarse grid, so the real engine prepares
-    its descriptors in seconds."""
+    its descriptors in seconds.
+    """
     d = tmp_path_factory.mktemp("small_scene")
     _box((-10, -10, -3), (10, 10, 0)).export(d / "plate.stl")
     _box((-4, -4, 0), (4, 4, 8)).export(d / "block.stl")
@@ -161,7 +163,8 @@ def _wait_until(qtbot, predicate, timeout_ms: int, what: str) -> None:
 @pytest.fixture
 def wait_until(qtbot):
     """``wait_until(predicate, timeout_ms, what)``: qtbot.waitUntil whose failure says what
-    did not happen."""
+    did not happen.
+    """
     return lambda predicate, timeout_ms, what: _wait_until(qtbot, predicate, timeout_ms, what)
 
 

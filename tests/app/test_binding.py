@@ -83,7 +83,8 @@ def test_field_canvas_repaints_keep_none_alive(shown):
 
 def test_window_views_keep_none_alive(make_window, small_scene, wait_until, qtbot):
     """The whole window with the engine running: slice view, landscape view, strip chart
-    and readouts repaint and update from live frames without losing references to None."""
+    and readouts repaint and update from live frames without losing references to None.
+    """
     win = make_window(small_scene)
     wait_until(lambda: win.guidance_ready or win.guidance_error, 120000,
                "the engine's descriptors and correlator")

@@ -24,7 +24,7 @@ EXIT_TIMEOUT = 20.0
 
 
 def session_processes(sid: int) -> dict[int, str]:
-    """pid -> command name of every live (not zombie) process in session ``sid``."""
+    """Map pid -> command name of every live (not zombie) process in session ``sid``."""
     found = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -53,7 +53,8 @@ def wait_for(predicate, timeout: float) -> bool:
 @pytest.fixture
 def gui(small_scene, tmp_path):
     """Start `skelasm gui SCENE` on its own virtual screen; yield the Popen once the engine
-    process and Xvfb run beside it."""
+    process and Xvfb run beside it.
+    """
     env = dict(os.environ, XDG_CONFIG_HOME=str(tmp_path / "config"),
                SKELASM_CACHE=os.environ.get("SKELASM_CACHE", str(tmp_path / "cache")))
     env.pop("DISPLAY", None)  # skelasm starts its own Xvfb, as on a headless machine

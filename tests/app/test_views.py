@@ -1,5 +1,6 @@
 """Live parameters, descriptor slices and energy landscapes with the real engine, on a
-small scene whose descriptors take seconds."""
+small scene whose descriptors take seconds.
+"""
 
 from __future__ import annotations
 

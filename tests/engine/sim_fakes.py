@@ -82,7 +82,8 @@ def well(center=(0.0, 0.0, 0.0), size=1.0, stiffness=50.0, **kw):
 class UniformPull:
     """A constant force ``F`` on the part's centre of mass ``c`` (part frame): the field of a
     uniform pull, ``E = -F . (R c + t)``; force ``F`` and torque ``(R c) x F`` about the
-    part's origin (exact, conservative)."""
+    part's origin (exact, conservative).
+    """
 
     rotation = True
     modes = 0

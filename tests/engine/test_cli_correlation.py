@@ -124,7 +124,8 @@ def test_report_writes_markdown_with_its_images(scene_file, tmp_path, capsys):
 
 def test_evaluate_shows_progress_on_a_terminal(scene_file, monkeypatch, capsys):
     """On a terminal the preparation (descriptors, spectra, tables, kernels) shows a bar
-    that reaches 100 %; without one (a pipe, --json) nothing is drawn."""
+    that reaches 100 %; without one (a pipe, --json) nothing is drawn.
+    """
     import io
     import sys
 

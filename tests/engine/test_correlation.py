@@ -172,7 +172,8 @@ def _rotation_difference(corr, rot, t, eps):
 def test_torque_is_central_difference_of_energy(request, which, rotvec):
     """T = -dE/dtheta (R -> exp([theta]x) R) of the energy the correlator reports, to the
     precision of the central difference: the torque differentiates the interpolant the
-    energy uses, so the field is conservative (and a free part keeps its energy)."""
+    energy uses, so the field is conservative (and a free part keeps its energy).
+    """
     corr = request.getfixturevalue(which)
     rot = rotation_matrix(np.array(rotvec))
     t = np.array([0.4, -0.3, 0.6])
@@ -296,7 +297,8 @@ def test_all_mode_counts_finite_and_converging(fast, full):
 def test_interpolation_error_falls_with_refinement_and_gradients(fields):
     """Rotated spectrum: the refined table and the gradient-enhanced interpolant (rotation
     on) each cut the interpolation error; measured against a 4x refined table, so that the
-    closed form's own discretisation error (about 1e-5 here) does not hide it."""
+    closed form's own discretisation error (about 1e-5 here) does not hide it.
+    """
     r1, r2 = fields
     rot = rotation_matrix(np.array([0.4, -0.3, 0.8]))
     t = np.array([0.3, 0.2, -0.4])

@@ -156,7 +156,8 @@ def test_with_modes_is_pure_and_shares_the_spectra():
 
 def test_k_changes_and_landscapes_on_a_worker_leave_the_pose_path_alone():
     """A worker builds new tables and landscapes while the main thread evaluates: every
-    evaluation equals the one before the worker started (nothing it reads changed)."""
+    evaluation equals the one before the worker started (nothing it reads changed).
+    """
     d1, d2 = pair()
     corr = Correlator(d1, d2, modes=8, backend="numba", use_cache=False)
     rot = rotation_matrix(np.array([0.1, 0.5, -0.3]))
@@ -244,7 +245,8 @@ def test_rotation_cache_error_is_second_order_in_the_rotation(cached):
 
 def test_rotation_cache_force_and_torque_are_derivatives_of_its_energy(cached):
     """The cached model is conservative: F and T are -dE/dt and -dE/dtheta of the energy it
-    reports, also away from the cache's rotation."""
+    reports, also away from the cache's rotation.
+    """
     corr, r0, cache = cached
     rot = rotation_matrix(np.array([4e-3, -2e-3, 3e-3])) @ r0
     t = np.array([0.2, -0.3, 0.1])

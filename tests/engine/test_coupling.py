@@ -1,5 +1,6 @@
 """Virtual coupling: following the proxy, stability at default gains, haptic clamp,
-scale invariance of the defaults, and switched-off work not being done."""
+scale invariance of the defaults, and switched-off work not being done.
+"""
 
 from __future__ import annotations
 
@@ -144,7 +145,8 @@ def test_gravity_sags_by_g_over_omega_squared():
 
 def _free_energy_error(dt, seconds=2.0, integrator="verlet"):
     """Largest |E - E0| of a free part (no proxy, no damping) released off-centre and
-    tilted in an analytic 6-DOF well, over ``seconds``."""
+    tilted in an analytic 6-DOF well, over ``seconds``.
+    """
     from engine.sim.body import step as euler_step
 
     sim = make_sim(field=CorrelatorField(well(stiffness=50.0), 1.0),
@@ -169,7 +171,8 @@ def _free_energy_error(dt, seconds=2.0, integrator="verlet"):
 def test_verlet_step_is_second_order_and_beats_euler():
     """Simulation.step (velocity Verlet): the energy error of a free part in an exact
     conservative well falls about fourfold when the step halves, and is far below what
-    symplectic Euler gives at the same step."""
+    symplectic Euler gives at the same step.
+    """
     coarse, _ = _free_energy_error(2e-3)
     fine, _ = _free_energy_error(1e-3)
     euler, _ = _free_energy_error(1e-3, integrator="euler")
@@ -183,7 +186,8 @@ def test_coupling_holds_the_centre_of_mass():
     """A pull through the centre of mass of a part whose origin lies off it moves the part
     without turning it: the coupling holds the part at its centre of mass, so the pull has
     no lever against the rotational spring (held at the origin, as before, the part turned
-    about the origin: 65 degrees here)."""
+    about the origin: 65 degrees here).
+    """
     from sim_fakes import UniformPull
 
     v, f = box_mesh()
@@ -204,7 +208,8 @@ def test_soft_fit_takes_over_the_rotation():
     """Where the fit is less than ten times stiffer in rotation than the mass-based
     coupling, the default rotational coupling drops to a tenth of the fit's: in a well 5
     times stiffer, a proxy tilted 3 degrees leaves the part tilted 0.37 degree instead of
-    0.65 with the mass-based spring."""
+    0.65 with the mass-based spring.
+    """
     from engine.sim import rotational_stiffness
 
     v, f = box_mesh()
@@ -230,7 +235,8 @@ def test_haptic_reaction_balances_the_coupling():
     """Newton's third law: what the device renders (about the proxy's origin) and what the
     coupling does to the part (about the part's origin) are equal and opposite, forces and
     moments about any common point, also with the centre of mass off the origin and the
-    proxy off the part."""
+    proxy off the part.
+    """
     v, f = box_mesh()
     v = v + np.array([0.5, -1.0, 2.0])
     config = SimConfig()

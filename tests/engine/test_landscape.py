@@ -87,7 +87,8 @@ def test_lookup_interpolates_and_is_zero_outside(corr):
 def test_lookup_force_is_minus_the_gradient_of_the_looked_up_energy(corr):
     """With forces, the lookup interpolates gradient-enhanced: its force is -dE/dt of its
     own energy (a conservative field for locked-rotation scenes), and between lattice points
-    it is closer to the exact per-pose value than trilinear interpolation."""
+    it is closer to the exact per-pose value than trilinear interpolation.
+    """
     land = corr.landscape(np.eye(3))
     x, y, z = land.translations
     n = len(x)

@@ -35,7 +35,8 @@ def tiny_descriptor(sigma=0.5, penalty=3.0):
 
 class ThreadLog(SpringCorrelator):
     """A spring well that records in which thread each evaluation, K change and landscape
-    ran. Named like a correlator's backend, as the engine reports it."""
+    ran. Named like a correlator's backend, as the engine reports it.
+    """
 
     backend = "numpy"
     backend_name = "spring well"
@@ -65,7 +66,8 @@ def logged_well(**kw):
 class FakeModel:
     """Stands in for engine.sim.SceneModel: builds spring-well fields, slowly, with
     progress. A field rebuilt from descriptors in use (new K, rotation lock) gets its
-    correlator from :func:`fake_correlator`, recorded here too."""
+    correlator from :func:`fake_correlator`, recorded here too.
+    """
 
     backend = "numpy"
     modes = 16
@@ -98,7 +100,8 @@ class FakeModel:
 
 def fake_correlator(fixed, moving, *, modes, rotation, backend, kappa):
     """Stands in for engine.correlation.Correlator where the engine builds one from
-    descriptors it already has."""
+    descriptors it already has.
+    """
     assert isinstance(fixed, Descriptor) and isinstance(moving, Descriptor)
     c = logged_well(modes=modes, rotation=rotation)
     c.sigma = fixed.params.sigma

@@ -67,7 +67,8 @@ def test_relative_pose_maps_moving_frame_into_fixed_frame():
 # --------------------------------------------------------------------------- pivot poses
 def test_a_typed_tilt_turns_the_part_about_its_centre_not_the_file_origin():
     """A body of an assembly file sits 75 mm from the file's origin; a 2 degree tilt typed
-    by a user must leave its centre where it was (about the origin it would move 2.6 mm)."""
+    by a user must leave its centre where it was (about the origin it would move 2.6 mm).
+    """
     centre = np.array([75.0, 0.0, 0.0])
     tilt = np.array([0.0, 0.0, 0.0, 0.0, np.radians(2.0), 0.0])
     about_origin = pose.pose_to_matrix(tilt)[:3] @ np.append(centre, 1.0)

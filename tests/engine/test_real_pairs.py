@@ -1,6 +1,7 @@
 """The real-fit suite (assets/real): scenes parse, parts load at their real size, the
 assembled pose is free of interference and a small misalignment is not, and (slow) each
-pair seats from the misaim protocol of ``skelasm bench seating``."""
+pair seats from the misaim protocol of ``skelasm bench seating``.
+"""
 
 from __future__ import annotations
 
@@ -97,7 +98,8 @@ def test_scene_parses_with_files_and_licence_note(name):
 # ------------------------------------------------------------------------------- slow
 def _depth_into(vertices, faces, points) -> float:
     """Deepest of ``points`` (k, 3) inside the closed (or nearly closed) mesh: winding number
-    above 0.5 for inside, exact distance to the triangles for the depth."""
+    above 0.5 for inside, exact distance to the triangles for the depth.
+    """
     import trimesh
 
     from engine.descriptor import winding_number
@@ -112,7 +114,8 @@ def _depth_into(vertices, faces, points) -> float:
 
 def interference(parts, pose, samples=20000) -> float:
     """Deepest interpenetration (scene units) of part 2 at ``pose`` (6,) relative to part 1:
-    points of either surface (vertices and random samples) inside the other part."""
+    points of either surface (vertices and random samples) inside the other part.
+    """
     import trimesh
     from scipy.spatial.transform import Rotation
 

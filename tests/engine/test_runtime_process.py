@@ -1,6 +1,7 @@
 """The engine process dies with its parent, however the parent ends, and leaves nothing
 behind (no process, no shared memory): issue 9's orphaned engine spinning at real-time
-priority after the window crashed."""
+priority after the window crashed.
+"""
 
 from __future__ import annotations
 

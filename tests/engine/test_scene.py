@@ -387,7 +387,8 @@ INCH_FROM_MM = """#658 = ( CONVERSION_BASED_UNIT('INCH',#90001) LENGTH_UNIT() NA
 
 def inch_declared_slide(folder: Path) -> Path:
     """The dovetail slide, drawn in mm, with a header that declares inches (defined from mm,
-    as Pro/E writes it)."""
+    as Pro/E writes it).
+    """
     text = (ROOT / "assets" / "dovetail" / "slide.step").read_text()
     mm = "#658 = ( LENGTH_UNIT() NAMED_UNIT(*) SI_UNIT(.MILLI.,.METRE.) );"
     assert mm in text

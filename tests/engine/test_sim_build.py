@@ -85,7 +85,8 @@ class LoadedBoxes:
 def test_rate_override_holds_through_every_change(tmp_path):
     """A 250 Hz override steps 4 ms of physics, and keeps doing so after the changes the
     engine makes on SetKappa, SetCoupling, SetEffects and at the field handover (each used
-    to put the scene's 1 ms step back)."""
+    to put the scene's 1 ms step back).
+    """
     from engine.params import CouplingParams
     from engine.sim import NullField, build_simulation
 
@@ -124,7 +125,8 @@ def test_scene_rate_sets_the_step_and_bad_steps_are_refused(tmp_path):
 def test_rotational_stiffness_of_a_spring_well():
     """Springs a (R p_i + t - p_i): the rotational Hessian at the rest pose is
     a sum(|p|^2 I - p p^T) = a [[3, -1, 0], [-1, 3, 0], [0, 0, 4]] (eigenvalues 2, 4, 4),
-    whose positive eigenvalues average 10 a / 3; scaled by kappa, reported per unit kappa."""
+    whose positive eigenvalues average 10 a / 3; scaled by kappa, reported per unit kappa.
+    """
     from sim_fakes import well
 
     from engine.sim import CorrelatorField, NullField, rotational_stiffness

@@ -52,7 +52,8 @@ def test_no_trajectory_keeps_proxy_at_start(capsys):
 @pytest.mark.slow
 def test_realtime_holds_rate(capsys):
     """A timing check, so slow-marked and skipped on a loaded machine: behind schedule the
-    loop catches up with short periods and the median falls below the period."""
+    loop catches up with short periods and the median falls below the period.
+    """
     import os
 
     if os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1):
@@ -106,7 +107,8 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
                 hold_s=2.0, modes=None, gain=None):
     """Run one pair: start laterally offset by ``offset_frac`` of the moving part's width and
     tilted by ``tilt_deg``, the proxy (keeping that misalignment) pushed along the insertion
-    axis to the assembled depth in ``push_s``, then held. Returns a dict of errors."""
+    axis to the assembled depth in ``push_s``, then held. Returns a dict of errors.
+    """
     from dataclasses import replace
 
     from engine.devices import TrajectoryDevice
@@ -192,7 +194,8 @@ def test_collision_only_pair_is_measured(name):
 
 def free_energy_run(axes, start, steps=2000):
     """Free part (no proxy, damping off) in the peg's real field at the default 1 ms step:
-    (total energy per step, its starting value, the largest kinetic energy)."""
+    (total energy per step, its starting value, the largest kinetic energy).
+    """
     from dataclasses import replace
 
     from engine.runtime import open_scene
@@ -218,7 +221,8 @@ def free_energy_run(axes, start, steps=2000):
 def test_energy_bounded_in_the_real_field_translation_only():
     """Rotation locked (landscape lookup, force = -grad of the interpolated energy): the
     total energy stays within a fraction of a percent of the kinetic energy the part
-    reaches (measured 0.33 % at most, 0.08 % drift; 5.4 % with trilinear lookup)."""
+    reaches (measured 0.33 % at most, 0.08 % drift; 5.4 % with trilinear lookup).
+    """
     energy, e0, scale = free_energy_run(("x", "y", "z"), [0.3, 0.0, -12.0, 0.0, 0.0, 0.0])
     assert scale > 1000.0  # it fell into the hole and moved
     assert np.max(np.abs(energy - e0)) < 0.02 * scale
@@ -233,7 +237,8 @@ def test_energy_bounded_in_the_real_field_with_rotation(start):
     is velocity Verlet with a torque-free drift at fixed angular momentum, so a tilted peg
     rattling in (or dropped into) its hole for 2 s keeps its total energy (measured 0.44 %
     and 0.19 % of the kinetic energy at most; 5.6 % and 20 % with an explicit gyroscopic
-    term, and the drop 18 % with the moment-spectrum torque and symplectic Euler)."""
+    term, and the drop 18 % with the moment-spectrum torque and symplectic Euler).
+    """
     energy, e0, scale = free_energy_run(("x", "y", "z", "rx", "ry", "rz"), start)
     assert scale > 1000.0
     assert np.max(np.abs(energy - e0)) < 0.02 * scale
@@ -247,7 +252,8 @@ def test_dovetail_holds_still_without_input():
     its file's origin (its front face, 15 mm ahead of its centre of mass), the geometric
     pull on its body had a 15 mm lever against the rotational spring and tipped it 34
     degrees; held at its centre of mass it tilts 7.5 degrees (the energy itself falls as the
-    slide's body swings down along the block's back face)."""
+    slide's body swings down along the block's back face).
+    """
     from engine.pose import relative_pose
     from engine.runtime import open_scene
     from engine.sim import build_simulation
