@@ -62,10 +62,15 @@ def gui(small_scene, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "app", "gui", str(small_scene)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
-    names = lambda: set(session_processes(proc.pid).values())  # noqa: E731
-    # the window's process, its Xvfb and the engine process (a Python child)
-    up = wait_for(lambda: "Xvfb" in names() and len(session_processes(proc.pid)) >= 3
-                  or proc.poll() is not None, START_TIMEOUT)
+    def engine_and_screen_up() -> bool:
+        # Xvfb and the engine process (a Python child of the window's own process; other
+        # short-lived children, such as an OpenCL compiler's, do not count)
+        others = {pid: name for pid, name in session_processes(proc.pid).items()
+                  if pid != proc.pid}
+        return ("Xvfb" in others.values()
+                and any(name.startswith("python") for name in others.values()))
+
+    up = wait_for(lambda: engine_and_screen_up() or proc.poll() is not None, START_TIMEOUT)
     if proc.poll() is not None or not up:
         proc.kill()
         out, err = proc.communicate()
