@@ -8,7 +8,6 @@ with :meth:`Session.send`, frames and events come out of :meth:`Session.poll`.
 
 from __future__ import annotations
 
-import importlib.util
 import tempfile
 import threading
 import time
@@ -27,12 +26,6 @@ FILE_FILTER = (
     "Scenes and parts (*.toml *.step *.stp *.stl *.obj *.ply *.off);;"
     "Scenes (*.toml);;Parts (*.step *.stp *.stl *.obj *.ply *.off);;All files (*)"
 )
-
-
-def real_engine_available() -> bool:
-    """True when the engine's runtime and scene reader are installed."""
-    return all(importlib.util.find_spec(m) is not None
-               for m in ("engine.runtime", "engine.scene"))
 
 
 @dataclass(frozen=True)

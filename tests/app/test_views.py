@@ -13,14 +13,8 @@ import pytest
 from PySide6 import QtCore
 
 from app.gui import colormap
-from app.gui.session import real_engine_available
 from app.gui.slice_view import slice_values
 from engine import runtime
-
-pytestmark = pytest.mark.skipif(
-    not real_engine_available(),
-    reason="engine.runtime / engine.scene not installed: the GUI tests need the real engine",
-)
 
 
 @pytest.fixture

@@ -3,17 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.gui.app import DEFAULT_SCENE as EXAMPLE_SCENE
 from engine import pose as posemath
 from engine import runtime
-
-pytestmark = pytest.mark.skipif(
-    not __import__("app.gui.session", fromlist=["x"]).real_engine_available(),
-    reason="engine.runtime / engine.scene not installed: the GUI tests need the real engine",
-)
 
 
 def _mouse(widget, kind, pos, buttons, modifiers=QtCore.Qt.NoModifier, button=None):
