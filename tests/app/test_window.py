@@ -179,14 +179,23 @@ def test_save_scene_writes_the_current_pose(make_window, tmp_path, wait_until):
     assert scene.parts[1].file.exists()  # paths rewritten relative to the new place
 
 
+def _drag_enter(pos: QtCore.QPointF, mime: QtCore.QMimeData) -> QtGui.QDragEnterEvent:
+    """A drag-enter event at ``pos``: PySide6 6.12 takes a float point (its integer one is
+    deprecated), 6.11 and earlier only an integer one.
+    """
+    args = (QtCore.Qt.CopyAction, mime, QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
+    try:
+        return QtGui.QDragEnterEvent(pos, *args)
+    except TypeError:
+        return QtGui.QDragEnterEvent(pos.toPoint(), *args)
+
+
 def test_dropping_a_file_on_the_window_opens_it(make_window, small_scene, wait_until):
     win = make_window(EXAMPLE_SCENE)
     mime = QtCore.QMimeData()
     mime.setUrls([QtCore.QUrl.fromLocalFile(str(small_scene))])
     pos = QtCore.QPointF(win.width() / 2, win.height() / 2)
-    # QDragEnterEvent takes an integer point (PySide6 6.11), QDropEvent a float one
-    enter = QtGui.QDragEnterEvent(pos.toPoint(), QtCore.Qt.CopyAction, mime,
-                                  QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
+    enter = _drag_enter(pos, mime)
     QtWidgets.QApplication.sendEvent(win, enter)
     assert enter.isAccepted()
     drop = QtGui.QDropEvent(pos, QtCore.Qt.CopyAction, mime, QtCore.Qt.LeftButton,
@@ -195,8 +204,7 @@ def test_dropping_a_file_on_the_window_opens_it(make_window, small_scene, wait_u
     wait_until(lambda: "Small test scene" in win.windowTitle(), 20000, "the dropped scene")
     # a file of an unknown kind is not accepted
     mime.setUrls([QtCore.QUrl.fromLocalFile(str(small_scene.with_suffix(".txt")))])
-    enter = QtGui.QDragEnterEvent(pos.toPoint(), QtCore.Qt.CopyAction, mime,
-                                  QtCore.Qt.LeftButton, QtCore.Qt.NoModifier)
+    enter = _drag_enter(pos, mime)
     enter.ignore()
     QtWidgets.QApplication.sendEvent(win, enter)
     assert not enter.isAccepted()
