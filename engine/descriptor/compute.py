@@ -354,6 +354,22 @@ def _local_points(triangles: np.ndarray,
     return p, centre, scale
 
 
+def _query(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, mode: int,
+           backend: BackendLike) -> tuple[np.ndarray, float]:
+    """Point query ``mode`` (0 winding number, 1 signed distance) through the tree.
+
+    Runs in the mesh's normalised frame; returns the (k, 4) float64 kernel output and the
+    scale that normalised lengths.
+    """
+    triangles = _triangles(vertices, faces)
+    p, centre, scale = _local_points(triangles, points)
+    if p.shape[0] == 0:
+        return np.zeros((0, 4)), scale
+    local = _localise(triangles, centre, scale, True)
+    out = _run(local, (p - centre) / scale, mode, DescriptorParams(), resolve_backend(backend))
+    return out, scale
+
+
 def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
                    backend: BackendLike = None) -> np.ndarray:  # fmt: skip
     """Generalised winding number of the mesh about each point.
@@ -371,12 +387,7 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, 
         1 inside, 0 outside (about 0.5 on the surface); threshold at 0.5 for membership.
         Uses the tree (Barnes-Hut with exact near triangles).
     """
-    triangles = _triangles(vertices, faces)
-    p, centre, scale = _local_points(triangles, points)
-    if p.shape[0] == 0:
-        return np.zeros(0)
-    local = _localise(triangles, centre, scale, True)
-    out = _run(local, (p - centre) / scale, 0, DescriptorParams(), resolve_backend(backend))
+    out, _ = _query(vertices, faces, points, 0, backend)
     return out[:, 3].copy()
 
 
@@ -395,12 +406,7 @@ def signed_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     -------
     (k,) float64
     """
-    triangles = _triangles(vertices, faces)
-    p, centre, scale = _local_points(triangles, points)
-    if p.shape[0] == 0:
-        return np.zeros(0)
-    local = _localise(triangles, centre, scale, True)
-    out = _run(local, (p - centre) / scale, 1, DescriptorParams(), resolve_backend(backend))
+    out, scale = _query(vertices, faces, points, 1, backend)
     return out[:, 2] * scale
 
 
