@@ -407,6 +407,15 @@ PAIRS = [
 ]
 
 
+#: The degrees of freedom each fit leaves free (part 1's frame), as the scene's ``free_axes``.
+FREE_AXES = {
+    "iso_pin_5_H7h6_through": ["z", "rz"], "iso_shaft_20_H7g6_blind": ["rz"],
+    "iso_sleeve_30_H7g6_thinwall": ["z", "rz"], "iso_spigot_50_H7h6": ["rz"],
+    "keyed_hub_20": [], "rect_peg_10x16_H7g6": [], "spline_6x23x26": ["z"],
+    "dovetail_60_slide": ["y"],
+}
+
+
 # --------------------------------------------------------------------------- writing
 def _build(builder, origin) -> None:
     gmsh.clear()
@@ -454,6 +463,7 @@ name = "{title}"
 units = "mm"
 assembled_pose = {assembled}   # part 2 in part 1's frame when seated
 insertion_axis = {axis}        # direction part 2 travels to seat, part 1's frame
+free_axes = {free_axes}   # degrees of freedom the fit leaves free, part 1's frame
 
 [descriptor]
 sigma = 0.5
@@ -501,6 +511,7 @@ def write_pair(pair: Pair) -> None:
     size = _largest_side(pair)
     (OUT / pair.folder / "scene.toml").write_text(SCENE.format(
         title=pair.title, fit=pair.fit, free=pair.free, assembled=_fmt(pair.assembled),
+        free_axes="[" + ", ".join(f'"{a}"' for a in FREE_AXES[pair.folder]) + "]",
         axis=_fmt(pair.axis), grid=pair.grid, cell=size / pair.grid, modes=pair.modes,
         name1=pair.fixed[0], file1=file1, extra1=_extra(unit1, tol1, pair.fixed[2]),
         name2=pair.moving[0], file2=file2, extra2=_extra(unit2, tol2, pair.moving[2]),

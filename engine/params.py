@@ -217,12 +217,65 @@ class CorrelationParams:
 
 
 # ---------------------------------------------------------------------------------------------
+# the assembled fit
+
+#: Degrees of freedom, in part 1's frame: three translations, three rotations.
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+#: Angle within which part 2 counts as seated when the scene gives none (degrees).
+DEFAULT_SEAT_ANGLE_DEG = 1.0
+#: Distance within which part 2 counts as seated when the scene gives none, as a fraction
+#: of part 2's bounding-box diagonal.
+DEFAULT_SEAT_DISTANCE_FRACTION = 0.02
+
+
+@dataclass(frozen=True)
+class SeatSpec:
+    """How the assembled fit is judged (the scene's ``free_axes`` and ``seat_tolerance``).
+
+    Attributes
+    ----------
+    free_axes : tuple of str, or None
+        The degrees of freedom the fit leaves free, in part 1's frame (names from
+        :data:`AXES`: a peg in a through hole leaves ``("z", "rz")``); ``()`` when the fit
+        locks every axis, None when the scene does not say.
+    distance : float or None
+        Largest distance of part 2's centre from its seat that counts as seated, in the
+        scene's unit; None: :data:`DEFAULT_SEAT_DISTANCE_FRACTION` of part 2's size.
+    angle_deg : float
+        Largest angle from the seated orientation that counts as seated (degrees).
+    """
+
+    free_axes: tuple[str, ...] | None = None
+    distance: float | None = None
+    angle_deg: float = DEFAULT_SEAT_ANGLE_DEG
+
+    def __post_init__(self) -> None:
+        if self.free_axes is not None:
+            axes = tuple(str(a) for a in self.free_axes)
+            unknown = [a for a in axes if a not in AXES]
+            if unknown:
+                raise InputError(f"free_axes: unknown axis {unknown[0]!r}; valid: "
+                                 f"{', '.join(AXES)} (part 1's frame)")
+            if len(set(axes)) != len(axes):
+                raise InputError(f"free_axes: an axis is listed twice in {list(axes)}")
+            object.__setattr__(self, "free_axes", axes)
+        if self.distance is not None:
+            distance = _at_least("seat_tolerance", "distance", self.distance, 0.0)
+            if distance == 0.0:
+                raise InputError("seat_tolerance distance must be positive, got 0")
+            object.__setattr__(self, "distance", distance)
+        angle = float(self.angle_deg)
+        if not (0.0 < angle <= 180.0):
+            raise InputError(f"seat_tolerance: the angle must be in (0, 180] degrees, got "
+                             f"{self.angle_deg!r}")
+        object.__setattr__(self, "angle_deg", angle)
+
+
+# ---------------------------------------------------------------------------------------------
 # simulation tables
 
 #: Engine rate (``[simulation] rate_hz``): the haptic loop's 1 kHz.
 DEFAULT_RATE_HZ = 1000.0
-#: Degrees of freedom, in part 1's frame: three translations, three rotations.
-AXES = ("x", "y", "z", "rx", "ry", "rz")
 #: Geometric guidance kinds (``[effects] guidance``).
 GUIDANCE = ("skeletal", "collision", "none")
 #: Input device kinds (``[device] kind``).

@@ -18,6 +18,7 @@ from engine.params import (
     CorrelationParams,
     DescriptorParams,
     MassSpec,
+    SeatSpec,
     SimConfig,
 )
 from engine.pose import relative_pose
@@ -111,6 +112,9 @@ class Scene:
         Part 2 relative to part 1 when assembled (read-only).
     insertion_axis : (3,) float64 or None
         Unit direction part 2 travels to seat, in part 1's frame.
+    seat : SeatSpec
+        The axes the fit leaves free and the tolerance of "seated" (``free_axes``,
+        ``seat_tolerance``).
     descriptor : DescriptorParams
         The ``[descriptor]`` table.
     correlation : CorrelationParams
@@ -127,6 +131,7 @@ class Scene:
     units: str = DEFAULT_UNIT
     units_declared: bool = True
     insertion_axis: np.ndarray | None = None
+    seat: SeatSpec = field(default_factory=SeatSpec)
     descriptor: DescriptorParams = field(default_factory=DescriptorParams)
     correlation: CorrelationParams = field(default_factory=CorrelationParams)
     config: SimConfig = field(default_factory=SimConfig)

@@ -32,6 +32,7 @@ from engine.params import (
     DeviceConfig,
     Effects,
     MassSpec,
+    SeatSpec,
     SimConfig,
     SimulationParams,
     gravity_vector,
@@ -44,7 +45,8 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
 #: Top-level keys of a scene file.
-TOP_KEYS = ("name", "units", "assembled_pose", "insertion_axis")
+TOP_KEYS = ("name", "units", "assembled_pose", "insertion_axis", "free_axes",
+            "seat_tolerance")
 #: Tables of a scene file (``part`` is the array of ``[[part]]`` tables).
 TABLES = ("descriptor", "correlation", "simulation", "coupling", "effects", "device", "part")
 #: Keys of ``[descriptor]``.
@@ -286,6 +288,7 @@ def parse_scene(text: str, path: Path) -> Scene:
                            "give the direction part 2 travels to seat, e.g. [0, 0, -1]")
         axis = axis / norm
 
+    seat = _seat(top)
     descriptor = _descriptor(top.table("descriptor", "[descriptor]"))
     correlation = _correlation(top.table("correlation", "[correlation]"))
     parts, masses = _parts(top, data, p)
@@ -298,8 +301,27 @@ def parse_scene(text: str, path: Path) -> Scene:
         units=units,
     )
     return Scene(path=p, name=name, units=units, units_declared=units_declared,
-                 parts=tuple(parts), assembled_pose=assembled, insertion_axis=axis,
+                 parts=tuple(parts), assembled_pose=assembled, insertion_axis=axis, seat=seat,
                  descriptor=descriptor, correlation=correlation, config=config)
+
+
+def _seat(top: _Table) -> SeatSpec:
+    free = top.values.get("free_axes")
+    if free is not None and not (isinstance(free, list) and all(isinstance(a, str) for a in free)):
+        raise top.fail("free_axes", "free_axes must be a list of axis names",
+                       f"write e.g. `free_axes = [\"z\", \"rz\"]` (valid: {', '.join(AXES)}; "
+                       "`[]` when the fit locks every axis)")
+    tolerance = top.vector("seat_tolerance", 2)
+    try:
+        return SeatSpec(free_axes=None if free is None else tuple(free),
+                        # a distance of 0 asks for the default (a fraction of part 2's size)
+                        distance=None if tolerance is None or tolerance[0] == 0
+                        else float(tolerance[0]),
+                        **({} if tolerance is None else {"angle_deg": float(tolerance[1])}))
+    except InputError as exc:
+        key = "free_axes" if str(exc).startswith("free_axes") else "seat_tolerance"
+        raise top.fail(key, str(exc), "seat_tolerance is [distance in the scene's unit, "
+                       "angle in degrees]; free_axes names axes of part 1's frame") from exc
 
 
 def _descriptor(d: _Table) -> DescriptorParams:

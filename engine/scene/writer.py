@@ -19,6 +19,7 @@ from engine.params import (
     DeviceConfig,
     Effects,
     MassSpec,
+    SeatSpec,
     SimulationParams,
     gravity_vector,
 )
@@ -54,6 +55,11 @@ def scene_to_toml(scene: Scene, folder: Path) -> dict[str, Any]:
     data["assembled_pose"] = _floats(scene.assembled_pose)
     if scene.insertion_axis is not None:
         data["insertion_axis"] = _floats(scene.insertion_axis)
+    if scene.seat.free_axes is not None:
+        data["free_axes"] = list(scene.seat.free_axes)
+    if scene.seat.distance is not None or scene.seat.angle_deg != SeatSpec().angle_deg:
+        data["seat_tolerance"] = [scene.seat.distance if scene.seat.distance is not None
+                                  else 0.0, scene.seat.angle_deg]
     data["descriptor"] = _given(scene.descriptor)
     data["correlation"] = {k: v for k, v in _given(scene.correlation).items()
                            if k in CORRELATION_KEYS}
