@@ -217,6 +217,38 @@ class CorrelationParams:
 
 
 # ---------------------------------------------------------------------------------------------
+# units of the reported quantities
+
+#: SI names of kg u^2/s^2 and kg u/s^2 for the common length units u.
+_NAMED = {"m": ("J", "N", "N·m"), "mm": ("µJ", "mN", "mN·mm"),
+          "cm": ("100 µJ", "10 mN", "10 mN·cm"), "um": ("pJ", "µN", "µN·µm")}
+
+
+@dataclass(frozen=True)
+class QuantityUnits:
+    """The units of energy, force, torque and kappa in a scene of length unit ``length``.
+
+    Masses are in kg and times in seconds; lengths in the scene's unit ``u``. The energy
+    ``E = -kappa Re f`` is kappa times a volume (``u^3``): with kappa in ``kg/(u s^2)`` it is
+    in ``kg u^2/s^2``; the force ``-dE/dt`` in ``kg u/s^2``; the torque in ``kg u^2/s^2``.
+    For millimetre scenes these are µJ, mN and mN·mm.
+    """
+
+    length: str
+    energy: str
+    force: str
+    torque: str
+    kappa: str
+
+    @classmethod
+    def of(cls, length: str) -> QuantityUnits:
+        """The units for a scene in ``length`` (a key of :data:`LENGTH_UNITS`)."""
+        u = length
+        energy, force, torque = _NAMED.get(u, (f"kg·{u}²/s²", f"kg·{u}/s²", f"kg·{u}²/s²"))
+        return cls(length=u, energy=energy, force=force, torque=torque, kappa=f"kg/({u}·s²)")
+
+
+# ---------------------------------------------------------------------------------------------
 # the assembled fit
 
 #: Degrees of freedom, in part 1's frame: three translations, three rotations.
