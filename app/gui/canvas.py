@@ -35,12 +35,15 @@ class Marker:
 class FieldCanvas(QtWidgets.QWidget):
     """Paints one colour-mapped field, with its overlays and colour bar.
 
-    Emits ``scrolled(int)`` on the wheel and ``dragged(float)`` with the vertical drag
-    distance as a fraction of the widget height (for moving a slice plane).
+    Emits ``scrolled(int)`` on the wheel, ``dragged(float)`` with the vertical drag
+    distance as a fraction of the widget height (for moving a slice plane), and
+    ``hovered(object)`` with ``(u, v, value)`` of the sample under the cursor (None when the
+    cursor leaves the field).
     """
 
     scrolled = QtCore.Signal(int)
     dragged = QtCore.Signal(float)
+    hovered = QtCore.Signal(object)
 
     BAR_WIDTH = 14
     BAR_GAP = 8
@@ -59,6 +62,8 @@ class FieldCanvas(QtWidgets.QWidget):
         self._bar_label = ""
         self._message = "no data"
         self._drag_y: float | None = None
+        self._values: np.ndarray | None = None  # (nu, nv) float64 as shown
+        self.setMouseTracking(True)  # hover reports the value under the cursor
         self.setMinimumSize(220, 180)
         self.setSizePolicy(QtWidgets.QSizePolicy.Expanding, QtWidgets.QSizePolicy.Expanding)
 
@@ -69,6 +74,7 @@ class FieldCanvas(QtWidgets.QWidget):
         values = np.asarray(values, dtype=np.float64)
         if values.ndim != 2:
             raise ValueError(f"a field to show must be 2D, got shape {values.shape}")
+        self._values = values
         rgb = colormap.apply(values.T[::-1], lo, hi, lut)  # rows: v from top to bottom
         self._rgb = np.ascontiguousarray(rgb)
         h, w, _ = self._rgb.shape
@@ -84,6 +90,7 @@ class FieldCanvas(QtWidgets.QWidget):
     def clear(self, message: str = "no data") -> None:
         """Drop the field and show ``message`` in its place."""
         self._image, self._rgb, self._message = None, None, message
+        self._values = None
         self.update()
 
     def set_segments(self, segments: np.ndarray) -> None:
@@ -225,12 +232,37 @@ class FieldCanvas(QtWidgets.QWidget):
             self._drag_y = event.position().y()
             self.setCursor(QtCore.Qt.SizeVerCursor)
 
+    def value_at(self, x: float, y: float) -> tuple[float, float, float] | None:
+        """``(u, v, value)`` of the sample nearest widget point (x, y), or None off the field."""
+        if self._values is None:
+            return None
+        rect = self._plot_rect()
+        u0, u1, v0, v1 = self._extent
+        nu, nv = self._values.shape
+        fu = (x - rect.left()) / max(rect.width(), 1e-9)
+        fv = (rect.bottom() - y) / max(rect.height(), 1e-9)
+        iu, iv = int(round(fu * (nu - 1))), int(round(fv * (nv - 1)))
+        if not (0 <= iu < nu and 0 <= iv < nv):
+            return None
+        u = u0 + (u1 - u0) * iu / max(nu - 1, 1)
+        v = v0 + (v1 - v0) * iv / max(nv - 1, 1)
+        return float(u), float(v), float(self._values[iu, iv])
+
     def mouseMoveEvent(self, event) -> None:  # noqa: N802
-        """Emit ``dragged`` with the vertical move since the last event, per widget height."""
+        """Report the value under the cursor; while dragging, emit ``dragged`` as well.
+
+        ``dragged`` carries the vertical move since the last event, per widget height.
+        """
         if self._drag_y is not None:
             dy = self._drag_y - event.position().y()
             self._drag_y = event.position().y()
             self.dragged.emit(dy / max(self.height(), 1))
+        self.hovered.emit(self.value_at(event.position().x(), event.position().y()))
+
+    def leaveEvent(self, event) -> None:  # noqa: N802
+        """The cursor left: no value under it."""
+        self.hovered.emit(None)
+        super().leaveEvent(event)
 
     def mouseReleaseEvent(self, event) -> None:  # noqa: N802
         """End the drag."""

@@ -1,4 +1,4 @@
-"""Geometry the views need: mesh/plane cross-sections, arcball rotations, pose helpers.
+"""Geometry the views need: mesh/plane cross-sections and arcball rotations.
 
 Meshes are ``vertices (n, 3) float64`` and ``faces (m, 3) int64``; planes are axis-aligned
 (axis 0, 1 or 2 at an offset) in the part's own frame.
@@ -7,8 +7,6 @@ Meshes are ``vertices (n, 3) float64`` and ``faces (m, 3) int64``; planes are ax
 from __future__ import annotations
 
 import numpy as np
-
-from engine import pose as posemath
 
 AXES = ("x", "y", "z")
 
@@ -88,13 +86,3 @@ def arcball_rotation(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
     if s < 1e-12:
         return np.zeros(3)
     return axis / s * float(np.arctan2(s, c))
-
-
-def rotate_pose_about(pose: np.ndarray, rotvec_world: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """(6,) pose after a world-frame rotation about a world point ``center``."""
-    rot = posemath.pose_to_matrix(np.concatenate([np.zeros(3), rotvec_world]))
-    shift = np.eye(4)
-    shift[:3, 3] = center
-    back = np.eye(4)
-    back[:3, 3] = -np.asarray(center)
-    return posemath.matrix_to_pose(shift @ rot @ back @ posemath.pose_to_matrix(pose))

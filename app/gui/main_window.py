@@ -17,15 +17,20 @@ from pathlib import Path
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
+from app.gui import quantities
 from app.gui.landscape_view import LandscapeView
 from app.gui.params_panel import ParamsPanel
+from app.gui.pose_dialog import PoseDialog
 from app.gui.session import FILE_FILTER, PART_SUFFIXES, SCENE_SUFFIXES, Session
 from app.gui.slice_view import SliceView
 from app.gui.strip_chart import StripChart
-from app.gui.viewport import Viewport
+from app.gui.tasks import TaskBoard
+from app.gui.view_panel import ViewPanel
+from app.gui.viewport import VIEW_NAMES, Viewport
 from app.gui.widgets import Readouts
 from engine import pose as posemath
 from engine import runtime
+from engine.params import QuantityUnits
 
 ORGANISATION = "skelasm"
 APPLICATION = "skelasm"
@@ -34,11 +39,16 @@ MAX_RECENT = 8
 HELP_TEXT = """<h3>Assembling</h3>
 <ul>
 <li><b>Drag</b> the orange part (or its blue ghost) with the left button: the ghost (the
-input proxy) follows the mouse in the view plane and the engine pulls the part after it.</li>
+input proxy) follows the mouse and the engine pulls the part after it. With an axis chosen
+in the toolbar (I: the insertion axis, X, Y, Z; F: free) the ghost moves along that axis
+only, drawn through the part; free, it moves in the view plane.</li>
 <li><b>Shift + drag</b> up/down, or the <b>wheel</b> while dragging: move along the view
-direction.</li>
-<li><b>Ctrl + drag</b>: rotate the proxy about its centre (arcball).</li>
+direction (along the chosen axis, when one is chosen).</li>
+<li><b>Ctrl + drag</b>: rotate the proxy about the part's centre of mass (arcball), or about
+the chosen axis.</li>
 <li>Elsewhere the mouse turns (left), pans (middle) and zooms (wheel) the camera.</li>
+<li>The readout at the top right says how far the part is from its seat, and
+<b>SEATED</b> when it is within the scene's tolerance.</li>
 </ul>
 <h3>Keys</h3>
 <table>
@@ -46,10 +56,27 @@ direction.</li>
 <tr><td>Ctrl+S</td><td>save the scene</td></tr>
 <tr><td>Space</td><td>pause / resume the engine</td></tr>
 <tr><td>Ctrl+R</td><td>put the part back at its start pose</td></tr>
+<tr><td>Ctrl+P</td><td>type the pose of the part</td></tr>
+<tr><td>I, X, Y, Z, F</td><td>drag along the insertion axis, x, y, z; free drag</td></tr>
+<tr><td>1 … 6, 0, 7</td><td>views from +X, −X, +Y, −Y, +Z, −Z; isometric; along the
+insertion axis</td></tr>
 <tr><td>[ and ]</td><td>fewer / more modes (accuracy against time)</td></tr>
-<tr><td>Ctrl+0</td><td>reset the camera</td></tr>
+<tr><td>Ctrl+0</td><td>reset the camera (isometric, whole scene)</td></tr>
 <tr><td>F12</td><td>save a screenshot of the window</td></tr>
 </table>"""
+
+#: The window's size when nothing is remembered, and the share of the screen it may take.
+DEFAULT_SIZE = (1500, 920)
+SCREEN_SHARE = 0.94
+#: The engine counts as below its rate under this share of its target (steps per second).
+RATE_WARNING = 0.9
+
+#: Standard views: name, key.
+VIEW_KEYS = (("+x", "1"), ("-x", "2"), ("+y", "3"), ("-y", "4"), ("+z", "5"), ("-z", "6"),
+             ("iso", "0"), ("insertion", "7"))
+CONSTRAINT_KEYS = (("free", "F", "free drag (view plane)"),
+                   ("insertion", "I", "along the insertion axis"),
+                   ("x", "X", "along x"), ("y", "Y", "along y"), ("z", "Z", "along z"))
 
 
 class LatencyMonitor(QtCore.QObject):
@@ -128,27 +155,53 @@ class MainWindow(QtWidgets.QMainWindow):
         self.viewport.proxy_dragged.connect(self._proxy_dragged)
         self.viewport.drag_state.connect(self._drag_state)
 
+        self.units = QuantityUnits.of("mm")
+        self.kappa = 0.0  # the kappa the engine uses (E = -kappa Re f), resolved here
+        self.tasks = TaskBoard()
+        self.rate_low = False  # the engine runs below RATE_WARNING of its target rate
+        self.seat = None  # engine.seat.SeatState of the latest frame
+        self._requested_modes: int | None = None
+        self._coupling = None  # the coupling the panel last sent (None: the scene's)
+        self._kappa_override: float | None = None
+        self._effects = None  # the effects last sent to the engine
+        self._backend = "-"  # the per-pose evaluator the engine picked (ReadyEvent)
+
+        self.seat_label = QtWidgets.QLabel("no scene")
+        self.seat_label.setObjectName("seat_state")
+        self.seat_label.setAlignment(QtCore.Qt.AlignCenter)
+        self.seat_label.setWordWrap(True)
+        self.seat_detail = QtWidgets.QLabel("")
+        self.seat_detail.setWordWrap(True)
+        self._show_seated(False)
         self.readouts = Readouts([
+            ("pose", "part 2 (rel. part 1)"),
+            ("seat", "to the seat"),
+            ("free", "free axes"),
             ("energy", "energy E"),
-            ("force", "|force|"),
-            ("torque", "|torque|"),
-            ("rate", "engine rate"),
-            ("eval", "µs / evaluation"),
-            ("modes", "m' (modes)"),
-            ("period", "period p50 / p99"),
-            ("backend", "evaluator"),
-            ("device", "device"),
+            ("force", "|force F|"),
+            ("torque", "|torque T|"),
+            ("kappa", "kappa"),
+            ("rate", "engine"),
+            ("eval", "fit forces take"),
+            ("modes", "accuracy"),
+            ("device", "input"),
         ])
         self.chart = StripChart(seconds=10.0)
         box = QtWidgets.QWidget()
         lay = QtWidgets.QVBoxLayout(box)
         lay.setContentsMargins(0, 0, 0, 0)
+        lay.addWidget(self.seat_label)
+        lay.addWidget(self.seat_detail)
         lay.addWidget(self.readouts)
         lay.addWidget(self.chart, 1)
         self.dock_readouts = self._dock("Readouts", box, QtCore.Qt.RightDockWidgetArea)
 
         self.params = ParamsPanel()
         self.params.command.connect(self._command)
+        self.view_panel = ViewPanel()
+        self.view_panel.opacity_changed.connect(self.viewport.set_fixed_opacity)
+        self.view_panel.clip_changed.connect(self.viewport.set_clip)
+        self.params.layout().insertWidget(self.params.layout().count() - 1, self.view_panel)
         scroll = QtWidgets.QScrollArea()
         scroll.setWidget(self.params)
         scroll.setWidgetResizable(True)
@@ -162,20 +215,27 @@ class MainWindow(QtWidgets.QMainWindow):
         self.dock_landscape = self._dock("Energy landscape", self.landscape_view,
                                          QtCore.Qt.LeftDockWidgetArea)
 
+        self.status_task = QtWidgets.QLabel("")
+        self.status_task.setObjectName("status_task")
         self.status_engine = QtWidgets.QLabel("engine: -")
+        self.status_engine.setObjectName("status_engine")
         self.status_fps = QtWidgets.QLabel("fps: -")
         self.status_latency = QtWidgets.QLabel("latency: -")
-        for w in (self.status_engine, self.status_fps, self.status_latency):
+        for w in (self.status_task, self.status_engine, self.status_fps, self.status_latency):
             self.statusBar().addPermanentWidget(w)
         self._build_menus()
+        self._build_toolbar()
         self.params.pause.toggled.connect(self._pause_changed)
+        self.viewport.constraint_changed.connect(self._constraint_changed)
+        self.pose_dialog: PoseDialog | None = None
 
         self.latency = LatencyMonitor(self)
         self._tick_timer = QtCore.QTimer(self)
         self._tick_timer.setTimerType(QtCore.Qt.PreciseTimer)
         self._tick_timer.timeout.connect(self.tick)
-        self.resize(1500, 920)
+        self.resize(*DEFAULT_SIZE)
         self._restore_layout()
+        self.fit_to_screen()
         self._tick_timer.start(self.TICK_MS)
         self.latency.start()
 
@@ -215,6 +275,25 @@ class MainWindow(QtWidgets.QMainWindow):
             view.addAction(dock.toggleViewAction())
         view.addSeparator()
         self._action(view, "Reset &camera", self.reset_camera, "Ctrl+0")
+        views = view.addMenu("&Standard views")
+        self.view_actions: dict[str, QtGui.QAction] = {}
+        for name, key in VIEW_KEYS:
+            self.view_actions[name] = self._action(
+                views, VIEW_NAMES[name], lambda _c=False, n=name: self.set_view(n), key)
+        drag = bar.addMenu("&Drag")
+        self.constraint_group = QtGui.QActionGroup(self)
+        self.constraint_actions: dict[str, QtGui.QAction] = {}
+        for name, key, text in CONSTRAINT_KEYS:
+            action = self._action(drag, text.capitalize(),
+                                  lambda _c=False, n=name: self.set_constraint(n), key,
+                                  checkable=True)
+            action.setIconText({"free": "Free", "insertion": "Insertion"}.get(name, name.upper()))
+            action.setToolTip(f"Drag {text} ({key}); Ctrl-drag turns about it")
+            self.constraint_group.addAction(action)
+            self.constraint_actions[name] = action
+        self.constraint_actions["free"].setChecked(True)
+        drag.addSeparator()
+        self._action(drag, "Type the &pose…", self.show_pose_dialog, "Ctrl+P")
 
         sim = bar.addMenu("&Simulation")
         self.pause_action = self._action(sim, "&Pause", self._toggle_pause, "Space",
@@ -227,6 +306,28 @@ class MainWindow(QtWidgets.QMainWindow):
         self._action(help_menu, "&Controls", self._show_help, "F1")
         self._action(help_menu, "&About", self._about)
 
+    def _build_toolbar(self) -> None:
+        bar = self.addToolBar("Insertion")
+        bar.setObjectName("insertion_toolbar")
+        bar.setToolButtonStyle(QtCore.Qt.ToolButtonTextOnly)
+        bar.addWidget(QtWidgets.QLabel(" drag "))
+        for action in self.constraint_actions.values():
+            bar.addAction(action)
+        bar.addSeparator()
+        bar.addWidget(QtWidgets.QLabel(" view "))
+        for name, _key in VIEW_KEYS:
+            action = self.view_actions[name]
+            action.setIconText({"iso": "Iso", "insertion": "Axis"}.get(
+                name, name.upper().replace("-", "−")))
+            action.setToolTip(f"View {VIEW_NAMES[name]} ({action.shortcut().toString()})")
+            bar.addAction(action)
+        bar.addSeparator()
+        pose = QtGui.QAction("Pose…", self)
+        pose.setToolTip("Type the pose of the moving part (Ctrl+P)")
+        pose.triggered.connect(self.show_pose_dialog)
+        bar.addAction(pose)
+        self.toolbar = bar
+
     # ------------------------------------------------------------------ settings
     def _restore_layout(self) -> None:
         geometry = self.settings.value("window/geometry")
@@ -238,6 +339,31 @@ class MainWindow(QtWidgets.QMainWindow):
         else:
             # dock sizes only take once the window is laid out
             QtCore.QTimer.singleShot(0, self._default_dock_sizes)
+
+    def _available_geometry(self) -> QtCore.QRect:
+        """The part of the screen the window may use (without panels and docks of the OS)."""
+        screen = self.screen() or QtGui.QGuiApplication.primaryScreen()
+        return screen.availableGeometry()
+
+    def fit_to_screen(self, available: QtCore.QRect | None = None) -> None:
+        """Keep the window within the screen it is on (a remembered size is clamped too).
+
+        ``available``: the screen's free area (default: the window's screen's).
+        """
+        area = available if available is not None else self._available_geometry()
+        frame = self.frameGeometry()
+        extra_w = max(frame.width() - self.width(), 0)
+        extra_h = max(frame.height() - self.height(), 0)
+        max_w = int(area.width() * SCREEN_SHARE) - extra_w
+        max_h = int(area.height() * SCREEN_SHARE) - extra_h
+        w, h = min(self.width(), max_w), min(self.height(), max_h)
+        if (w, h) != (self.width(), self.height()):
+            self.resize(w, h)
+        frame = self.frameGeometry()
+        x = min(max(frame.x(), area.x()), area.x() + area.width() - frame.width())
+        y = min(max(frame.y(), area.y()), area.y() + area.height() - frame.height())
+        if (x, y) != (frame.x(), frame.y()):
+            self.move(x, y)
 
     def _default_dock_sizes(self) -> None:
         w = self.width()
@@ -366,11 +492,29 @@ class MainWindow(QtWidgets.QMainWindow):
         self.guidance_error = None
         self._force_scale = self._torque_scale = 0.0
         self.chart.clear()
+        self.tasks.clear()
+        self.seat = None
+        self._requested_modes = None
+        self._coupling = None
+        self._kappa_override = handle.config.simulation.kappa
+        self._effects = handle.config.effects
         views = self.session.part_views()
-        self.viewport.set_scene(views)
         scene = handle.scene
+        frame = self.session.part1_rotation()
+        insertion = None if scene.insertion_axis is None else frame @ scene.insertion_axis
+        self.viewport.set_scene(views, frame=frame, insertion_axis=insertion)
+        self.view_actions["insertion"].setEnabled(insertion is not None)
+        self.constraint_actions["insertion"].setEnabled(insertion is not None)
+        # the insertion axis, where the scene gives one, is the drag a first user needs
+        self.set_constraint("insertion" if insertion is not None else "free")
         title = scene.name
         self.setWindowTitle(f"{title} — skelasm")
+        self._set_units(quantities.units_of(handle))
+        self.readouts.set("free", quantities.free_axes_text(scene.seat.free_axes))
+        for key in ("pose", "seat", "energy", "force", "torque", "rate", "eval", "modes"):
+            self.readouts.set(key, "-")
+        self._show_seated(False, "no frame yet" if len(views) > 1 else "one part: nothing "
+                          "to seat")
         meshes = [(v.name, v.vertices, v.faces) for v in views]
         self.slice_view.set_parts(meshes, [posemath.pose_to_matrix(v.pose) for v in views])
         self.slice_view.set_descriptors(())
@@ -378,11 +522,16 @@ class MainWindow(QtWidgets.QMainWindow):
         self.landscape_view.canvas.clear("landscape not computed yet")
         self.params.load_config(handle.config, scene.modes, scene.descriptor.sigma,
                                 scene.descriptor.penalty)
+        self._update_kappa()
         if self.session.engine is None:
             self.statusBar().showMessage(
                 f"{title}: one part loaded; open a second part (the moving one) to assemble")
         else:
-            self.statusBar().showMessage(f"{title}: preparing descriptors…")
+            self.tasks.start("correlator")
+            self.params.set_progress(0.0, "preparing descriptors %p%", cancellable=False)
+            self.statusBar().showMessage(
+                f"{title}: preparing descriptors and correlation tables (the first time a "
+                "scene opens this can take minutes; they are cached)")
         if not Path(handle.path).name.startswith("generated_"):
             self._remember(str(handle.path))
 
@@ -402,18 +551,111 @@ class MainWindow(QtWidgets.QMainWindow):
         self.error_dialog = box
 
     def _command(self, command) -> None:
+        """Send a command from the panels, and say what the engine now does about it."""
         self.session.send(command)
+        if self.session.engine is None:
+            return
         if isinstance(command, runtime.SetModes):
-            self.statusBar().showMessage(f"m' = {command.modes ** 3:,} modes", 3000)
+            self._requested_modes = command.modes
+            if self.latest_frame is None or self.latest_frame.modes != command.modes:
+                self.tasks.start("field", f"building the tables for K = {command.modes} "
+                                 f"({command.modes ** 3:,} modes)", reports_fraction=False)
+        elif isinstance(command, runtime.SetDescriptorParams):
+            self.tasks.start("descriptors", f"recomputing descriptors (sigma "
+                             f"{command.sigma:.3g}, penalty {command.penalty:.3g})")
+        elif isinstance(command, runtime.SetEffects):
+            old = self._effects
+            new = command.effects
+            if old is not None and old.guidance != new.guidance:
+                self.tasks.start("descriptors", f"recomputing descriptors for guidance "
+                                 f"'{new.guidance}'")
+                self.params.set_progress(0.0, "recomputing descriptors %p%")
+            elif old is not None and old.rotation != new.rotation:
+                what = ("building the translation landscape for the locked rotation"
+                        if not new.rotation else "building the tables for free rotation")
+                self.tasks.start("field", what, reports_fraction=False)
+            self._effects = new
+        elif isinstance(command, runtime.SetCoupling):
+            self._coupling = command.coupling
+            self._update_kappa()
+        elif isinstance(command, runtime.SetKappa):
+            self._kappa_override = command.kappa
+            self._update_kappa()
+        elif isinstance(command, runtime.Pause):
+            self._show_engine_state()
+        self._show_tasks()
 
     def _proxy_dragged(self, world_pose) -> None:
-        if self.session.handle is not None:
-            self.session.send(runtime.SetProxyPose(tuple(self.session.relative(world_pose))))
+        if self.session.handle is None:
+            return
+        self.session.send(runtime.SetProxyPose(tuple(self.session.relative(world_pose))))
+        if self.params.pause.isChecked():
+            self.statusBar().showMessage(
+                "paused: the part stays where it is until you resume (Space)", 3000)
+        elif not self.guidance_ready and self.session.engine is not None:
+            self.statusBar().showMessage(self._not_ready_text(), 5000)
+
+    def _not_ready_text(self) -> str:
+        """Why the part does not meet part 1 yet, while the engine prepares the fit."""
+        if self.guidance_error:
+            return (f"no contact forces: preparing the descriptors failed "
+                    f"({self.guidance_error}); the part follows the ghost through its spring "
+                    "only")
+        task = self.tasks.get("correlator")
+        how_far = f" ({task.clock.text()})" if task is not None else ""
+        return ("the fit's forces are not ready yet: the engine is preparing descriptors"
+                f"{how_far}; until then the part follows the ghost through its spring only "
+                "and passes through part 1")
 
     def _drag_state(self, dragging: bool) -> None:
-        if dragging:
+        if dragging and self.guidance_ready:
+            axis = self.viewport.constraint
+            along = "in the view plane" if axis == "free" else (
+                "along the insertion axis" if axis == "insertion" else f"along {axis}")
             self.statusBar().showMessage(
-                "dragging: Shift = depth, wheel = depth, Ctrl = rotate", 2000)
+                f"dragging {along}: Shift or wheel = depth, Ctrl = rotate; "
+                "I, X, Y, Z, F choose the axis", 3000)
+
+    def set_constraint(self, name: str) -> None:
+        """Drag along an axis ("insertion", "x", "y", "z") or freely ("free")."""
+        self.viewport.set_constraint(name)
+        self._constraint_changed(self.viewport.constraint)
+
+    def _constraint_changed(self, name: str) -> None:
+        action = self.constraint_actions.get(name)
+        if action is not None and not action.isChecked():
+            action.setChecked(True)
+        self.viewport.request_render()
+
+    def set_view(self, name: str) -> None:
+        """Look along a standard direction (``app.gui.viewport.VIEWS`` or "insertion")."""
+        if name == "insertion" and self.viewport.insertion_axis is None:
+            self.statusBar().showMessage("this scene gives no insertion axis", 4000)
+            return
+        self.viewport.set_view(name)
+        self.statusBar().showMessage(f"view {VIEW_NAMES[name]}", 2000)
+
+    def show_pose_dialog(self) -> None:
+        """Open the dialog that takes the moving part's pose as numbers."""
+        if self.session.handle is None or len(self.session.handle.parts) < 2:
+            self.show_error("Open a scene with two parts to place the moving part.")
+            return
+        if self.pose_dialog is None:
+            dialog = PoseDialog(self, unit=self.units.length)
+            dialog.add_preset("Current", lambda: np.asarray(
+                self.latest_frame.part_pose if self.latest_frame is not None
+                else self.session.handle.start_pose, float))
+            dialog.add_preset("Start", lambda: np.asarray(self.session.handle.start_pose))
+            dialog.add_preset("Assembled", lambda: np.asarray(self.session.handle.assembled_pose))
+            dialog.move_proxy.connect(
+                lambda pose: self.session.send(runtime.SetProxyPose(tuple(pose))))
+            dialog.place_part.connect(lambda pose: self.session.send(runtime.Reset(tuple(pose))))
+            self.pose_dialog = dialog
+        pose = (self.latest_frame.part_pose if self.latest_frame is not None
+                else self.session.handle.start_pose)
+        self.pose_dialog.set_pose(np.asarray(pose, float))
+        self.pose_dialog.show()
+        self.pose_dialog.raise_()
 
     def _toggle_pause(self, checked: bool) -> None:
         self.params.pause.setChecked(checked)
@@ -427,9 +669,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.params.modes.setValue(self.params.modes.value() + delta)
 
     def reset_camera(self) -> None:
-        """Fit the camera to the scene again."""
-        self.viewport.plotter.reset_camera()
-        self.viewport.request_render()
+        """The default camera again: isometric, the whole scene in view."""
+        self.viewport.reset_camera()
 
     def _show_help(self) -> None:
         QtWidgets.QMessageBox.information(self, "skelasm controls", HELP_TEXT)
@@ -500,20 +741,124 @@ class MainWindow(QtWidgets.QMainWindow):
             self._last_view = now
             self.slice_view.set_world_transform(1, posemath.pose_to_matrix(part_world))
             if self.dock_landscape.isVisible():
+                self.landscape_view.set_modes(frame.modes)
                 self.landscape_view.set_pose(np.asarray(frame.part_pose))
                 self._maybe_request_landscape(np.asarray(frame.part_pose))
 
     def _update_readouts(self, f: runtime.Frame, fn: float, tn: float) -> None:
         r = self.readouts
-        r.set("energy", f"{f.energy:.5g}")
-        r.set("force", f"{fn:.4g}")
-        r.set("torque", f"{tn:.4g}")
-        r.set("rate", f"{f.period.rate_hz:,.0f} Hz")
-        r.set("eval", f"{f.eval_us:.1f} µs")
-        r.set("modes", f"{f.modes ** 3:,}  (K = {f.modes})")
-        r.set("period", f"{f.period.median_us:.0f} / {f.period.p99_us:.0f} µs")
+        u = self.units
+        handle, part = self.session.handle, self.session.moving
+        if handle is not None and part is not None and len(handle.parts) > 1:
+            pose = np.asarray(f.part_pose, float)
+            self.seat = quantities.seat_of(handle, part, pose)
+            r.set("pose", quantities.pose_text(pose, u.length),
+                  "Part 2's origin in part 1's frame, and its rotation (axis, angle), as a "
+                  "scene file writes it")
+            head, detail = quantities.seat_text(self.seat, u.length)
+            r.set("seat", f"{self.seat.distance:.3g} {u.length}, {self.seat.angle_deg:.2f}°",
+                  "Distance of part 2's centre of mass from where it sits when assembled, and "
+                  "the angle from the seated orientation, the fit's free axes left out")
+            self._show_seated(self.seat.seated, head, detail)
+        r.set("energy", f"{quantities.number(f.energy, 5)} {u.energy}")
+        r.set("force", f"{quantities.number(fn)} {u.force}")
+        r.set("torque", f"{quantities.number(tn)} {u.torque}")
+        r.set("eval", f"{f.eval_us:.1f} µs per step",
+              f"Time the correlator took for this step's energy, force and torque\n"
+              f"evaluator: {self._backend}")
+        r.set("modes", f"m' = {f.modes ** 3:,} modes (K = {f.modes})",
+              "K Fourier modes per axis are kept, m' = K³ in all: more is more accurate "
+              "and slower")
         r.set("device", f.device + ("  (paused)" if f.paused else ""))
-        self.status_engine.setText(f"engine {f.period.rate_hz:,.0f} Hz · {f.eval_us:.0f} µs/eval")
+        self._show_engine_state(f)
+        if (self._requested_modes is not None and f.modes == self._requested_modes):
+            self._requested_modes = None
+            self.tasks.finish("field")
+        self._show_tasks()
+
+    def _show_engine_state(self, f: runtime.Frame | None = None) -> None:
+        """The engine's rate in words, PAUSED, or a warning when it runs below its target."""
+        f = f or self.latest_frame
+        paused = self.params.pause.isChecked() or (f is not None and f.paused)
+        target = (self.session.handle.config.simulation.rate_hz
+                  if self.session.handle is not None else 0.0)
+        rate = f.period.rate_hz if f is not None else 0.0
+        detail = ""
+        if f is not None:
+            detail = (f"loop period median {f.period.median_us:.0f} µs, 99th percentile "
+                      f"{f.period.p99_us:.0f} µs, longest {f.period.max_us:.0f} µs over the "
+                      f"last {f.period.window} steps\nevaluator: {self._backend}\n"
+                      f"{self.engine_note}")
+        self.rate_low = bool(
+            f is not None and not paused and self.session.realtime and target > 0
+            and f.period.window > 0 and rate < RATE_WARNING * target)
+        if paused:
+            text, style = "PAUSED (Space resumes)", "color: white; background: #555; padding: 0 4px"
+            self.readouts.set("rate", "paused", detail)
+        elif self.rate_low:
+            text = f"engine slow: {rate:,.0f} of {target:,.0f} steps/s"
+            style = "color: black; background: #ffb000; padding: 0 4px"
+            self.readouts.set("rate", f"{rate:,.0f} steps/s, below its {target:,.0f}: lower K "
+                              "or close other programs", detail)
+        else:
+            text, style = (f"engine {rate:,.0f} steps/s" if f is not None else "engine: -"), ""
+            self.readouts.set("rate", f"{rate:,.0f} steps/s (target {target:,.0f})", detail)
+        if self.status_engine.text() != text:
+            self.status_engine.setText(text)
+            self.status_engine.setStyleSheet(style)
+        self.status_engine.setToolTip(detail)
+
+    def _show_tasks(self) -> None:
+        """Running background tasks in the status bar and the parameters' progress bar."""
+        text = self.tasks.summary()
+        if self.status_task.text() != text:
+            self.status_task.setText(text)
+        task = (self.tasks.get("correlator") or self.tasks.get("descriptors")
+                or self.tasks.get("field"))
+        if task is None:
+            return
+        if task.reports_fraction and task.clock.fraction is not None:
+            left = task.clock.seconds_left()
+            suffix = f", {quantities.duration_text(left)} left" if left is not None else ""
+            self.params.set_progress(task.clock.fraction, f"{task.label} %p%{suffix}",
+                                     cancellable=self.tasks.get("correlator") is None)
+        elif not task.reports_fraction:
+            self.params.set_progress(-1.0, f"{task.label}…", cancellable=False)
+
+    def _show_seated(self, seated: bool, head: str = "", detail: str = "") -> None:
+        """The seat headline: green SEATED, or how far part 2 is from its seat."""
+        style = ("font-weight: bold; font-size: 15pt; padding: 4px; color: white; "
+                 "background: #2e8b3e; border-radius: 4px" if seated else
+                 "font-weight: bold; padding: 4px; color: #333; background: #e4e6ea; "
+                 "border-radius: 4px")
+        if self.seat_label.styleSheet() != style:
+            self.seat_label.setStyleSheet(style)
+        if head and self.seat_label.text() != head:
+            self.seat_label.setText(head)
+        if self.seat_detail.text() != detail:
+            self.seat_detail.setText(detail)
+
+    def _set_units(self, units: QuantityUnits) -> None:
+        """Label the readouts, the chart and the landscape in ``units``."""
+        self.units = units
+        r = self.readouts
+        r.set_title("energy", f"energy E ({units.energy})")
+        r.set_title("force", f"|force F| ({units.force})")
+        r.set_title("torque", f"|torque T| ({units.torque})")
+        self.chart.set_units(units.energy, units.force)
+
+    def _update_kappa(self) -> None:
+        """Resolve the kappa the engine uses now and show it everywhere E is shown."""
+        handle = self.session.handle
+        if handle is None or len(handle.parts) < 2:
+            return
+        self.kappa = quantities.physics_kappa(handle, coupling=self._coupling,
+                                              kappa=self._kappa_override)
+        origin = "scale-free default" if self._kappa_override is None else "set by the user"
+        self.readouts.set("kappa", f"{quantities.number(self.kappa)} {self.units.kappa}",
+                          f"E = -kappa Re f; kappa is the {origin}")
+        self.params.show_kappa(self.kappa, self.units.kappa)
+        self.landscape_view.set_scale(self.kappa, self.units)
 
     def _maybe_request_landscape(self, pose: np.ndarray) -> None:
         if not self.guidance_ready or self._landscape_pending:
@@ -521,52 +866,52 @@ class MainWindow(QtWidgets.QMainWindow):
         if not self.landscape_view.needs_landscape(pose):
             return
         self._landscape_pending = True
+        self.tasks.start("landscape", "computing the energy landscape at this orientation")
         self.session.send(runtime.RequestLandscape(tuple(float(x) for x in pose[3:])))
 
     def _handle_event(self, event) -> None:
         if isinstance(event, runtime.ReadyEvent):
             self.guidance_ready = bool(event.descriptors)
+            self.tasks.finish("correlator")
             self.params.set_progress(None, "ready")
-            self.readouts.set("backend", event.backend or "-")
+            self._backend = event.backend or "-"
             self.slice_view.set_descriptors(event.descriptors)
             self.engine_note = event.message
-            self.statusBar().showMessage(event.message or "engine ready", 4000)
+            self.statusBar().showMessage(
+                "ready: drag the orange part (or its blue ghost) towards its seat", 6000)
         elif isinstance(event, runtime.DescriptorsSwapped):
             self.guidance_ready = bool(event.descriptors)
+            self.tasks.finish("descriptors")
             self.slice_view.set_descriptors(event.descriptors)
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")
             self.landscape_view.set_landscape(None)
             self._landscape_pending = False
         elif isinstance(event, runtime.ProgressEvent):
-            if event.task == "descriptors":
-                if event.message == "cancelled":
-                    self.params.set_progress(None, "cancelled")
-                else:
-                    self.params.set_progress(event.fraction)
-            elif event.task == "correlator":  # the first preparation after opening
-                if event.fraction < 1.0:
-                    self.params.set_progress(event.fraction, "preparing descriptors %p%",
-                                             cancellable=False)
-            else:
-                self.statusBar().showMessage(
-                    f"{event.task}: {event.fraction:.0%} {event.message}", 2000)
+            self._progress(event)
         elif isinstance(event, runtime.LandscapeReady):
             self._landscape_pending = False
+            self.tasks.finish("landscape")
+            self.landscape_view.set_progress(None)
             self.landscape_view.set_landscape(event.landscape)
             if self.latest_frame is not None:
                 self.landscape_view.set_pose(np.asarray(self.latest_frame.part_pose))
         elif isinstance(event, runtime.LandscapeFailed):
             self._landscape_pending = False
+            self.tasks.finish("landscape")
+            self.landscape_view.set_progress(None)
             self.statusBar().showMessage(f"landscape: {event.message}", 15000)
         elif isinstance(event, runtime.ErrorEvent):
             if not self.guidance_ready and not event.fatal:
                 self.guidance_error = event.message  # preparing the correlator failed
+                self.tasks.finish("correlator")
             if event.fatal:
                 self.show_error(f"The engine stopped: {event.message}")
             else:
                 if self.params.cancel.isEnabled():  # a recompute was running: it failed
                     self.params.set_progress(None, "recompute failed")
+                for task in ("descriptors", "field"):
+                    self.tasks.finish(task)
                 self.statusBar().showMessage(f"{event.kind}: {event.message}", 15000)
                 self.last_error = event.message
         elif isinstance(event, runtime.DeviceEvent):
@@ -578,6 +923,25 @@ class MainWindow(QtWidgets.QMainWindow):
         elif isinstance(event, runtime.StoppedEvent):
             if event.reason != "stopped":
                 self.show_error(f"The engine stopped: {event.reason}")
+        self._show_tasks()
+
+    def _progress(self, event: runtime.ProgressEvent) -> None:
+        if event.message == "cancelled":
+            self.tasks.finish(event.task)
+            if event.task == "descriptors":
+                self.params.set_progress(None, "cancelled")
+            return
+        if event.message == "done" or (event.task == "field" and event.fraction >= 1.0):
+            self.tasks.finish(event.task)
+            self.params.set_progress(None, "ready")
+            return
+        task = self.tasks.progress(event.task, event.fraction)
+        if event.task == "landscape":
+            if task.clock.elapsed >= 1.0:
+                self.landscape_view.set_progress(task.text())
+            return
+        if event.fraction >= 1.0 and event.task == "correlator":
+            self.params.set_progress(1.0, "warming up the evaluator", cancellable=False)
 
     # ------------------------------------------------------------------ closing
     def closeEvent(self, event) -> None:  # noqa: N802

@@ -1,9 +1,9 @@
 """The parameter panel: accuracy (m'), descriptor parameters, kappa, coupling and effects.
 
 It only emits engine commands (``engine.runtime`` dataclasses) through :attr:`command`; the
-window forwards them. m' applies at once; sigma and penalty are debounced (a slider drag
-sends one request when it settles) because each starts a background recompute, which the
-engine runs while the old descriptors stay in use.
+window forwards them. The expensive parameters (K, sigma, penalty) apply when their slider is
+let go or a typed value is entered, never while a slider moves: each starts a background
+build, which the engine runs while the old field stays in use.
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ class ParamsPanel(QtWidgets.QWidget):
     """
 
     command = QtCore.Signal(object)
-    DEBOUNCE_MS = 350
 
     def __init__(self, parent=None):
         super().__init__(parent)
@@ -38,10 +37,13 @@ class ParamsPanel(QtWidgets.QWidget):
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
 
-        acc = QtWidgets.QGroupBox("Accuracy")
+        acc = QtWidgets.QGroupBox("Accuracy (applies on release)")
         form = QtWidgets.QFormLayout(acc)
-        self.modes = SliderField(4, 48, 16, integer=True)
+        self.modes = SliderField(4, 48, 16, integer=True, on_release=True)
         self.modes.setObjectName("modes")
+        self.modes.setToolTip(
+            "K: Fourier modes kept per axis (m' = K³ in all). More is more accurate and\n"
+            "costs about K³ per evaluation; the new tables are built in the background.")
         self.modes_label = QtWidgets.QLabel()
         form.addRow("K (modes/axis)", self.modes)
         form.addRow("m' = K³", self.modes_label)
@@ -49,10 +51,15 @@ class ParamsPanel(QtWidgets.QWidget):
         self._show_modes(16)
         lay.addWidget(acc)
 
-        desc = QtWidgets.QGroupBox("Descriptors (recomputed in the background)")
+        desc = QtWidgets.QGroupBox("Descriptors (apply on release, recomputed in the background)")
         form = QtWidgets.QFormLayout(desc)
-        self.sigma = SliderField(0.05, 3.0, 0.5, decimals=3, log=True)
-        self.penalty = SliderField(1.0, 20.0, 3.0, decimals=2, log=True)
+        self.sigma = SliderField(0.05, 3.0, 0.5, decimals=3, log=True, on_release=True)
+        self.penalty = SliderField(1.0, 20.0, 3.0, decimals=2, log=True, on_release=True)
+        self.sigma.setToolTip("Width of the skeletal density's kernel (dimensionless). Applies "
+                              "when the slider is let go\nor a typed value is entered; the "
+                              "recompute can take minutes on a fine grid.")
+        self.penalty.setToolTip("Penalty P = lambda_in / lambda_out: how much more an overlap "
+                                "costs than a gap.")
         form.addRow("sigma", self.sigma)
         form.addRow("penalty P", self.penalty)
         self.progress = QtWidgets.QProgressBar()
@@ -66,10 +73,8 @@ class ParamsPanel(QtWidgets.QWidget):
         row.addWidget(self.progress, 1)
         row.addWidget(self.cancel)
         form.addRow(row)
-        self._debounce = QtCore.QTimer(self, singleShot=True, interval=self.DEBOUNCE_MS)
-        self._debounce.timeout.connect(self._send_descriptor_params)
-        self.sigma.valueChanged.connect(lambda _v: self._debounce.start())
-        self.penalty.valueChanged.connect(lambda _v: self._debounce.start())
+        self.sigma.valueChanged.connect(lambda _v: self._send_descriptor_params())
+        self.penalty.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.cancel.clicked.connect(self._cancel)
         lay.addWidget(desc)
 
@@ -77,10 +82,17 @@ class ParamsPanel(QtWidgets.QWidget):
         form = QtWidgets.QFormLayout(sim)
         self.kappa_default = QtWidgets.QCheckBox("scale-free default")
         self.kappa_default.setChecked(True)
-        self.kappa = SliderField(1e-4, 1e4, 1.0, decimals=4, log=True)
+        self.kappa_default.setToolTip(
+            "kappa scales the fit's energy E = -kappa Re f. The scale-free default ties it\n"
+            "to the coupling stiffness and the part's size; untick to set it yourself.")
+        self.kappa = SliderField(1e-6, 1e9, 1.0, decimals=4, log=True, on_release=True)
         self.kappa.setEnabled(False)
+        self.kappa_value = QtWidgets.QLabel("kappa: -")
+        self.kappa_value.setObjectName("kappa_value")
+        self.kappa_value.setWordWrap(True)
         form.addRow("kappa", self.kappa_default)
         form.addRow("", self.kappa)
+        form.addRow("", self.kappa_value)
         self.coupling = SliderField(0.5, 50.0, 10.0, decimals=1, log=True, suffix=" Hz")
         self.coupling.setToolTip(
             "Coupling stiffness as the natural frequency of part + spring: k = m (2 pi f)^2,\n"
@@ -97,6 +109,9 @@ class ParamsPanel(QtWidgets.QWidget):
         self.guidance = QtWidgets.QComboBox()
         self.guidance.addItems(GUIDANCE)
         self.rotation = QtWidgets.QCheckBox("rotation free")
+        self.rotation.setToolTip(
+            "Free: the part turns under the fit's torque. Locked: it only slides, and the\n"
+            "engine builds a translation landscape for the locked orientation.")
         self.damping = QtWidgets.QCheckBox("damping")
         self.gravity = QtWidgets.QCheckBox("gravity")
         form.addRow("guidance", self.guidance)
@@ -164,22 +179,38 @@ class ParamsPanel(QtWidgets.QWidget):
         if emit:
             self.command.emit(runtime.SetEffects(effects))
 
+    def show_kappa(self, value: float, unit: str) -> None:
+        """Show the kappa the engine uses (its value, not the slider's), in ``unit``."""
+        default = self.kappa_default.isChecked()
+        origin = "the scale-free default" if default else "set here"
+        self.kappa_value.setText(f"kappa = {value:.4g} {unit} ({origin})")
+        if default:
+            self.kappa.setValueSilently(value)  # a custom kappa starts from the one in use
+
     # ------------------------------------------------------------------ progress
     def set_progress(self, fraction: float | None, text: str = "", *,
                      cancellable: bool = True) -> None:
-        """Show a running recompute (0..1) or, with None, an idle bar."""
+        """Show a running task (0..1; -1: running, fraction unknown) or, with None, an idle bar.
+
+        ``text`` is the bar's caption (``%p`` is the percentage).
+        """
         if fraction is None:
+            self.progress.setRange(0, 1000)
             self.progress.setValue(0)
             self.progress.setFormat(text or "idle")
             self.cancel.setEnabled(False)
             return
-        self.progress.setValue(int(round(1000 * min(max(fraction, 0.0), 1.0))))
+        if fraction < 0:  # busy, with no fraction to show
+            self.progress.setRange(0, 0)
+        else:
+            self.progress.setRange(0, 1000)
+            self.progress.setValue(int(round(1000 * min(max(fraction, 0.0), 1.0))))
         self.progress.setFormat(text or "recomputing descriptors %p%")
-        self.cancel.setEnabled(True)
+        self.cancel.setEnabled(cancellable)
 
     # ------------------------------------------------------------------ handlers
     def _show_modes(self, k: int) -> None:
-        self.modes_label.setText(f"{k ** 3:,}")
+        self.modes_label.setText(f"{k ** 3:,} modes")
 
     def _modes_changed(self, k: float) -> None:
         self._show_modes(int(k))
@@ -191,14 +222,7 @@ class ParamsPanel(QtWidgets.QWidget):
             runtime.SetDescriptorParams(sigma=self.sigma.value(), penalty=self.penalty.value())
         )
 
-    def flush(self) -> None:
-        """Send a pending (debounced) descriptor request now."""
-        if self._debounce.isActive():
-            self._debounce.stop()
-            self._send_descriptor_params()
-
     def _cancel(self) -> None:
-        self._debounce.stop()
         self.command.emit(runtime.CancelRecompute())
         self.set_progress(None, "cancelled")
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from PySide6 import QtCore
 
+from app.gui.quantities import MovingPart, moving_part
 from engine import pose as posemath
 from engine import runtime
 
@@ -37,6 +38,7 @@ class PartView:
     faces: np.ndarray  # (m, 3) int64
     pose: np.ndarray  # (6,) float64 world pose
     moving: bool
+    centre: np.ndarray | None = None  # (3,) float64 centre of mass, own frame (moving part)
 
 
 class Session(QtCore.QObject):
@@ -64,6 +66,8 @@ class Session(QtCore.QObject):
         self.realtime = realtime
         self.engine_kwargs = dict(engine_kwargs or {})
         self.handle: runtime.SceneHandle | None = None
+        #: part 2's centre of mass and size (for drags about its centre and the seat readout)
+        self.moving: MovingPart | None = None
         self.engine: runtime.EngineHandle | None = None
         self.loading: str | None = None
         self._tmp = tempfile.TemporaryDirectory(prefix="skelasm-gui-")
@@ -177,6 +181,7 @@ class Session(QtCore.QObject):
         if old is not None:
             old.stop()
         self.handle = handle
+        self.moving = moving_part(handle)
         if len(handle.parts) >= 2:
             try:
                 self.engine = runtime.start_engine(
@@ -212,9 +217,10 @@ class Session(QtCore.QObject):
         for i, (part, spec) in enumerate(zip(self.handle.parts, specs, strict=True)):
             moving = i == 1 and n >= 2
             pose = self.handle.world_pose(self.handle.start_pose) if moving else spec.pose
+            centre = self.moving.centre if moving and self.moving is not None else None
             views.append(PartView(part.name, np.asarray(part.vertices, float),
                                   np.asarray(part.faces, np.int64),
-                                  np.asarray(pose, float), moving))
+                                  np.asarray(pose, float), moving, centre))
         return views
 
     def world(self, relative_pose: np.ndarray) -> np.ndarray:

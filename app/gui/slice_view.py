@@ -71,6 +71,12 @@ class SliceView(QtWidgets.QWidget):
         self.canvas = FieldCanvas()
         self.canvas.clear("descriptors not ready yet")
         lay.addWidget(self.canvas, 1)
+        self.hover = QtWidgets.QLabel(" ")
+        self.hover.setObjectName("slice_hover")
+        self.hover.setSizePolicy(QtWidgets.QSizePolicy.Ignored,
+                                 QtWidgets.QSizePolicy.Preferred)
+        lay.addWidget(self.hover)
+        self.canvas.hovered.connect(self._hovered)
         self.part.currentIndexChanged.connect(lambda _i: self._reset_range())
         self.axis.currentIndexChanged.connect(lambda _i: self._reset_range())
         self.component.currentIndexChanged.connect(lambda _i: self.refresh())
@@ -125,6 +131,17 @@ class SliceView(QtWidgets.QWidget):
         self.offset.setValue(min(old, n - 1) if keep and old > 0 else n // 2)
         self.offset.blockSignals(False)
         self.refresh()
+
+    def _hovered(self, where) -> None:
+        """Show the descriptor's value under the cursor (``where``: (u, v, value) or None)."""
+        if where is None or self._current() is None:
+            self.hover.setText(" ")
+            return
+        u, v, value = where
+        a = self.axis.currentIndex()
+        nu, nv = (geometry.AXES[k] for k in range(3) if k != a)
+        self.hover.setText(f"{nu} = {u:.3g}, {nv} = {v:.3g} (part's frame): "
+                           f"{self.component.currentText()} ρ = {value:.4g}")
 
     def _dragged(self, fraction: float) -> None:
         self._drag_acc += fraction * (self.offset.maximum() + 1)

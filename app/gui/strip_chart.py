@@ -35,7 +35,7 @@ class StripChart(QtWidgets.QWidget):
         Samples kept; older ones are overwritten.
     """
 
-    TRACES = (("energy", QtGui.QColor(31, 119, 180)), ("|force|", QtGui.QColor(214, 39, 40)))
+    TRACES = (("E", QtGui.QColor(31, 119, 180)), ("|F|", QtGui.QColor(214, 39, 40)))
 
     def __init__(self, parent=None, *, seconds: float = 10.0, capacity: int = 4000):
         super().__init__(parent)
@@ -43,6 +43,7 @@ class StripChart(QtWidgets.QWidget):
         self._t = np.full(capacity, np.nan)  # (capacity,) float64 seconds
         self._v = np.full((capacity, 2), np.nan)  # (capacity, 2) energy, |force|
         self._next = 0
+        self.units = ("", "")  # of energy and force
         self.setMinimumHeight(110)
         self.setSizePolicy(QtWidgets.QSizePolicy.Expanding, QtWidgets.QSizePolicy.Preferred)
 
@@ -52,6 +53,16 @@ class StripChart(QtWidgets.QWidget):
         self._t[i] = t
         self._v[i] = (energy, force)
         self._next += 1
+
+    def set_units(self, energy: str, force: str) -> None:
+        """The units the traces' labels name."""
+        self.units = (energy, force)
+        self.update()
+
+    def labels(self) -> tuple[str, str]:
+        """The names of the two traces, with their units."""
+        return tuple(f"{name} ({unit})" if unit else name
+                     for (name, _colour), unit in zip(self.TRACES, self.units, strict=True))
 
     def clear(self) -> None:
         """Drop every sample."""
@@ -92,7 +103,9 @@ class StripChart(QtWidgets.QWidget):
         _, first = np.unique(col[::-1], return_index=True)
         pick = np.sort(len(col) - 1 - first)
         label_x = 4
-        for k, (name, colour) in enumerate(self.TRACES):
+        names = self.labels()
+        for k, (_name, colour) in enumerate(self.TRACES):
+            name = names[k]
             y = v[pick, k]
             ok = np.isfinite(y)
             if not np.any(ok):

@@ -5,10 +5,15 @@ costs one render and no geometry upload. Rendering happens on the window's rende
 something changed (:meth:`Viewport.render_if_dirty`), never from the engine thread.
 
 Dragging (left button on the moving part or its ghost):
-- plain drag: translate the proxy in the view plane;
-- Shift + vertical drag, or the wheel while dragging: translate along the view direction;
-- Ctrl + drag: rotate the proxy about its centre with an arcball.
-Anywhere else the mouse drives the camera as usual.
+- plain drag: translate the proxy in the view plane, or, with a constraint on (the
+  insertion axis, x, y or z: :attr:`Viewport.constraint`), along that axis only (the point of
+  the axis nearest the mouse ray); the axis is drawn through the part while it is on;
+- Shift + vertical drag, or the wheel while dragging: translate along the view direction
+  (along the constraint axis when one is on);
+- Ctrl + drag: rotate the proxy about part 2's centre of mass, with an arcball, or about the
+  constraint axis (horizontal mouse travel sets the angle).
+Anywhere else the mouse drives the camera as usual. Standard views (:meth:`Viewport.set_view`)
+look along the axes of part 1's frame, isometrically, or along the insertion axis.
 """
 
 from __future__ import annotations
@@ -27,6 +32,25 @@ from engine import pose as posemath
 FIXED_COLOUR = "#b0b4ba"
 MOVING_COLOUR = "#f28e2b"
 GHOST_COLOUR = "#4e9ad6"
+
+#: Drag constraints: free (the view plane) or along one axis.
+CONSTRAINTS = ("free", "insertion", "x", "y", "z")
+AXIS_COLOURS = {"insertion": "#111111", "x": "#d62728", "y": "#2ca02c", "z": "#1f77b4"}
+
+#: Standard views: name -> (direction the camera looks along, view up), in part 1's frame.
+#: "+x" is the view from the +x side (looking along -x).
+VIEWS = {
+    "+x": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "-x": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "+y": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "-y": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "+z": ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
+    "-z": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "iso": ((-1.0, 1.0, -1.0), (0.0, 0.0, 1.0)),
+}
+VIEW_NAMES = {"+x": "from +X", "-x": "from −X", "+y": "from +Y", "-y": "from −Y",
+              "+z": "from +Z (top)", "-z": "from −Z (bottom)", "iso": "isometric",
+              "insertion": "along the insertion axis"}
 
 
 def _vtk_matrix(m: np.ndarray) -> vtk.vtkMatrix4x4:
@@ -72,6 +96,7 @@ class Viewport(QtCore.QObject):
 
     proxy_dragged = QtCore.Signal(object)
     drag_state = QtCore.Signal(bool)
+    constraint_changed = QtCore.Signal(str)
 
     def __init__(self, parent: QtWidgets.QWidget):
         super().__init__(parent)
@@ -118,10 +143,30 @@ class Viewport(QtCore.QObject):
         self._arrow_matrices: dict[str, np.ndarray] = {}
         self.min_render_interval = 1.0 / 40.0  # seconds; caps the render rate
         self._last_render = 0.0
+        #: world rotation (3, 3) of part 1: standard views and axis constraints use its axes
+        self.frame = np.eye(3)
+        self.insertion_axis: np.ndarray | None = None  # (3,) world unit vector, or None
+        self.constraint = "free"
+        self._centre_world = np.zeros(3)  # scene box centre, where standard views look
+        self._clip_plane = vtk.vtkPlane()
+        self._fixed_opacity = 1.0
+        self._clip: tuple[int, float] | None = None  # (axis of part 1's frame, offset)
+        self._fixed_bounds = (np.zeros(3), np.zeros(3))  # world box of the fixed part
 
     # ----------------------------------------------------------------- scene
-    def set_scene(self, parts) -> None:
-        """Replace all actors. ``parts``: sequence of PartView (last one moves)."""
+    def set_scene(self, parts, *, frame: np.ndarray | None = None,
+                  insertion_axis: np.ndarray | None = None) -> None:
+        """Replace all actors and fit the camera to the new scene (isometric).
+
+        ``parts``: sequence of PartView (last one moves); ``frame`` (3, 3) part 1's world
+        rotation; ``insertion_axis`` (3,) the scene's insertion direction in world
+        coordinates (None: the scene gives none).
+        """
+        self.frame = np.eye(3) if frame is None else np.asarray(frame, float)
+        if insertion_axis is not None:
+            axis = np.asarray(insertion_axis, float)
+            insertion_axis = axis / np.linalg.norm(axis)
+        self.insertion_axis = insertion_axis
         self.plotter.clear_actors()
         self._actors.clear()
         self._arrow_matrices.clear()
@@ -150,7 +195,8 @@ class Viewport(QtCore.QObject):
                     # the whole part); the ghost is drawn by its edges alone there
                     ghost.SetVisibility(False)
                 self._actors.update(moving=actor, ghost=ghost, ghost_edges=ghost_edges)
-                self._centroid = np.asarray(part.vertices, float).mean(axis=0)
+                self._centroid = (np.asarray(part.centre, float) if part.centre is not None
+                                  else np.asarray(part.vertices, float).mean(axis=0))
                 self._proxy_pose = np.asarray(part.pose, float).copy()
                 self._part_pose = np.asarray(part.pose, float).copy()
                 _set_matrix(actor, world)
@@ -163,6 +209,7 @@ class Viewport(QtCore.QObject):
                 )
                 _set_matrix(actor, world)
                 self._actors[f"fixed_{part.name}"] = actor
+                self._fixed_bounds = (pts.min(0), pts.max(0))
         self._size = float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(hi - lo)) else 1.0
         self.arrow_scale = 0.3 * self._size
         self._overlay.RemoveAllViewProps()
@@ -179,9 +226,133 @@ class Viewport(QtCore.QObject):
             a.SetVisibility(False)
             self._overlay.AddActor(a)
             self._actors[key] = a
+        axis_line = pv.Line((-0.5, 0.0, 0.0), (0.5, 0.0, 0.0))
+        handle = self.plotter.add_mesh(axis_line, color="#111111", line_width=3,
+                                       name="axis_handle", pickable=False)
+        handle.SetVisibility(False)
+        self._actors["axis_handle"] = handle
+        self._centre_world = 0.5 * (lo + hi) if np.all(np.isfinite(hi - lo)) else np.zeros(3)
         self.plotter.add_axes()
+        self._apply_fixed_look()
+        self.reset_camera()
+        if self.constraint == "insertion" and self.insertion_axis is None:
+            self.set_constraint("free")
+        self._update_axis_handle()
+
+    # ----------------------------------------------------------------- camera
+    def view_direction(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(direction of projection, view up), world unit vectors, of a standard view."""
+        if name == "insertion":
+            if self.insertion_axis is None:
+                raise ValueError("this scene gives no insertion axis")
+            d = np.asarray(self.insertion_axis, float)
+            up = self.frame[:, 1] if abs(float(d @ self.frame[:, 2])) > 0.9 else self.frame[:, 2]
+            return d, up
+        if name not in VIEWS:
+            raise ValueError(f"unknown view {name!r}; valid: {', '.join([*VIEWS, 'insertion'])}")
+        d, up = (np.asarray(v, float) for v in VIEWS[name])
+        d = self.frame @ (d / np.linalg.norm(d))
+        return d, self.frame @ up
+
+    def set_view(self, name: str) -> None:
+        """Look at the scene along a standard direction (see :data:`VIEWS`) and fit it."""
+        direction, up = self.view_direction(name)
+        cam = self.plotter.camera
+        distance = max(self._size, 1e-9) * 3.0
+        cam.SetFocalPoint(*self._centre_world)
+        cam.SetPosition(*(self._centre_world - direction * distance))
+        cam.SetViewUp(*up)
+        cam.OrthogonalizeViewUp()
         self.plotter.reset_camera()
         self.plotter.camera.zoom(1.2)
+        self._dirty = True
+
+    def reset_camera(self) -> None:
+        """The default camera: isometric, the whole scene in view (orientation included)."""
+        self.set_view("iso")
+
+    # ----------------------------------------------------------------- constraints
+    def set_constraint(self, name: str) -> None:
+        """Constrain drags to an axis ("insertion", "x", "y", "z"; part 1's frame) or "free"."""
+        if name not in CONSTRAINTS:
+            raise ValueError(f"unknown constraint {name!r}; valid: {', '.join(CONSTRAINTS)}")
+        if name == "insertion" and self.insertion_axis is None:
+            raise ValueError("this scene gives no insertion axis")
+        if name != self.constraint:
+            self.constraint = name
+            self._update_axis_handle()
+            self.constraint_changed.emit(name)
+
+    def constraint_axis(self) -> np.ndarray | None:
+        """(3,) world unit vector drags are held to, or None for a free drag."""
+        if self.constraint == "free":
+            return None
+        if self.constraint == "insertion":
+            return self.insertion_axis
+        return self.frame[:, "xyz".index(self.constraint)]
+
+    def _update_axis_handle(self) -> None:
+        """Draw the constraint axis through the proxy's centre (hidden for a free drag)."""
+        handle = self._actors.get("axis_handle")
+        if handle is None:
+            return
+        axis = self.constraint_axis()
+        if axis is None:
+            if handle.GetVisibility():
+                handle.SetVisibility(False)
+                self._dirty = True
+            return
+        x = np.asarray(axis, float)
+        helper = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < 0.9 else np.array([1.0, 0, 0])
+        y = np.cross(helper, x)
+        y /= np.linalg.norm(y)
+        z = np.cross(x, y)
+        length = 1.6 * self._size
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2] = x * length, y, z
+        m[:3, 3] = posemath.pose_to_matrix(self._proxy_pose)[:3] @ np.append(self._centroid, 1)
+        _set_matrix(handle, m)
+        handle.GetProperty().SetColor(pv.Color(AXIS_COLOURS[self.constraint]).float_rgb)
+        handle.SetVisibility(True)
+        self._dirty = True
+
+    # ----------------------------------------------------------------- the fixed part
+    def set_fixed_opacity(self, opacity: float) -> None:
+        """Opacity of the fixed part, 0.05 (nearly clear) to 1 (solid)."""
+        self._fixed_opacity = min(max(float(opacity), 0.05), 1.0)
+        self._apply_fixed_look()
+
+    def set_clip(self, clip: tuple[int, float] | None) -> None:
+        """Clip the fixed part by a plane, or not (None).
+
+        ``clip = (axis, fraction)``: the plane is normal to axis 0, 1 or 2 of part 1's frame,
+        at ``fraction`` (0..1) of the part's extent along it; the side towards +axis is cut
+        away.
+        """
+        self._clip = None if clip is None else (int(clip[0]), float(clip[1]))
+        self._apply_fixed_look()
+
+    def _apply_fixed_look(self) -> None:
+        lo, hi = self._fixed_bounds
+        for key, actor in self._actors.items():
+            if not key.startswith("fixed_"):
+                continue
+            actor.GetProperty().SetOpacity(self._fixed_opacity)
+            mapper = actor.GetMapper()
+            mapper.RemoveAllClippingPlanes()
+            if self._clip is not None:
+                axis, fraction = self._clip
+                normal = self.frame[:, axis]
+                # the box's extent along the normal, in world coordinates
+                corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
+                                    for c in (lo[2], hi[2])])
+                along = corners @ normal
+                origin = self._centre_world + normal * (
+                    along.min() + fraction * (along.max() - along.min())
+                    - float(self._centre_world @ normal))
+                self._clip_plane.SetOrigin(*origin)
+                self._clip_plane.SetNormal(*(-normal))  # VTK keeps the side the normal faces
+                mapper.AddClippingPlane(self._clip_plane)
         self._dirty = True
 
     # ----------------------------------------------------------------- per frame
@@ -376,7 +547,7 @@ class Viewport(QtCore.QObject):
             "start_pose": self._proxy_pose.copy(),
             "centre": centre,
             "centre_disp": disp,
-            "grab_world": self._display_to_world(x, y, disp[2]),
+            "grab_world": self._display_to_world(x, y, disp[2]),  # on the view plane
             "depth": 0.0,
             "last": QtCore.QPointF(pos),
             "mods": mods,
@@ -398,28 +569,59 @@ class Viewport(QtCore.QObject):
         d["last"], d["mods"] = QtCore.QPointF(pos), mods
         x, y = self._display_xy(pos)
         basis = self._camera_basis()
+        axis = self.constraint_axis()
         pose = d["start_pose"].copy()
         if mods & QtCore.Qt.ControlModifier:
             cx, cy = d["centre_disp"][0], d["centre_disp"][1]
             radius = 0.35 * min(self.plotter.width(), self.plotter.height())
             radius *= self.plotter.devicePixelRatioF()
-            v0 = geometry.arcball_vector(*d["start_xy"], cx, cy, radius)
-            v1 = geometry.arcball_vector(x, y, cx, cy, radius)
-            rv = basis @ geometry.arcball_rotation(v0, v1)
-            pose = geometry.rotate_pose_about(pose, rv, d["centre"])
+            if axis is None:
+                v0 = geometry.arcball_vector(*d["start_xy"], cx, cy, radius)
+                v1 = geometry.arcball_vector(x, y, cx, cy, radius)
+                rv = basis @ geometry.arcball_rotation(v0, v1)
+            else:  # about the constraint axis: horizontal travel of a radius is a radian
+                rv = np.asarray(axis) * (x - d["start_xy"][0]) / radius
+            pose = posemath.rotate_about(pose, rv, d["centre"])
+        elif axis is not None:
+            if mods & QtCore.Qt.ShiftModifier:
+                step = (y - d["start_xy"][1]) * self._world_per_pixel(d)
+            else:
+                step = self._along_axis(x, y, d, axis)
+            pose[:3] += np.asarray(axis) * (step + d["depth"])
         elif mods & QtCore.Qt.ShiftModifier:
             world_per_px = self._world_per_pixel(d)
             pose[:3] += basis[:, 2] * (y - d["start_xy"][1]) * world_per_px
         else:
             now = self._display_to_world(x, y, d["centre_disp"][2])
             pose[:3] += now - d["grab_world"]
-        pose[:3] += basis[:, 2] * d["depth"]
+        if axis is None:
+            pose[:3] += basis[:, 2] * d["depth"]
         self._proxy_pose = pose
         m = posemath.pose_to_matrix(pose)
         _set_matrix(self._actors["ghost"], m)
         _set_matrix(self._actors["ghost_edges"], m)
+        self._update_axis_handle()
         self._dirty = True
         self.proxy_dragged.emit(pose.copy())
+
+    def _along_axis(self, x: float, y: float, d, axis: np.ndarray) -> float:
+        """How far along ``axis`` (from the grab point) the mouse ray at (x, y) passes nearest.
+
+        When the axis points nearly at the camera the ray cannot pick a point on it; then
+        the vertical mouse travel moves along the axis, as Shift does.
+        """
+        a = np.asarray(axis, float)
+        near = self._display_to_world(x, y, 0.0)
+        far = self._display_to_world(x, y, 1.0)
+        ray = far - near
+        ray /= np.linalg.norm(ray)
+        w = d["grab_world"] - near
+        b = float(a @ ray)
+        denominator = 1.0 - b * b
+        if denominator < 0.02:  # within about 8 degrees of the line of sight
+            return (y - d["start_xy"][1]) * self._world_per_pixel(d)
+        # closest points of the lines grab + s a and near + u ray
+        return float((b * (w @ ray) - (w @ a)) / denominator)
 
     def _world_per_pixel(self, d) -> float:
         cx, cy, cz = d["centre_disp"]

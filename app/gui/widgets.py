@@ -10,17 +10,23 @@ from PySide6 import QtCore, QtWidgets
 class SliderField(QtWidgets.QWidget):
     """A horizontal slider and a spin box showing one float value, linear or logarithmic.
 
+    With ``on_release`` the value is committed only when the slider is let go (or a value is
+    typed and Enter pressed, or set from code); while the slider is dragged the field shows
+    the value it would take. Expensive parameters use it, so that a drag across the slider
+    starts one recompute, not one per pixel.
+
     Signals
     -------
     valueChanged(float)
-        Every change, from either the slider or the field.
+        Every committed change, from either the slider or the field.
     """
 
     valueChanged = QtCore.Signal(float)  # noqa: N815 (Qt naming)
     STEPS = 1000
 
     def __init__(self, lo: float, hi: float, value: float, *, decimals: int = 3,
-                 log: bool = False, integer: bool = False, suffix: str = "", parent=None):
+                 log: bool = False, integer: bool = False, suffix: str = "",
+                 on_release: bool = False, parent=None):
         super().__init__(parent)
         if not lo < hi:
             raise ValueError(f"slider range must have lo < hi, got {lo}, {hi}")
@@ -46,7 +52,10 @@ class SliderField(QtWidgets.QWidget):
         lay.addWidget(self.field)
         self._value = float(value)
         self._sync(self._value)
+        self.on_release = on_release
+        self.slider.setTracking(not on_release)  # without tracking: valueChanged on release
         self.slider.valueChanged.connect(self._from_slider)
+        self.slider.sliderMoved.connect(self._preview)
         self.field.valueChanged.connect(self._from_field)
 
     def _to_pos(self, v: float) -> int:
@@ -76,6 +85,15 @@ class SliderField(QtWidgets.QWidget):
 
     def _from_slider(self, pos: int) -> None:
         self._set(self._from_pos(pos))
+
+    def _preview(self, pos: int) -> None:
+        """While the slider is held (``on_release``): show the value it would commit."""
+        if not self.on_release:
+            return
+        v = self._from_pos(pos)
+        self.field.blockSignals(True)
+        self.field.setValue(int(round(v)) if self.integer else v)
+        self.field.blockSignals(False)
 
     def _from_field(self, v) -> None:
         self._set(float(v))
@@ -122,11 +140,24 @@ class Readouts(QtWidgets.QWidget):
             lay.addRow(title, label)
             self.labels[key] = label
 
-    def set(self, key: str, text: str) -> None:
-        """Show ``text`` for the value named ``key`` (the label is touched only when it changes)."""
+    def set(self, key: str, text: str, tooltip: str | None = None) -> None:
+        """Show ``text`` (and a tooltip) for ``key``; the label is touched only on a change."""
         label = self.labels[key]
         if label.text() != text:
             label.setText(text)
+        if tooltip is not None and label.toolTip() != tooltip:
+            label.setToolTip(tooltip)
+
+    def set_title(self, key: str, title: str) -> None:
+        """Rename the value named ``key`` (units change with the scene)."""
+        form = self.layout()
+        field = form.labelForField(self.labels[key])
+        if field is not None and field.text() != title:
+            field.setText(title)
+
+    def title(self, key: str) -> str:
+        """The name shown for the value named ``key``."""
+        return self.layout().labelForField(self.labels[key]).text()
 
     def text(self, key: str) -> str:
         """The text shown for the value named ``key``."""

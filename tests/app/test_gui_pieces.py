@@ -47,11 +47,14 @@ def test_arcball_vector_is_on_the_unit_sphere_and_centred():
         assert np.linalg.norm(geometry.arcball_vector(x, y, 50, 50, 10)) == pytest.approx(1.0)
 
 
-def test_rotate_pose_about_keeps_the_centre_fixed():
+def test_rotate_about_keeps_the_centre_fixed():
+    """The drag's rotation (engine.pose.rotate_about, which the 3D view calls) turns about the
+    centre it is given.
+    """
     pose = np.array([1.0, 2.0, 3.0, 0.1, -0.2, 0.3])
     centre = np.array([0.5, -1.0, 2.0])
     rv = np.array([0.0, 0.0, np.pi / 2])
-    out = geometry.rotate_pose_about(pose, rv, centre)
+    out = posemath.rotate_about(pose, rv, centre)
     # a point at the centre stays put; a point one unit along x goes to one unit along y
     m_in, m_out = posemath.pose_to_matrix(pose), posemath.pose_to_matrix(out)
     q_centre = np.linalg.solve(m_in, np.append(centre, 1.0))

@@ -47,6 +47,9 @@ def test_window_opens_on_the_example_scene(make_window, settings):
 def test_mouse_drag_moves_the_proxy_and_the_part_follows(make_window, wait_until):
     win = make_window(EXAMPLE_SCENE)
     vp = win.viewport
+    # the peg's scene gives an insertion axis, which drags then follow: here, a free drag
+    assert vp.constraint == "insertion"
+    win.set_constraint("free")
     start_proxy = np.asarray(win.latest_frame.proxy_pose).copy()
     start_part = np.asarray(win.latest_frame.part_pose).copy()
     grab = vp.moving_part_screen_position()
@@ -83,6 +86,7 @@ def test_mouse_drag_moves_the_proxy_and_the_part_follows(make_window, wait_until
 def test_ctrl_drag_rotates_and_shift_drag_moves_in_depth(make_window, wait_until):
     win = make_window(EXAMPLE_SCENE)
     vp = win.viewport
+    win.set_constraint("free")
     grab = vp.moving_part_screen_position()
     seen = []
     vp.proxy_dragged.connect(lambda pose: seen.append(np.asarray(pose)))

@@ -1,0 +1,80 @@
+"""Typing the proxy's pose: a small dialog with six fields.
+
+The pose is part 2's, relative to part 1 and in part 1's frame, as a scene file writes it:
+the translation of part 2's origin in the scene's unit and a rotation vector in degrees
+(axis times angle). "Move the ghost" sends it as the proxy's pose (the part follows under the
+forces); "Place the part" puts part and proxy there at rest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6 import QtCore, QtWidgets
+
+
+class PoseDialog(QtWidgets.QDialog):
+    """Six fields for a pose relative to part 1.
+
+    Signals
+    -------
+    move_proxy(object)
+        (6,) float64 pose (radians) to send as the proxy's.
+    place_part(object)
+        (6,) float64 pose (radians) to put the part and proxy at, at rest.
+    """
+
+    move_proxy = QtCore.Signal(object)
+    place_part = QtCore.Signal(object)
+
+    def __init__(self, parent=None, *, unit: str = "mm"):
+        super().__init__(parent)
+        self.setWindowTitle("Pose of the moving part")
+        self.setModal(False)
+        lay = QtWidgets.QVBoxLayout(self)
+        note = QtWidgets.QLabel(
+            "Part 2 relative to part 1, in part 1's frame (as in the scene file): where its "
+            "origin is, and its rotation as axis × angle.")
+        note.setWordWrap(True)
+        lay.addWidget(note)
+        form = QtWidgets.QFormLayout()
+        self.fields: list[QtWidgets.QDoubleSpinBox] = []
+        for name in ("x", "y", "z", "rx", "ry", "rz"):
+            box = QtWidgets.QDoubleSpinBox()
+            box.setObjectName(f"pose_{name}")
+            box.setDecimals(4)
+            box.setRange(-1e6, 1e6)
+            box.setKeyboardTracking(False)
+            box.setSuffix(f" {unit}" if not name.startswith("r") else " °")
+            form.addRow(name, box)
+            self.fields.append(box)
+        lay.addLayout(form)
+        self.presets = QtWidgets.QHBoxLayout()
+        lay.addLayout(self.presets)
+        buttons = QtWidgets.QDialogButtonBox()
+        self.move_button = buttons.addButton("Move the ghost", QtWidgets.QDialogButtonBox.ApplyRole)
+        self.place_button = buttons.addButton("Place the part",
+                                              QtWidgets.QDialogButtonBox.ActionRole)
+        self.place_button.setToolTip("Put the part and the ghost there at rest, at once")
+        buttons.addButton(QtWidgets.QDialogButtonBox.Close)
+        buttons.rejected.connect(self.close)
+        self.move_button.clicked.connect(lambda: self.move_proxy.emit(self.pose()))
+        self.place_button.clicked.connect(lambda: self.place_part.emit(self.pose()))
+        lay.addWidget(buttons)
+
+    def add_preset(self, text: str, pose_source) -> None:
+        """A button that fills the fields from ``pose_source()`` ((6,) pose in radians)."""
+        button = QtWidgets.QPushButton(text)
+        button.clicked.connect(lambda: self.set_pose(pose_source()))
+        self.presets.addWidget(button)
+
+    def set_pose(self, pose: np.ndarray) -> None:
+        """Show ``pose`` (6,) (translation, rotation vector in radians)."""
+        p = np.asarray(pose, float).reshape(6)
+        shown = np.concatenate([p[:3], np.degrees(p[3:])])
+        for box, value in zip(self.fields, shown, strict=True):
+            box.setValue(float(value))
+
+    def pose(self) -> np.ndarray:
+        """(6,) float64 pose typed (rotation vector in radians)."""
+        v = np.array([box.value() for box in self.fields], float)
+        return np.concatenate([v[:3], np.radians(v[3:])])
