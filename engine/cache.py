@@ -5,20 +5,36 @@ the mesh bytes, the grid, the parameters, a format version and a digest of the c
 computes them (:func:`code_digest`). The cache lives in ``SKELASM_CACHE`` or
 ``~/.cache/skelasm`` and is kept under ``SKELASM_CACHE_MAX_GB`` (default 2 GiB) by deleting
 the least recently used entries after each store.
+
+Layout: ``<cache>/<kind>/<64 hex digits>.npz`` plus a ``CACHEDIR.TAG``; only files of that
+layout are entries (:func:`entries`), so eviction never touches anything else in the
+folder. Entries are written whole (temporary file, fsync, rename), entries that cannot be
+read are deleted and recomputed, results with non-finite values and entries larger than the
+cap are never stored, and a cache that cannot be written (read-only, another user's) is
+read as usual and skipped for writing with one warning. Warnings go to the
+``engine.cache`` logger.
 """
 
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import json
+import logging
+import math
 import os
-import tempfile
+import re
+import time
+import zipfile
+import zlib
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from engine.files import TEMP_PREFIX, TEMP_SUFFIX, atomic_write, disk_space_error, write_text
 
 #: The folder holding the ``engine`` package (module names are resolved under it).
 SOURCE_ROOT = Path(__file__).resolve().parent.parent
@@ -116,7 +132,7 @@ def code_digest(module: str, *, root: Path | None = None) -> str:
 
 
 def cache_dir() -> Path:
-    """The cache folder (created on first use)."""
+    """The cache folder (created on first store)."""
     root = os.environ.get("SKELASM_CACHE") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "skelasm"
     )
@@ -125,6 +141,27 @@ def cache_dir() -> Path:
 
 #: Default cap on the cache's size, in GiB (spectra of a 160^3 FFT are ~60 MB each).
 DEFAULT_MAX_GB = 2.0
+#: An entry's file name: the 64 hex digits of its key. Nothing else is ever evicted.
+ENTRY_NAME = re.compile(r"^[0-9a-f]{64}\.npz$")
+#: An entry kind, the sub-folder it lives in (``descriptor``, ``spectrum``, ...).
+KIND_NAME = re.compile(r"^[a-z][a-z0-9-]{0,63}$")
+#: Marks the folder as a cache for backup tools (https://bford.info/cachedir/).
+TAG_NAME = "CACHEDIR.TAG"
+_TAG = ("Signature: 8a477f597d28d172789f06886806bc55\n"
+        "# This file is a cache tag created by skelasm; its entries can be recomputed.\n")
+#: Temporary files of interrupted writes older than this (seconds) are removed on eviction.
+STALE_SECONDS = 3600.0
+
+_log = logging.getLogger(__name__)
+_warned: set[tuple[str, str]] = set()
+
+
+def _warn_once(folder: Path, what: str, message: str) -> None:
+    """Log ``message`` once per process for this folder and kind of problem."""
+    token = (str(folder), what)
+    if token not in _warned:
+        _warned.add(token)
+        _log.warning(message)
 
 
 def max_bytes() -> int:
@@ -134,25 +171,87 @@ def max_bytes() -> int:
         gb = float(raw) if raw else DEFAULT_MAX_GB
     except ValueError as exc:
         raise ValueError(f"SKELASM_CACHE_MAX_GB must be a number of GiB, got {raw!r}") from exc
+    if not (math.isfinite(gb) and gb >= 0):
+        raise ValueError(f"SKELASM_CACHE_MAX_GB must be zero (no cache) or a positive number "
+                         f"of GiB, got {raw!r}")
     return int(gb * 2**30)
+
+
+def entry_path(kind: str, key: str) -> Path:
+    """Where the entry ``key`` of ``kind`` lives: ``<cache>/<kind>/<key>.npz``."""
+    if not KIND_NAME.match(kind):
+        raise ValueError(f"cache kind must match {KIND_NAME.pattern}, got {kind!r}")
+    name = f"{key}.npz"
+    if not ENTRY_NAME.match(name):
+        raise ValueError(f"cache key must be 64 hex digits, got {key!r}")
+    return cache_dir() / kind / name
+
+
+def entries() -> list[Path]:
+    """Every entry the cache wrote: ``<kind>/<64 hex digits>.npz`` files, no links.
+
+    Other files under the cache folder (a user's own results, if it points at a project
+    folder) are never listed, so never evicted.
+    """
+    found: list[Path] = []
+    for folder in _kind_folders(cache_dir()):
+        try:
+            found.extend(f for f in folder.iterdir() if ENTRY_NAME.match(f.name)
+                         and not f.is_symlink() and f.is_file())  # fmt: skip
+        except OSError:
+            continue
+    return found
+
+
+def _stale_temporaries(now: float) -> list[Path]:
+    """Temporary files of the cache's own interrupted writes, older than STALE_SECONDS.
+
+    Its own: ``.skelasm-<entry>.<random>.partial`` (and ``tmp*.tmp.npz`` of older versions)
+    in a kind folder.
+    """
+    out = []
+    for folder in _kind_folders(cache_dir()):
+        try:
+            for f in folder.iterdir():
+                ours = ((f.name.startswith(TEMP_PREFIX) and f.name.endswith(TEMP_SUFFIX))
+                        or (f.name.startswith("tmp") and f.name.endswith(".tmp.npz")))
+                if ours and not f.is_symlink() and now - f.stat().st_mtime > STALE_SECONDS:
+                    out.append(f)
+        except OSError:
+            continue
+    return out
+
+
+def _kind_folders(root: Path) -> set[Path]:
+    """The kind sub-folders of ``root`` (no links)."""
+    try:
+        return {d for d in root.iterdir()
+                if KIND_NAME.match(d.name) and d.is_dir() and not d.is_symlink()}
+    except OSError:
+        return set()
 
 
 def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
     """Delete least recently used entries until the cache holds at most ``limit`` bytes.
 
-    ``keep`` (the entry just written) is never deleted. Returns the bytes freed.
+    Only the cache's own entries count and go (:func:`entries`); ``keep`` (the entry just
+    written) is never deleted. Temporary files of writes killed more than an hour ago go
+    too. Returns the bytes freed.
     """
     limit = max_bytes() if limit is None else limit
-    entries = []
-    for path in cache_dir().glob("*/*.npz"):
+    listed = []
+    for path in entries():
         try:
             st = path.stat()
         except OSError:
             continue
-        entries.append((max(st.st_atime, st.st_mtime), st.st_size, path))
-    total = sum(size for _, size, _ in entries)
+        listed.append((max(st.st_atime, st.st_mtime), st.st_size, path))
+    total = sum(size for _, size, _ in listed)
     freed = 0
-    for _, size, path in sorted(entries):
+    for path in _stale_temporaries(time.time()):
+        with contextlib.suppress(OSError):
+            path.unlink()
+    for _, size, path in sorted(listed):
         if total - freed <= limit:
             break
         if keep is not None and path == keep:
@@ -160,6 +259,8 @@ def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
         try:
             path.unlink()
             freed += size
+        except FileNotFoundError:
+            freed += size  # another process evicted it first
         except OSError:
             pass
     return freed
@@ -180,34 +281,92 @@ def content_key(kind: str, parts: Mapping[str, Any]) -> str:
     return h.hexdigest()
 
 
+def _non_finite(arrays: Mapping[str, np.ndarray]) -> list[str]:
+    """Names of the float or complex arrays that hold NaN or infinity."""
+    bad = []
+    for name, value in arrays.items():
+        arr = np.asarray(value)
+        if arr.dtype.kind in "fc" and not np.isfinite(arr).all():
+            bad.append(name)
+    return bad
+
+
 def load(kind: str, key: str) -> dict[str, np.ndarray] | None:
-    """The cached arrays, or None when absent or unreadable (a damaged entry is dropped)."""
-    path = cache_dir() / kind / f"{key}.npz"
-    if not path.exists():
-        return None
+    """The cached arrays, or None when absent.
+
+    An entry that cannot be read whole (truncated, a flipped bit caught by the zip CRC,
+    not an ``.npz``) or that holds non-finite values is deleted, with a warning, and None
+    is returned: the caller recomputes it.
+    """
+    path = entry_path(kind, key)
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-        os.utime(path)  # mark as recently used, whatever the file system's atime policy
-        return arrays
-    except (OSError, ValueError, EOFError):
-        path.unlink(missing_ok=True)
+    except FileNotFoundError:
         return None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        _drop(path, f"cannot be read ({type(exc).__name__}: {exc})")
+        return None
+    bad = _non_finite(arrays)
+    if bad:
+        _drop(path, f"holds non-finite values (in {', '.join(bad)})")
+        return None
+    with contextlib.suppress(OSError):  # a read-only cache can still be read
+        os.utime(path)  # mark as recently used, whatever the file system's atime policy
+    return arrays
 
 
-def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path:
-    """Write arrays atomically (temporary file, then rename) and return the path."""
-    folder = cache_dir() / kind
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{key}.npz"
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp.npz")
-    os.close(fd)
+def _drop(path: Path, why: str) -> None:
+    """Delete a damaged entry, saying so; a read-only cache keeps it and says that."""
     try:
-        np.savez(tmp, **dict(arrays))  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        path.unlink()
+    except FileNotFoundError:
+        pass
+    except OSError as exc:
+        _warn_once(path, "drop", f"cache: entry {path} {why} and cannot be deleted "
+                   f"({exc.strerror}); it is recomputed each time: delete it or fix the "
+                   "folder's permissions")
+        return
+    _log.warning(f"cache: entry {path} {why}; deleted, it is computed again")
+
+
+def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path | None:
+    """Write an entry atomically and return its path; None when it is not stored.
+
+    Not stored (each with one warning): non-finite values, an entry larger than the cap
+    (:func:`max_bytes`) or than the disk's free space, a cache folder that does not take
+    files (read-only, another user's). The file is written under a temporary name in the
+    entry's folder and renamed into place, so concurrent writers and readers see a whole
+    entry or none.
+    """
+    path = entry_path(kind, key)
+    bad = _non_finite(arrays)
+    if bad:
+        _log.warning(f"cache: not storing a {kind} with non-finite values (in "
+                     f"{', '.join(bad)}); the parameters give no usable result")
+        return None
+    nbytes = sum(np.asarray(a).nbytes for a in arrays.values()) + 1024 * (len(arrays) + 1)
+    cap = max_bytes()
+    if nbytes > cap:
+        _warn_once(path.parent, "cap", f"cache: a {kind} entry of {nbytes / 2**30:.2f} GiB "
+                   f"is larger than the cache's cap ({cap / 2**30:.2f} GiB, "
+                   "SKELASM_CACHE_MAX_GB); not stored, it is computed each time")
+        return None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tag = cache_dir() / TAG_NAME
+        if not tag.exists():
+            write_text(tag, _TAG, what="cache tag")
+        room = disk_space_error(path, nbytes, what=f"{kind} cache entry")
+        if room is not None:
+            _warn_once(path.parent, "space", f"cache: {room}; not stored")
+            return None
+        with atomic_write(path, what=f"{kind} cache entry") as fh:
+            np.savez(fh, **dict(arrays))  # type: ignore[arg-type]  # numpy's stub: **kwds bool
+    except OSError as exc:
+        _warn_once(cache_dir(), "write", f"cache: cannot write to {cache_dir()} ({exc}); "
+                   "results are not cached (set SKELASM_CACHE to a folder you can write)")
+        return None
     return path
 
 
@@ -220,7 +379,8 @@ def load_or_compute(
 ) -> tuple[dict[str, np.ndarray], bool]:
     """Cached arrays for ``parts``, computing and storing them when missing.
 
-    Returns the arrays and whether they came from the cache.
+    Returns the arrays and whether they came from the cache. A damaged entry is dropped
+    and recomputed; a result with non-finite values is returned but never stored.
     """
     key = content_key(kind, parts)
     if use_cache:
@@ -229,8 +389,7 @@ def load_or_compute(
             return hit, True
     arrays = dict(compute())
     if use_cache:
-        try:
-            evict(keep=store(kind, key, arrays))
-        except OSError:
-            pass  # a read-only or full disk costs a recompute next time, nothing more
+        written = store(kind, key, arrays)
+        if written is not None:
+            evict(keep=written)
     return arrays, False

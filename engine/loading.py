@@ -49,9 +49,22 @@ SUFFIXES = STEP_SUFFIXES + MESH_SUFFIXES
 DEFAULT_RELATIVE_TOLERANCE = 1e-3
 #: Largest angle (radians) between neighbouring facets' normals on a curved face.
 DEFAULT_ANGULAR_TOLERANCE = 0.35
-#: Vertices closer than this times max(diagonal, largest |coordinate|) are welded. GLB and
-#: STL store float32 (about 6e-8 relative), so copies of one vertex differ by a few of those.
+#: Vertices closer than this times the mesh's diagonal are welded (its size, not its place).
 WELD_RELATIVE = 1e-6
+#: ... or closer than this many units of the coordinates' resolution at the largest
+#: |coordinate| (float32 in STL and GLB: copies of one vertex may differ by a few of those).
+WELD_ULPS = 4
+#: Relative resolution of float32 coordinates (STL, GLB) and of float64 ones.
+FLOAT32_RESOLUTION = 2.0**-23
+FLOAT64_RESOLUTION = 2.0**-52
+#: OpenCASCADE's geometric precision (Precision::Confusion), in millimetres: a STEP part
+#: must be many times larger than this to be tessellated.
+OCC_PRECISION_MM = 1e-7
+#: Smallest STEP part, in millimetres across, that is tessellated (1000 x OCC's precision).
+MIN_STEP_DIAGONAL_MM = 1e3 * OCC_PRECISION_MM
+#: Most triangles a STEP tessellation may make (480,000 took 2 minutes here; the memory on
+#: the way is about 1 KB per triangle).
+MAX_STEP_TRIANGLES = 2_000_000
 
 #: STEP length units: SI prefix (or conversion-based name) -> (short name, metres per unit).
 _SI_PREFIXES = {
@@ -258,6 +271,8 @@ def check_mesh(
     source: str,
     weld_tolerance: float | None = None,
     report_degenerate: bool = True,
+    resolution: float | None = None,
+    union: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """Check and repair a triangle mesh; raise for what cannot be repaired.
 
@@ -265,7 +280,9 @@ def check_mesh(
     vertices closer than ``weld_tolerance``; drop degenerate (zero-area or repeated-vertex)
     and duplicate triangles; make the winding consistent across shared edges; flip all
     faces when the enclosed volume is negative (normals pointing in); report boundary and
-    non-manifold edges (winding-number membership still works on slightly open meshes).
+    non-manifold edges (winding-number membership still works on slightly open meshes);
+    join closed shells that overlap into one solid (:func:`union_shells`), since the
+    winding number would count their common volume twice.
 
     Parameters
     ----------
@@ -274,10 +291,17 @@ def check_mesh(
     source : str
         The file (or name) that messages refer to.
     weld_tolerance : float, optional
-        Default ``1e-6 * max(diagonal, largest |coordinate|)``.
+        Default ``max(WELD_RELATIVE * diagonal, WELD_ULPS * resolution * largest
+        |coordinate|)``: from the part's size, with a floor at the coordinates' resolution
+        where it lies.
     report_degenerate : bool
         Warn about dropped degenerate triangles (False for our own STEP tessellation, whose
         poles and seams collapse to a few of them after welding: nothing the user can fix).
+    resolution : float, optional
+        Relative resolution of the coordinates as stored: ``FLOAT32_RESOLUTION`` when every
+        coordinate is a float32 value (STL), else ``FLOAT64_RESOLUTION``.
+    union : bool
+        Join overlapping closed shells (:func:`union_shells`).
 
     Returns
     -------
@@ -291,7 +315,8 @@ def check_mesh(
     Raises
     ------
     PartError
-        Empty mesh, non-finite coordinates, bad indices, or nothing left after repair.
+        Empty mesh, non-finite coordinates, bad indices, nothing left after repair, or
+        overlapping shells that cannot be joined.
     """
     warnings: list[str] = []
     try:
@@ -330,8 +355,12 @@ def check_mesh(
     # weld
     lower, upper = v[f.ravel()].min(axis=0), v[f.ravel()].max(axis=0)
     diagonal = float(np.linalg.norm(upper - lower))
-    scale = max(diagonal, float(np.abs(v).max()))
-    tol = WELD_RELATIVE * scale if weld_tolerance is None else float(weld_tolerance)
+    largest = float(np.abs(v[f.ravel()]).max())
+    if resolution is None:
+        resolution = (FLOAT32_RESOLUTION if np.array_equal(v.astype(np.float32), v)
+                      else FLOAT64_RESOLUTION)
+    floor = WELD_ULPS * resolution * largest
+    tol = max(WELD_RELATIVE * diagonal, floor) if weld_tolerance is None else float(weld_tolerance)
     if tol > 0 and len(v) > 1:
         v, f = _weld(v, f, tol)
 
@@ -366,6 +395,13 @@ def check_mesh(
             )
             f = f[np.sort(first)]
     if len(f) == 0:
+        if weld_tolerance is None and floor >= WELD_RELATIVE * diagonal:
+            raise PartError(
+                f"{source}: no usable triangles: the part is {diagonal:.3g} across but lies "
+                f"{largest:.3g} from the origin, where its coordinates resolve only "
+                f"{resolution * largest:.2g}; move the part near the origin or export it in "
+                "a smaller unit"
+            )
         raise PartError(
             f"{source}: no usable triangles (all were degenerate); the mesh has no area, "
             "re-export the part as a solid"
@@ -391,6 +427,10 @@ def check_mesh(
             f"{source}: the normals pointed inwards (negative volume); all triangles were "
             "flipped to face outwards"
         )
+    if union and not boundary and not nonmanifold:
+        v, f, joined = union_shells(v, f, source=source)
+        if joined:
+            warnings.append(joined)
     if boundary or nonmanifold:
         what = []
         if boundary:
@@ -403,6 +443,109 @@ def check_mesh(
             "STEP solid) for reliable results"
         )
     return np.ascontiguousarray(v), np.ascontiguousarray(f), tuple(warnings)
+
+
+def shells(f: np.ndarray) -> np.ndarray:
+    """(m,) int64 label of the connected shell (faces sharing vertices) of each face."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(f)
+    n = int(f.max()) + 1 if m else 0
+    rows = np.repeat(np.arange(m), 3)
+    graph = coo_matrix((np.ones(3 * m), (rows, m + f.ravel())), shape=(m + n, m + n))
+    _, labels = connected_components(graph, directed=False)
+    _, dense = np.unique(labels[:m], return_inverse=True)
+    return dense.astype(np.int64).ravel()
+
+
+def union_shells(v: np.ndarray, f: np.ndarray, *, source: str
+                 ) -> tuple[np.ndarray, np.ndarray, str | None]:  # fmt: skip
+    """Join overlapping closed shells into one solid with a mesh boolean union.
+
+    A mesh of several closed shells (common in real exports: one shell per brick of a
+    model) describes their union, but a winding number sums them, counting their common
+    volume twice. Shells whose boxes overlap go through manifold3d's boolean union (shells
+    with negative volume, cavities, are subtracted); when the union's volume equals the sum
+    of the shells' signed volumes nothing overlapped and the mesh is returned unchanged.
+
+    Parameters
+    ----------
+    v : (n, 3) float64
+    f : (m, 3) int64
+        A closed, outward-oriented mesh (each shell watertight).
+    source : str
+        The file, for messages.
+
+    Returns
+    -------
+    v : (n', 3) float64
+    f : (m', 3) int64
+    warning : str or None
+        What was joined, or None when nothing overlapped.
+
+    Raises
+    ------
+    PartError
+        Shells overlap and cannot be joined (a shell is not a closed 2-manifold, or
+        manifold3d is missing).
+    """
+    labels = shells(f)
+    count = int(labels.max()) + 1 if len(labels) else 0
+    if count < 2:
+        return v, f, None
+    p = v[f]  # (m, 3, 3)
+    lo = np.full((count, 3), np.inf)
+    hi = np.full((count, 3), -np.inf)
+    np.minimum.at(lo, labels, p.min(axis=1))
+    np.maximum.at(hi, labels, p.max(axis=1))
+    margin = 1e-9 * float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
+    overlap = np.all((lo[:, None] < hi[None] - margin) & (lo[None] < hi[:, None] - margin),
+                     axis=2)
+    np.fill_diagonal(overlap, False)
+    if not overlap.any():
+        return v, f, None
+    try:
+        import manifold3d
+    except ImportError as exc:  # pragma: no cover - a dependency
+        raise PartError(f"{source}: {count} shells overlap and joining them needs the "
+                        "manifold3d package (`pip install manifold3d`)") from exc
+    solids: list[Any] = []
+    cavities: list[Any] = []
+    volumes = np.zeros(count)
+    for k in range(count):
+        fk = f[labels == k]
+        used, local = np.unique(fk.ravel(), return_inverse=True)
+        tris = local.reshape(-1, 3)
+        volumes[k] = _signed_volume(v[used], tris)
+        if volumes[k] < 0:
+            tris = tris[:, ::-1]
+        mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(v[used]),
+                                 tri_verts=np.ascontiguousarray(tris, dtype=np.uint64))
+        solid = manifold3d.Manifold(mesh)
+        if solid.status() != manifold3d.Error.NoError:
+            raise PartError(
+                f"{source}: shell {k + 1} of {count} overlaps another but is not a closed "
+                f"surface ({solid.status().name}); its volume would count twice: repair the "
+                "mesh or export the part as one solid"
+            )
+        (cavities if volumes[k] < 0 else solids).append(solid)
+    joined = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add)
+    if cavities:
+        joined = manifold3d.Manifold.batch_boolean([joined, *cavities],
+                                                   manifold3d.OpType.Subtract)
+    total = float(volumes.sum())
+    if abs(joined.volume() - total) <= 1e-9 * max(abs(total), 1e-300):
+        return v, f, None  # boxes overlapped, volumes did not (a cavity, shells side by side)
+    out = joined.to_mesh64()
+    v2 = np.ascontiguousarray(out.vert_properties[:, :3], dtype=np.float64)
+    f2 = np.ascontiguousarray(out.tri_verts, dtype=np.int64)
+    pieces = len(joined.decompose())
+    return v2, f2, (
+        f"{source}: {count} closed shells overlap (their common volume, "
+        f"{total - joined.volume():.4g}, would count twice); joined into {pieces} solid"
+        f"{'s' if pieces != 1 else ''} by a mesh union (volume {joined.volume():.6g})"
+    )
 
 
 # --------------------------------------------------------------------------- STEP
@@ -540,15 +683,26 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
             raise PartError(f"{path}: the STEP file's tessellation is unreadable ({exc})") from exc
         return scene
 
+    coarse = tessellate(1e30, 1.0)
+    box = _scene_bounds(coarse)
+    if box is None:
+        raise PartError(_no_solid_message(path))
+    diagonal_mm = float(np.linalg.norm(box[1] - box[0])) * 1e3
+    if not diagonal_mm >= MIN_STEP_DIAGONAL_MM:
+        raise PartError(
+            f"{path}: the model is {diagonal_mm / mm_per_unit:.3g} {found[0]} "
+            f"({diagonal_mm:.3g} mm) across, too small for OpenCASCADE to tessellate (its "
+            f"precision is {OCC_PRECISION_MM:g} mm; at least {MIN_STEP_DIAGONAL_MM:g} mm "
+            "is needed); check the file's length unit, or scale the part up"
+        )
+    default_mm = DEFAULT_RELATIVE_TOLERANCE * diagonal_mm
     if tolerance is None:
-        coarse = tessellate(1e30, 1.0)
-        box = _scene_bounds(coarse)
-        if box is None:
-            raise PartError(_no_solid_message(path))
-        diagonal_mm = float(np.linalg.norm(box[1] - box[0])) * 1e3
-        tol_mm = max(DEFAULT_RELATIVE_TOLERANCE * diagonal_mm, 1e-9)
+        tol_mm = default_mm
     else:
         tol_mm = float(tolerance) * mm_per_unit
+        if tol_mm < default_mm:
+            _check_triangle_budget(path, coarse, tessellate(default_mm, DEFAULT_ANGULAR_TOLERANCE),
+                                   default_mm, tol_mm, mm_per_unit, unit_name)
     scene = tessellate(tol_mm, DEFAULT_ANGULAR_TOLERANCE)
 
     parts: list[Part] = []
@@ -576,12 +730,44 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
         v = v @ np.asarray(transform)[:3, :3].T + np.asarray(transform)[:3, 3]
         v = _snap_float32(v / metres)  # GLB metres -> the file's unit
         source = f"{path} (body {name!r})" if len(items) > 1 else str(path)
-        v, f, w = check_mesh(v, np.asarray(mesh.faces), source=source, report_degenerate=False)
+        v, f, w = check_mesh(v, np.asarray(mesh.faces), source=source, report_degenerate=False,
+                             resolution=FLOAT32_RESOLUTION)
         parts.append(
             Part(name=name, vertices=v, faces=f, source=str(path), unit=unit_name,
                  warnings=tuple(warnings) + w)
         )
     return parts
+
+
+def _triangles(scene: Any) -> int:
+    """Triangles of a tessellation (a trimesh Scene or mesh)."""
+    if hasattr(scene, "geometry"):
+        return int(sum(len(getattr(g, "faces", ())) for g in scene.geometry.values()))
+    return int(len(getattr(scene, "faces", ())))
+
+
+def _check_triangle_budget(path: Path, coarse: Any, reference: Any, reference_mm: float,
+                           tol_mm: float, mm_per_unit: float, unit: str) -> None:  # fmt: skip
+    """Refuse a tolerance whose tessellation would exceed MAX_STEP_TRIANGLES, before making it.
+
+    On curved faces the chord error of a triangle of side s on a radius r is s^2 / (8 r),
+    so the triangle count grows as 1 / tolerance; flat faces keep their count. From the
+    coarsest tessellation (flat) and one at ``reference_mm``, the count at ``tol_mm`` is
+    about ``flat + 0.5 (reference - flat) reference_mm / tol_mm``: the factor 0.5 was fitted
+    on the bundled parts at tolerances 10 to 150 times finer than the default (measured
+    0.40 to 0.48, so the estimate errs on the high side).
+    """
+    flat = _triangles(coarse)
+    curved = 0.5 * max(_triangles(reference) - flat, 0)
+    estimate = flat + curved * reference_mm / tol_mm
+    if estimate <= MAX_STEP_TRIANGLES:
+        return
+    finest = reference_mm * curved / max(MAX_STEP_TRIANGLES - flat, 1)
+    raise PartError(
+        f"{path}: a tessellation tolerance of {tol_mm / mm_per_unit:.3g} {unit} would make "
+        f"about {estimate:.3g} triangles (at most {MAX_STEP_TRIANGLES:,} are made: beyond, "
+        f"minutes and gigabytes); use a tolerance of at least {finest / mm_per_unit:.3g} {unit}"
+    )
 
 
 def _snap_float32(v: np.ndarray) -> np.ndarray:
@@ -725,8 +911,15 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
 
     if path.stat().st_size == 0:
         raise PartError(f"{path}: the file is empty; export the part again")
+    if path.suffix.lower() == ".stl":
+        _check_stl(path)
     try:
         loaded: Any = trimesh.load(str(path), process=False)
+    except ImportError as exc:  # trimesh guesses a text encoding with an optional module
+        raise PartError(
+            f"{path}: cannot read this {path.suffix} file: it is not valid {path.suffix} text "
+            "(not UTF-8); check that it is a mesh of that format, or re-export it"
+        ) from exc
     except Exception as exc:  # noqa: BLE001 - trimesh raises many types for bad files
         raise PartError(
             f"{path}: cannot read this {path.suffix} file ({type(exc).__name__}: {exc}); "
@@ -757,6 +950,31 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
     v, f, warnings = check_mesh(vertices, faces, source=str(path))
     return Part(name=path.stem, vertices=v, faces=f, source=str(path),
                 unit=unit or "unspecified", warnings=warnings)
+
+
+def _check_stl(path: Path) -> None:
+    """Raise unless ``path`` is a binary STL (size matches its count) or ASCII STL text."""
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if size >= 84:
+        count = int.from_bytes(head[80:84], "little")
+        if size == 84 + 50 * count:
+            return
+    try:
+        text = head.decode("ascii")
+    except UnicodeDecodeError:
+        text = ""
+    if text.lstrip().lower().startswith("solid") and (len(head) < 4096 or "facet" in text):
+        return
+    expected = (f"its header announces {int.from_bytes(head[80:84], 'little')} triangles, "
+                f"{84 + 50 * int.from_bytes(head[80:84], 'little')} bytes, but it has {size}"
+                if size >= 84 else f"it has only {size} bytes")
+    raise PartError(
+        f"{path}: not an STL file: not binary STL ({expected}) and not ASCII STL text "
+        "(starting with 'solid' and listing facets); the file is damaged or of another "
+        "format: re-export it"
+    )
 
 
 # --------------------------------------------------------------------------- mesh algorithms

@@ -22,6 +22,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="rotation vector of part 2 (radians); default: the fitted pose's")
     parser.add_argument("--modes", type=int, help="modes per axis K (default: the scene's)")
     parser.add_argument("-o", "--output", required=True, help="image file to write (PNG)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing image (never an input file)")
     parser.set_defaults(run=run)
 
 
@@ -38,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from engine.scene import load_scene
 
     scene = load_scene(args.scene)
+    check_image_output(args.output, force=args.force,
+                       inputs=[scene.path, *(spec.file for spec in scene.parts)])
     fitted = np.asarray(scene.assembled_pose, dtype=float)
     rotvec = np.asarray(args.rotation if args.rotation is not None else fitted[3:], dtype=float)
     update, close = progress_bar("landscape")
@@ -73,9 +77,34 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_image_output(path, *, force: bool, inputs) -> None:
+    """Check an image's path before the work: writable, not an input, a format matplotlib has."""
+    from pathlib import Path
+
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from engine.errors import InputError
+    from engine.files import check_output
+
+    suffix = Path(path).suffix.lstrip(".").lower()
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if suffix not in formats:
+        raise InputError(f"{path}: cannot write images of type {suffix or '(none)'!r}; end "
+                         f"the name with one of .{', .'.join(sorted(formats))}")
+    check_output(path, force=force, inputs=inputs, what="image")
+
+
 def write_section_png(path, section, u, v, plane, *, title, units, fitted, lowest) -> None:
-    """Write a section image with the fitted pose (cross) and the section's minimum (circle)."""
+    """Write a section image with the fitted pose (cross) and the section's minimum (circle).
+
+    The image is written whole or not at all (``engine.files.atomic_write``); its format
+    follows the file's suffix.
+    """
+    from pathlib import Path
+
     import matplotlib
+
+    from engine.files import atomic_write
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -97,5 +126,6 @@ def write_section_png(path, section, u, v, plane, *, title, units, fitted, lowes
     ax.set_title(title, fontsize=9)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    with atomic_write(path, what="image") as fh:
+        fig.savefig(fh, format=Path(path).suffix.lstrip(".").lower() or "png")
     plt.close(fig)

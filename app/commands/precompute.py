@@ -97,6 +97,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--output", metavar="OUT",
                         help="output .npz (default: ./<stem>.npz in the current directory); "
                         "for a scene, a folder (default: the current directory)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing output files (never an input file)")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (grid, spacing, triangles, seconds, "
                         "backend, output, ...) instead of text")
@@ -188,10 +190,10 @@ def _describe(rec: dict) -> str:
 
 def _run_part(args: argparse.Namespace, path: Path) -> int:
     from engine.descriptor import descriptor_for_part, grid_for_part
+    from engine.files import check_output
     from engine.loading import load_part
     from engine.params import DEFAULT_PADDING
 
-    part = load_part(path, tolerance=args.tolerance, body=args.body)
     if args.output:
         output = Path(args.output)
         if output.suffix != ".npz":
@@ -199,8 +201,8 @@ def _run_part(args: argparse.Namespace, path: Path) -> int:
     else:
         stem = path.stem if args.body is None else f"{path.stem}-{args.body}"
         output = Path.cwd() / f"{stem}.npz"
-    if not output.parent.is_dir():
-        raise OSError(f"{output.parent}: no such folder for the output file")
+    check_output(output, force=args.force, inputs=[path], what="descriptor")
+    part = load_part(path, tolerance=args.tolerance, body=args.body)
     samples = None
     if args.spacing is None:
         samples = args.grid or 64
@@ -230,6 +232,8 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
     from dataclasses import replace
 
     from engine.descriptor import descriptors_for_scene, scene_spacing
+    from engine.errors import InputError
+    from engine.files import check_output
     from engine.scene import load_scene, load_scene_parts
 
     if args.body is not None or args.tolerance is not None:
@@ -247,8 +251,13 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
     scene = replace(scene, descriptor=d)
     folder = Path(args.output) if args.output else Path.cwd()
     if not folder.is_dir():
-        raise OSError(f"{folder}: no such folder (for a scene, -o names a folder)")
+        raise InputError(f"{folder}: no such folder (for a scene, -o names a folder)")
     parts = load_scene_parts(scene)
+    stem = scene.path.parent.name if scene.path.name == "scene.toml" else scene.path.stem
+    inputs = [scene.path, *(spec.file for spec in scene.parts)]
+    for part in parts:  # every output checked before the work
+        check_output(folder / f"{stem}-{part.name}.npz", force=args.force, inputs=inputs,
+                     what="descriptor")
     if not args.json:
         for part in parts:
             for line in part.warnings:
@@ -260,7 +269,6 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
                                             progress=update)
     finally:
         close()
-    stem = scene.path.parent.name if scene.path.name == "scene.toml" else scene.path.stem
     records = []
     for part, descriptor in zip(parts, descriptors, strict=True):
         written = descriptor.save(folder / f"{stem}-{part.name}.npz")

@@ -28,6 +28,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("scene", help="scene file (TOML)")
     parser.add_argument("-o", "--output", default="report", help="output folder (default: report)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the report and images already in the folder")
     parser.add_argument("--backend", choices=CHOICES, default="auto",
                         help="per-pose backend (default: the fastest measured here)")
     parser.set_defaults(run=run)
@@ -65,6 +67,8 @@ def _slice_png(path: Path, descriptor, name: str) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from engine.files import atomic_write
+
     rho = descriptor.rho
     k = rho.shape[2] // 2
     x, y, z = descriptor.grid.axes()
@@ -76,7 +80,8 @@ def _slice_png(path: Path, descriptor, name: str) -> None:
         fig.colorbar(im, ax=ax, shrink=0.8)
         ax.set_title(f"{name}: {label}, z = {z[k]:.3g}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path)
+    with atomic_write(path, what="image") as fh:
+        fig.savefig(fh, format="png")
     plt.close(fig)
 
 
@@ -87,17 +92,24 @@ def run(args: argparse.Namespace) -> int:
     from app.commands.landscape import write_section_png
     from engine.correlation import Correlator
     from engine.descriptor import descriptors_for_scene
+    from engine.files import check_output, check_output_folder, write_text
     from engine.pose import rotation_matrix
     from engine.scene import load_scene, load_scene_parts
 
     scene = load_scene(args.scene)
     if len(scene.parts) < 2:
         raise ValueError(f"{scene.path}: a report needs a scene with two parts")
-    out = Path(args.output)
+    out = check_output_folder(args.output, create=True, what="report folder")
+    parts = load_scene_parts(scene)
+    inputs = [scene.path, *(spec.file for spec in scene.parts)]
+    outputs = [out / "report.md", out / "landscape_xy.png", out / "landscape_xz.png"]
+    outputs += [out / f"slice_{part.name}.png" for part in parts]
+    if out.is_dir():  # every file checked before the work
+        for path in outputs:
+            check_output(path, force=args.force, inputs=inputs, what="report file")
     out.mkdir(parents=True, exist_ok=True)
     lines = [f"# {scene.name}", "", f"Scene: `{scene.path}`, units: {scene.units}.", ""]
 
-    parts = load_scene_parts(scene)
     lines += ["## Parts", "", "| part | file | triangles | extent | checks |",
               "|---|---|---|---|---|"]
     for spec, part in zip(scene.parts, parts, strict=False):
@@ -169,6 +181,6 @@ def run(args: argparse.Namespace) -> int:
             lowest=np.unravel_index(int(np.argmin(section)), section.shape),
         )
         lines.append(f"![{plane}]({image})")
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    write_text(out / "report.md", "\n".join(lines) + "\n", what="report")
     print(f"wrote {out / 'report.md'}")
     return 0

@@ -21,7 +21,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=float, default=None,
                    help="simulated seconds (default: the trajectory's length + 1 s, else the "
                    "scene's [simulation] seconds)")
-    p.add_argument("--log", metavar="OUT.csv", help="record every step (CSV, or .npz)")
+    p.add_argument("--log", metavar="OUT.csv", help="record every step (CSV, or .npz), "
+                   "streamed to the file: Ctrl+C keeps the steps recorded so far")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --log file (never an input file)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--realtime", dest="realtime", action="store_true",
@@ -49,11 +52,20 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from engine.devices import DeviceError, MouseDevice, TrajectoryDevice, open_device
+    from engine.errors import InputError
+    from engine.files import check_output, disk_space_error, files_digest
     from engine.pose import relative_pose
-    from engine.runtime import EngineLoop, Recorder, open_scene, period_stats
+    from engine.recording import CSV_ROW_BYTES, NPZ_ROW_BYTES, RecordingWriter, recording_scene
+    from engine.runtime import EngineLoop, open_scene, period_stats
+    from engine.runtime.frames import RECORDING_INDEX
     from engine.sim import build_simulation
 
     handle = open_scene(args.scene)
+    inputs = [handle.path, *(spec.file for spec in handle.scene.parts)]
+    if args.log:  # before any work: a bad path costs nothing, an input is never replaced
+        check_output(args.log, force=args.force, what="log",
+                     inputs=inputs + ([args.trajectory] if args.trajectory else []))
+    scene_tag = files_digest(inputs)
     if args.guidance:
         effects = replace(handle.config.effects, guidance=args.guidance)
         handle = replace(handle, config=replace(handle.config, effects=effects))
@@ -64,6 +76,11 @@ def run(args: argparse.Namespace) -> int:
     notes = []
     if args.trajectory:
         device = TrajectoryDevice(args.trajectory)
+        recorded_with = recording_scene(args.trajectory)
+        if recorded_with is not None and recorded_with != scene_tag:
+            notes.append(f"{args.trajectory} was recorded with another scene (or other part "
+                         f"files) than {handle.path}: replaying it here does not reproduce "
+                         "the recorded motion")
     else:
         cfg = handle.config.device
         try:
@@ -81,7 +98,13 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seconds must be positive, got {seconds!r}")
     steps = max(1, int(round(seconds / sim.dt)))
 
-    recorder = Recorder(capacity=steps) if args.log else None
+    recorder = None
+    if args.log:
+        per_row = NPZ_ROW_BYTES if str(args.log).lower().endswith(".npz") else CSV_ROW_BYTES
+        room = disk_space_error(args.log, steps * per_row, what=f"log of {steps} steps")
+        if room is not None:
+            raise InputError(f"{room} (or record fewer --seconds)")
+        recorder = RecordingWriter(args.log, index=RECORDING_INDEX, scene=scene_tag)
     loop = EngineLoop(
         sim,
         model=model,
@@ -93,15 +116,25 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     t0 = time.perf_counter()
-    taken = loop.run(max_steps=steps)
+    try:
+        taken = loop.run(max_steps=steps)
+    except BaseException:
+        if recorder is not None:  # Ctrl+C or a failure: keep every step recorded so far
+            recorder.close()
+            print(f"log: kept {recorder.count} steps in {args.log}", file=sys.stderr)
+        raise
     wall = time.perf_counter() - t0
     device.disconnect()
+    device_stats = device.stats()  # the UDP bridge: packets in, replies, drops by reason
+    if device_stats.get("dropped"):
+        reasons = ", ".join(f"{k} {n}" for k, n in device_stats["dropped_by_reason"].items())
+        notes.append(f"{device.name}: dropped {device_stats['dropped']} packet(s) ({reasons})")
     for event in loop.poll_events():
         msg = getattr(event, "message", "")
         if msg and type(event).__name__ in ("DeviceEvent", "ErrorEvent"):
             notes.append(msg)
     if recorder is not None:
-        recorder.save(args.log)
+        recorder.close()
 
     final = sim.part_pose()
     target = np.asarray(handle.assembled_pose, float)
@@ -134,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
         "eval_us_median_last": float(np.median(eval_us)) if eval_us else 0.0,
         "final_energy": float(sim.sample.energy),
         "haptic_force": [float(v) for v in sim.haptic_force],
+        "device": {"name": device.name, **device_stats},
         "notes": notes,
     }
     if args.json:

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import os
 import time
+import zipfile
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +32,7 @@ import engine.descriptor.constants as _c
 from engine.cache import code_digest, load_or_compute
 from engine.descriptor.compute import BackendLike, compute_descriptor, resolve_backend
 from engine.errors import InputError
+from engine.files import atomic_write
 from engine.grid import Grid, grid_for_bounds
 from engine.loading import Part
 from engine.params import DescriptorParams
@@ -107,13 +110,26 @@ class Descriptor:
         }
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write an ``.npz`` (suffix added if missing) and return its path."""
+        """Write an ``.npz`` (suffix added if missing) and return its path.
+
+        The file is written whole or not at all (``engine.files.atomic_write``): a crash or
+        a full disk leaves any earlier file at ``path`` as it was. It replaces an existing
+        file: check the path with ``engine.files.check_output`` before the work.
+
+        Raises
+        ------
+        InputError
+            The folder does not exist.
+        OSError
+            The write failed; the message names the file.
+        """
         p = Path(path)
         if p.suffix != ".npz":
             p = p.with_name(p.name + ".npz")
-        if p.parent and not p.parent.exists():
-            raise OSError(f"{p.parent}: no such folder for the output file")
-        np.savez(p, **self.arrays())  # type: ignore[arg-type]
+        if not p.parent.is_dir():
+            raise InputError(f"{p.parent}: no such folder for the descriptor {p.name}")
+        with atomic_write(p, what="descriptor") as fh:
+            np.savez(fh, **self.arrays())  # type: ignore[arg-type]
         return p
 
     @classmethod
@@ -126,8 +142,9 @@ class Descriptor:
                 arrays = {k: data[k] for k in data.files}
         except FileNotFoundError:
             raise InputError(f"{p}: no such descriptor file") from None
-        except (OSError, ValueError, EOFError) as exc:
-            raise InputError(f"{p}: not a readable descriptor file ({exc}); compute it again "
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+            raise InputError(f"{p}: not a readable descriptor file ({type(exc).__name__}: "
+                             f"{exc}); the file is damaged or incomplete: compute it again "
                              "with `skelasm precompute`") from exc
         return cls._from_arrays(arrays, source=str(p), seconds=time.perf_counter() - t0,
                                 from_cache=False)
@@ -144,6 +161,12 @@ class Descriptor:
             raise InputError(f"{source}: descriptor format {version} is newer than this "
                              f"program's ({FORMAT_VERSION}); update skelasm")
         rho = arrays["rho"]
+        if rho.dtype.kind not in "fc":
+            raise InputError(f"{source}: rho holds {rho.dtype} values, not numbers; compute "
+                             "it again with `skelasm precompute`")
+        if not np.isfinite(rho).all():
+            raise InputError(f"{source}: rho holds non-finite values (NaN or infinity); "
+                             "compute it again with `skelasm precompute` and valid parameters")
         if rho.ndim != 3 or np.asarray(arrays["origin"]).size != 3:
             raise InputError(f"{source}: rho must be 3D and origin 3 numbers, got shapes "
                              f"{rho.shape} and {np.asarray(arrays['origin']).shape}")
@@ -280,6 +303,14 @@ def descriptor_for_part(
 
     arrays, hit = load_or_compute(CACHE_KIND, cache_key_parts(part, grid, params, method),
                                   compute, use_cache=use_cache)
+    bad = int(np.count_nonzero(~np.isfinite(arrays["rho"])))
+    if bad:  # never cached (engine.cache refuses it); never handed on either
+        raise InputError(
+            f"{part.source or part.name}: the descriptor has {bad} of {arrays['rho'].size} "
+            f"non-finite samples (NaN or infinity) with sigma = {params.sigma:g}, penalty = "
+            f"{params.penalty:g}, lambda_out = {params.lambda_out:g} on a grid of spacing "
+            f"{grid.spacing:.4g}; use parameters nearer the defaults (sigma 0.5, penalty 3)"
+        )
     if hit and progress is not None:
         progress(1.0)
     return Descriptor(

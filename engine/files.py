@@ -1,0 +1,253 @@
+"""Writing output files safely: checked before the work, written whole or not at all.
+
+Data: paths of output files (descriptors, recordings, reports, images, cache entries) and
+of the input files they must never replace.
+
+- :func:`check_output` runs before any work: the folder exists and takes new files, the
+  file is not one of the inputs (never, whatever ``force`` says), an existing file is
+  replaced only with ``force`` and only when it is a writable regular file.
+- :func:`atomic_write` writes to a hidden temporary file in the same folder, flushes and
+  fsyncs it, then renames it over the target: a reader, a crash (``kill -9``) or a full disk
+  sees the old file or the new one, never a part of one. Errors name the file.
+- :func:`disk_space_error` estimates whether a file of a given size fits before writing it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+from engine.errors import InputError
+
+#: Prefix and suffix of the temporary files :func:`atomic_write` leaves only when killed.
+TEMP_PREFIX = ".skelasm-"
+TEMP_SUFFIX = ".partial"
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (links and ``..`` resolved); False if either is absent."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def check_output(
+    path: str | os.PathLike,
+    *,
+    force: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+    what: str = "output file",
+) -> Path:
+    """Check, before any work, that ``path`` can be written; return it as a Path.
+
+    Parameters
+    ----------
+    path : path-like
+        The file to be written.
+    force : bool
+        Replace an existing file (never an input file, never a folder or a read-only file).
+    inputs : iterable of path-like
+        The files the command reads (scene, parts, trajectory): none of them is ever
+        replaced.
+    what : str
+        What the file is, for the messages (``"log"``, ``"descriptor"``, ...).
+
+    Raises
+    ------
+    InputError
+        The path is an input, a folder, an existing file without ``force``, a read-only
+        file, or its folder is missing or does not take new files. The message names the
+        path and the fix.
+    """
+    p = Path(path)
+    for source in inputs:
+        if _same_file(p, Path(source)):
+            raise InputError(f"{p}: this is an input file of the command; the {what} would "
+                             "replace it: choose another name")
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder; give the {what} a file name")
+    folder = p.parent
+    if not folder.is_dir():
+        raise InputError(f"{folder}: no such folder for the {what} {p.name}; create it first "
+                         "or choose another path")
+    if p.exists() or p.is_symlink():
+        if not force:
+            raise InputError(f"{p}: the file exists; add --force to replace it, or choose "
+                             "another name")
+        if not p.is_file():
+            raise InputError(f"{p}: not a regular file; choose another path for the {what}")
+        if not os.stat(p).st_mode & 0o222 or not os.access(p, os.W_OK):
+            raise InputError(f"{p}: the file is read-only; make it writable or choose "
+                             "another name")
+    _check_folder_takes_files(folder, p, what)
+    return p
+
+
+def check_output_folder(path: str | os.PathLike, *, create: bool = False,
+                        what: str = "output folder") -> Path:  # fmt: skip
+    """Check that ``path`` is a folder that takes new files (created if ``create``)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{p}: not a folder; give the {what} a folder's path")
+    if not p.exists():
+        if not create:
+            raise InputError(f"{p}: no such folder; create it first or choose another")
+        if not p.parent.is_dir():
+            raise InputError(f"{p.parent}: no such folder for the {what} {p.name}; create it "
+                             "first or choose another path")
+        _check_folder_takes_files(p.parent, p, what)
+        return p
+    _check_folder_takes_files(p, p, what)
+    return p
+
+
+def _check_folder_takes_files(folder: Path, target: Path, what: str) -> None:
+    """Create and remove a probe file in ``folder`` (permission bits lie to root and NFS)."""
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=TEMP_PREFIX, suffix=TEMP_SUFFIX)
+    except OSError as exc:
+        raise InputError(f"{folder}: cannot create files in this folder ({exc.strerror}); "
+                         f"the {what} {target.name} needs another place") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def disk_space_error(path: str | os.PathLike, nbytes: int, *, what: str) -> str | None:
+    """A message when ``nbytes`` will not fit in the free space of ``path``'s folder, else None."""
+    p = Path(path)
+    folder = p if p.is_dir() else p.parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return None
+    if int(nbytes) <= free:
+        return None
+    return (f"{p}: the {what} needs about {_size(nbytes)} but its folder has {_size(free)} "
+            "free; free some space or choose another folder")
+
+
+def _size(nbytes: int | float) -> str:
+    value = float(nbytes)
+    for unit in ("bytes", "KB", "MB", "GB", "TB"):
+        if value < 1000 or unit == "TB":
+            return f"{value:.0f} {unit}" if unit == "bytes" else f"{value:.1f} {unit}"
+        value /= 1000
+    return f"{value:.1f} PB"  # pragma: no cover
+
+
+def write_error(path: str | os.PathLike, exc: OSError, *, what: str = "file") -> OSError:
+    """An OSError for a failed write whose message names the file, the problem and the fix."""
+    p = Path(path)
+    reason = exc.strerror or str(exc)
+    fix = ("free some space or choose another folder" if exc.errno in (28, 122)
+           else "check the folder's permissions and space, or choose another path")
+    err = OSError(f"{p}: cannot write the {what} ({reason}); {fix}; any earlier file there "
+                  "is unchanged")
+    err.errno = exc.errno  # one-argument form: str(err) is the message alone
+    return err
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make a rename durable (a no-op where folders cannot be opened, e.g. Windows)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "wb", *, what: str = "file",
+                 encoding: str | None = None) -> Iterator[IO[Any]]:  # fmt: skip
+    """Write ``path`` through a temporary file in its folder, renamed into place on success.
+
+    Yields the open temporary file (``mode`` ``"wb"`` or ``"w"``). When the block ends
+    normally the file is flushed, fsynced and renamed over ``path`` (atomic on POSIX); when
+    it raises, the temporary file is removed and ``path`` is left as it was. Check the path
+    with :func:`check_output` first: this function replaces whatever is there.
+
+    Raises
+    ------
+    OSError
+        The write failed (full disk, permissions): the message names ``path``.
+    """
+    if mode not in ("wb", "w"):
+        raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
+    p = Path(path)
+    folder = p.parent
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f"{TEMP_PREFIX}{p.name}.",
+                                   suffix=TEMP_SUFFIX)
+    except OSError as exc:
+        raise write_error(p, exc, what=what) from exc
+    try:
+        try:
+            fh = os.fdopen(fd, mode, encoding=encoding if mode == "w" else None)
+        except BaseException:
+            os.close(fd)
+            raise
+        with fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        if p.exists():  # keep the permissions the user gave the file being replaced
+            with contextlib.suppress(OSError):
+                shutil.copymode(p, tmp)
+        else:
+            with contextlib.suppress(OSError):
+                os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, p)
+        _fsync_folder(folder)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise write_error(p, exc, what=what) from exc
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it (``os.umask`` would race other threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0o022
+
+
+def write_text(path: str | os.PathLike, text: str, *, what: str = "file") -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; return the path."""
+    with atomic_write(path, "w", what=what, encoding="utf-8") as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def files_digest(paths: Iterable[str | os.PathLike], *, length: int = 16) -> str:
+    """Hex SHA-256 (first ``length`` digits) of the files' bytes, in the order given.
+
+    Names a set of inputs (a scene file and its parts) so that an output made from them
+    (a recording) can be matched to them later.
+    """
+    h = hashlib.sha256()
+    for path in paths:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        h.update(b"\0")
+    return h.hexdigest()[:length]
