@@ -12,14 +12,19 @@ in, force out over UDP for an external servo loop such as a CHAI3D program). A d
 cannot be opened or goes away raises :class:`DeviceError` naming it and saying what to do;
 the engine then keeps running on the mouse.
 
-UDP bridge wire format (little-endian): the client sends ``<Q6d`` (sequence number, pose)
-to ``host:port``; the engine answers each step with ``<Q6d`` (sequence number of the newest
-pose it used, force (3), torque (3)) to the sender's address (or ``reply_port``).
+UDP bridge wire format (little-endian, docs/devices.md): the peer sends a 72-byte pose packet
+:data:`POSE_V1` (magic ``SKAS``, version 1, type 1, flags, session token, sequence number,
+pose) to ``host:port``; the engine answers each packet it accepts at most once, at its next
+step, with a 72-byte :data:`FORCE_V1` (same header, the sequence number of the newest pose it
+used, force (3), torque (3), clamped). The header-less 56-byte ``<Q6d`` packets of the first
+bridge are still accepted, and answered in kind, when no token is configured.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
+import logging
 import math
 import socket
 import struct
@@ -31,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from engine.errors import InputError
+from engine.params import UDP_MAX_ROTATION, UdpBridgeParams
 from engine.pose import rotation_matrix, rotation_vector
 
 __all__ = [
@@ -101,6 +107,10 @@ class Device:
 
     def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
         """Render a force (3,) and torque (3,) (no-op for devices without feedback)."""
+
+    def stats(self) -> dict[str, Any]:
+        """Counters worth reporting after a run (packets, drops); empty for most devices."""
+        return {}
 
     def __enter__(self) -> Device:
         self.connect()
@@ -458,43 +468,94 @@ class OpenHapticsDevice(Device):
 
 
 # ---------------------------------------------------------------------------------------------
-# UDP bridge
+# UDP bridge (wire format and security model: docs/devices.md)
 
 
+#: First four bytes of every version-1 packet, both directions.
+WIRE_MAGIC = b"SKAS"
+#: Wire format version this engine speaks.
+WIRE_VERSION = 1
+#: Packet types (the header's ``type`` byte).
+POSE_TYPE, FORCE_TYPE = 1, 2
+#: Version-1 pose packet (72 bytes): magic, version, type 1, flags (0), token (0 when the
+#: engine has none), sequence number, pose (6).
+POSE_V1 = struct.Struct("<4sBBHQQ6d")
+#: Version-1 force packet (72 bytes): magic, version, type 2, flags (:data:`FORCE_CLAMPED`,
+#: ...), token, sequence number of the newest pose used, force (3), torque (3).
+FORCE_V1 = struct.Struct("<4sBBHQQ6d")
+#: Header-less packets of the first bridge (56 bytes each: sequence number, six numbers),
+#: accepted only when no token is configured; a legacy pose is answered in the legacy form.
 POSE_PACKET = struct.Struct("<Q6d")
 FORCE_PACKET = struct.Struct("<Q6d")
+#: Flags of a force packet.
+FORCE_CLAMPED, TORQUE_CLAMPED, POSE_REFUSED = 1, 2, 4
+#: Why a packet is dropped: the keys of :attr:`UdpBridgeDevice.dropped`.
+DROP_REASONS = ("size", "header", "token", "legacy", "foreign", "non_finite", "workspace")
+#: Most packets one read takes from the socket, so that a flood cannot stall a step; the rest
+#: wait for the next step (or the kernel drops them when its buffer is full).
+MAX_PACKETS_PER_READ = 256
+
+_log = logging.getLogger(__name__)
+
+
+def _clamped(vector: Any, limit: float) -> tuple[np.ndarray, bool]:
+    """(3,) float64 with its norm at most ``limit``; non-finite input becomes zero."""
+    v = np.asarray(vector, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(v)):
+        return np.zeros(3), True
+    norm = float(np.linalg.norm(v))
+    if norm > limit:
+        return v * (limit / norm), True
+    return v, False
 
 
 class UdpBridgeDevice(Device):
-    """Exchange pose and force with an external servo loop over UDP (see module docstring).
+    """Exchange pose and force with an external servo loop over UDP.
+
+    The network is treated as hostile. One peer at a time: the configured ``peer``, or the
+    first source that sends a valid packet (with the ``token`` when one is set); packets from
+    any other source are dropped. A pose that is not finite or lies outside the workspace is
+    dropped, never handed to the simulation. Each packet accepted from the peer earns at most
+    one reply, sent only to the peer, with the force and torque clamped to ``max_force`` and
+    ``max_torque``. Dropped packets are counted in :attr:`dropped` (:meth:`stats`) and the
+    first of each kind is logged. Wire format: :data:`POSE_V1`, :data:`FORCE_V1`.
 
     Parameters
     ----------
     host, port : str, int
-        Where the engine listens for pose packets (port 0: any free port, see ``address``).
-    reply_port : int, optional
-        Send forces to this port on the sender's host instead of the sender's port.
-    timeout : float
-        Seconds without a packet, after the first one, at which the device counts as lost.
-    max_force : float
-        Force the external device renders at most.
+        Where the engine listens (port 0: any free port, see ``address``).
+    **options
+        The other keys of :class:`engine.params.UdpBridgeParams` (``reply_port``, ``peer``,
+        ``token``, ``allow_remote``, ``timeout``, ``max_force``, ``max_torque``,
+        ``workspace``).
+
+    Raises
+    ------
+    DeviceError
+        A bad option (port out of range, a host beyond loopback without ``allow_remote``).
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 47800, *, reply_port: int | None = None,
-                 timeout: float = 1.0, max_force: float = math.inf):
-        self.host = host
-        self.port = int(port)
-        self.reply_port = reply_port
-        self.timeout = float(timeout)
+    def __init__(self, host: str = "127.0.0.1", port: int = 47800, **options: Any):
+        try:
+            self.params = UdpBridgeParams.from_options({"host": host, "port": port, **options})
+        except InputError as exc:
+            raise DeviceError(f"udp: {exc}") from None
+        p = self.params
         self.capabilities = DeviceCapabilities(
-            "udp", dof=6, force_feedback=True, torque_feedback=True, max_force=max_force
+            "udp", dof=6, force_feedback=True, torque_feedback=True, max_force=p.max_force,
+            max_torque=p.max_torque,
         )
         self._sock: socket.socket | None = None
-        self._peer: tuple[str, int] | None = None
+        self._source: tuple[str, int] | None = None  # the peer's address, once it sent
+        self._reply_to: tuple[str, int] | None = None
+        self._legacy = False  # the peer's newest packet was header-less: answer in kind
+        self._owed = False  # a packet from the peer is not answered yet
+        self._refused = False  # ... and its pose was dropped
         self._seq = 0
         self._last_packet: float | None = None
         self.packets_in = 0
         self.packets_out = 0
+        self.dropped = dict.fromkeys(DROP_REASONS, 0)
 
     @property
     def address(self) -> tuple[str, int]:
@@ -503,77 +564,189 @@ class UdpBridgeDevice(Device):
             raise DeviceError("udp: not connected")
         return self._sock.getsockname()
 
+    @property
+    def peer(self) -> tuple[str, int] | None:
+        """The address packets are accepted from, once the peer has sent (or None)."""
+        return self._source
+
     def connect(self) -> None:
         """Listen on ``host:port`` with a non-blocking UDP socket.
 
-        Raises DeviceError when the address cannot be bound (port taken, bad host).
+        Beyond loopback (``allow_remote``) a warning is logged. Raises DeviceError when the
+        address cannot be bound (port taken, address not on this machine).
         """
+        p = self.params
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            sock.bind((self.host, self.port))
+            sock.bind((p.host, p.port))
         except OSError as exc:
             sock.close()
-            raise DeviceError(f"udp: cannot listen on {self.host}:{self.port} ({exc.strerror}); "
-                              "pick another [device] port") from exc
+            raise DeviceError(f"udp: cannot listen on {p.host}:{p.port} "
+                              f"({exc.strerror or exc}); pick another [device] port") from exc
         sock.setblocking(False)
         self._sock = sock
+        if p.remote:
+            _log.warning(
+                "udp: listening on %s:%d, beyond this machine (allow_remote = true): a host "
+                "that reaches this port and knows the token can drive the proxy, and the token "
+                "travels in clear; use a trusted network", p.host, self.address[1])
 
     def disconnect(self) -> None:
-        """Close the socket (idempotent)."""
+        """Close the socket (idempotent); a summary of dropped packets goes to the log."""
         if self._sock is not None:
             self._sock.close()
             self._sock = None
+            if any(self.dropped.values()):
+                _log.info("udp: %s", self.drop_summary())
+
+    def stats(self) -> dict[str, Any]:
+        """Packets accepted, replies sent, packets dropped by reason, and the peer."""
+        peer = None if self._source is None else f"{self._source[0]}:{self._source[1]}"
+        return {"peer": peer, "packets_in": self.packets_in, "replies": self.packets_out,
+                "dropped": sum(self.dropped.values()),
+                "dropped_by_reason": {k: n for k, n in self.dropped.items() if n}}
+
+    def drop_summary(self) -> str:
+        """One line: how many packets were dropped and why."""
+        reasons = ", ".join(f"{k.replace('_', '-')} {n}" for k, n in self.dropped.items() if n)
+        return f"dropped {sum(self.dropped.values())} packet(s) ({reasons or 'none'})"
+
+    def _drop(self, reason: str, addr: tuple[str, int]) -> None:
+        if self.dropped[reason] == 0:
+            _log.warning("udp: dropped a packet from %s:%d (%s); later ones of this kind are "
+                         "counted, not logged", addr[0], addr[1], _DROP_TEXT[reason])
+        self.dropped[reason] += 1
+
+    def _accepts_source(self, addr: tuple[str, int]) -> bool:
+        if self._source is not None:
+            return addr == self._source
+        wanted = self.params.peer_address
+        return wanted is None or (addr[0] == wanted[0] and wanted[1] in (None, addr[1]))
+
+    def _decode(self, data: bytes, addr: tuple[str, int]) -> tuple[int, tuple[float, ...]] | None:
+        """(sequence number, pose) of a packet in either form, or None (counted as dropped)."""
+        token = self.params.token or 0
+        if len(data) == POSE_V1.size:
+            magic, version, kind, _, sent_token, seq, *pose = POSE_V1.unpack(data)
+            if magic != WIRE_MAGIC or version != WIRE_VERSION or kind != POSE_TYPE:
+                self._drop("header", addr)
+                return None
+            if sent_token != token:
+                self._drop("token", addr)
+                return None
+            self._legacy = False
+            return seq, tuple(pose)
+        if len(data) == POSE_PACKET.size:
+            if token:
+                self._drop("legacy", addr)
+                return None
+            seq, *pose = POSE_PACKET.unpack(data)
+            self._legacy = True
+            return seq, tuple(pose)
+        self._drop("size", addr)
+        return None
+
+    def _pose_problem(self, pose: tuple[float, ...]) -> str | None:
+        if not all(math.isfinite(v) for v in pose):
+            return "non_finite"
+        if (math.hypot(*pose[:3]) > self.params.workspace
+                or math.hypot(*pose[3:]) > UDP_MAX_ROTATION):
+            return "workspace"
+        return None
 
     def read_pose(self, time_s: float) -> np.ndarray | None:
-        """The newest pose (6,) float64 among the waiting packets, or None when none came.
+        """The newest valid pose (6,) float64 among the waiting packets, or None when none came.
 
-        Packets of the wrong size are skipped. The newest packet sets the sequence number and the
-        address :meth:`write_force` answers to. Raises DeviceError when no packet came for
-        ``timeout`` seconds after the last one.
+        Packets from another source than the peer, of the wrong size or header, with the wrong
+        token, or whose pose is not finite or outside the workspace are dropped and counted
+        (at most :data:`MAX_PACKETS_PER_READ` are taken per call). Raises DeviceError when the
+        peer sent nothing for ``timeout`` seconds after its first packet.
         """
         if self._sock is None:
             raise DeviceError("udp: not connected")
         newest = None
-        while True:
+        for _ in range(MAX_PACKETS_PER_READ):
             try:
                 data, addr = self._sock.recvfrom(256)
-            except BlockingIOError:
+            except (BlockingIOError, InterruptedError):
                 break
-            except OSError as exc:
+            except OSError as exc:  # an ICMP error of an earlier reply: not the peer's packet
+                if exc.errno in (errno.ECONNREFUSED, errno.ECONNRESET):
+                    continue
                 raise DeviceError(f"udp: socket error ({exc})") from exc
-            if len(data) != POSE_PACKET.size:
+            if not self._accepts_source(addr):
+                self._drop("foreign", addr)
                 continue
-            seq, *pose = POSE_PACKET.unpack(data)
-            self._seq = seq
-            self._peer = addr if self.reply_port is None else (addr[0], int(self.reply_port))
-            newest = pose
+            decoded = self._decode(data, addr)
+            if decoded is None:
+                continue
+            seq, pose = decoded
+            problem = self._pose_problem(pose)
+            if problem is not None:
+                self._drop(problem, addr)
+                if self._source is not None:  # the peer's own packet: answered, as refused
+                    self._owed, self._refused = True, True
+                    self._last_packet = time.monotonic()
+                continue
+            if self._source is None:
+                self._lock(addr)
+            self._seq, newest = seq, pose
+            self._owed, self._refused = True, False
             self.packets_in += 1
         now = time.monotonic()
         if newest is not None:
             self._last_packet = now
-            return np.array(newest, dtype=float)
-        if self._last_packet is not None and now - self._last_packet > self.timeout:
+            return np.array(newest, dtype=np.float64)
+        if self._last_packet is not None and now - self._last_packet > self.params.timeout:
             self._last_packet = None
             raise DeviceError(
-                f"udp: no pose packet for {self.timeout:g} s from {self._peer}; the external "
-                "servo loop stopped (restart it; the scene goes on with the mouse)"
+                f"udp: no pose packet for {self.params.timeout:g} s from {self._source}; the "
+                "external servo loop stopped (restart it; the scene goes on with the mouse)"
             )
         return None
 
-    def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
-        """Send ``force`` (3,) and ``torque`` (3,) to the sender of the newest pose.
+    def _lock(self, addr: tuple[str, int]) -> None:
+        self._source = addr
+        reply_port = self.params.reply_port
+        self._reply_to = addr if reply_port is None else (addr[0], reply_port)
+        _log.info("udp: peer %s:%d connected; packets from any other source are dropped",
+                  addr[0], addr[1])
 
-        The packet carries that pose's sequence number; nothing is sent before a first pose, and
-        a datagram that cannot be sent is dropped (the next step sends another).
+    def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
+        """Answer the peer's newest packet with ``force`` (3,) and ``torque`` (3,), clamped.
+
+        At most one reply per packet accepted from the peer: without a new packet since the
+        last reply nothing is sent. Norms are clamped to ``max_force`` / ``max_torque`` (a
+        non-finite vector is sent as zero); a datagram that cannot be sent is dropped.
         """
-        if self._sock is None or self._peer is None:
+        if self._sock is None or self._reply_to is None or not self._owed:
             return
-        packet = FORCE_PACKET.pack(self._seq, *map(float, force), *map(float, torque))
+        f, f_clamped = _clamped(force, self.params.max_force)
+        t, t_clamped = _clamped(torque, self.params.max_torque)
+        if self._legacy:
+            packet = FORCE_PACKET.pack(self._seq, *f.tolist(), *t.tolist())
+        else:
+            flags = (FORCE_CLAMPED * f_clamped) | (TORQUE_CLAMPED * t_clamped) | (
+                POSE_REFUSED * self._refused)
+            packet = FORCE_V1.pack(WIRE_MAGIC, WIRE_VERSION, FORCE_TYPE, flags,
+                                   self.params.token or 0, self._seq, *f.tolist(), *t.tolist())
+        self._owed = False
         try:
-            self._sock.sendto(packet, self._peer)
+            self._sock.sendto(packet, self._reply_to)
             self.packets_out += 1
         except OSError:
-            pass  # a lost datagram is normal for UDP; the next step sends another
+            pass  # a lost datagram is normal for UDP; the peer's next packet gets another
+
+
+_DROP_TEXT = {
+    "size": "not the size of a pose packet",
+    "header": "not a skelasm version-1 pose packet",
+    "token": "wrong session token",
+    "legacy": "header-less packet while a token is configured",
+    "foreign": "not from the peer",
+    "non_finite": "pose not finite",
+    "workspace": "pose outside the workspace",
+}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -610,12 +783,7 @@ def open_device(kind: str, start_pose: np.ndarray, options: dict | None = None,
     elif kind == "openhaptics":
         dev = OpenHapticsDevice(start_pose, name=str(options.get("name", "Default Device")))
     elif kind == "udp":
-        dev = UdpBridgeDevice(
-            str(options.get("host", "127.0.0.1")),
-            int(options.get("port", 47800)),
-            reply_port=options.get("reply_port"),
-            timeout=float(options.get("timeout", 1.0)),
-        )
+        dev = UdpBridgeDevice(**options)
     else:
         raise ValueError(
             f"unknown device {kind!r}; valid: mouse, trajectory, spacemouse, openhaptics, udp"

@@ -24,6 +24,7 @@ seconds; angles in radians.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -318,7 +319,8 @@ DEVICE_OPTIONS: dict[str, tuple[str, ...]] = {
     "trajectory": ("file",),
     "spacemouse": ("translation_speed", "rotation_speed"),
     "openhaptics": ("name",),
-    "udp": ("host", "port", "reply_port", "timeout"),
+    "udp": ("host", "port", "reply_port", "peer", "token", "allow_remote", "timeout",
+            "max_force", "max_torque", "workspace"),
 }
 
 
@@ -453,6 +455,143 @@ class Effects:
         return np.array([float(a in self.axes) for a in AXES[3:]])
 
 
+#: Default clamp of the force norm a UDP bridge sends, in device units (newtons for the usual
+#: desktop haptic devices, which render 3 to 12 N at most): finite, so that nothing a packet
+#: or the simulation does can send an unbounded force; ``[device] max_force`` sets another.
+UDP_MAX_FORCE = 10.0
+#: Default clamp of the torque norm a UDP bridge sends, in device units (newton metres:
+#: 6-DOF desktop devices render well under 1 N m); ``[device] max_torque`` sets another.
+UDP_MAX_TORQUE = 1.0
+#: Default ``[device] workspace`` of a UDP bridge: a pose packet whose translation lies farther
+#: than this from part 1's origin (scene units) is dropped as out of the workspace.
+UDP_WORKSPACE = 1000.0
+#: Largest rotation-vector norm (radians) a UDP pose packet may carry: a client sends at most
+#: pi (or a few turns when it unwraps); beyond this the packet is garbage, and the rotation's
+#: sine and cosine lose their precision.
+UDP_MAX_ROTATION = 1000.0
+
+
+def _port(name: str, value: Any, *, zero: bool) -> int:
+    low = 0 if zero else 1
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (
+            low <= int(value) <= 65535):
+        any_free = " (0: any free port)" if zero else ""
+        raise InputError(f"{name} {value!r} is not a UDP port: a port is a whole number from "
+                         f"{low} to 65535{any_free}; pick one such as 47800")
+    return int(value)
+
+
+def _ipv4(name: str, value: Any) -> str:
+    if value == "localhost":
+        return "127.0.0.1"
+    try:
+        return str(ipaddress.IPv4Address(value))
+    except (ValueError, TypeError):
+        raise InputError(f"{name} {value!r} is not an IPv4 address; write one such as "
+                         '"127.0.0.1" (or "localhost")') from None
+
+
+def _loopback(host: str) -> bool:
+    return host.startswith("127.")
+
+
+@dataclass(frozen=True)
+class UdpBridgeParams:
+    """The keys of a ``[device]`` table of kind ``udp`` (see ``docs/devices.md``).
+
+    Attributes
+    ----------
+    host : str
+        IPv4 address the bridge listens on; a loopback address unless ``allow_remote``.
+    port : int
+        UDP port it listens on (1 to 65535; 0: any free port, for tests).
+    reply_port : int or None
+        Send replies to this port on the peer's host instead of the peer's own port.
+    peer : str or None
+        ``"host"`` or ``"host:port"``: the only source it accepts packets from. None: the
+        first source that sends a valid packet (and, with ``token``, the right token).
+    token : int or None
+        Session token (1 to 2**63 - 1) every pose packet must carry; with a token the
+        header-less 56-byte packet of the first version is refused.
+    allow_remote : bool
+        Allow ``host`` (and ``peer``) beyond loopback; then a token is required.
+    timeout : float
+        Seconds without a packet from the peer, after its first, at which the device is lost.
+    max_force, max_torque : float
+        Clamps of the force and torque norms sent (device units; finite).
+    workspace : float
+        Largest distance from part 1's origin (scene units) of an accepted pose.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 47800
+    reply_port: int | None = None
+    peer: str | None = None
+    token: int | None = None
+    allow_remote: bool = False
+    timeout: float = 1.0
+    max_force: float = UDP_MAX_FORCE
+    max_torque: float = UDP_MAX_TORQUE
+    workspace: float = UDP_WORKSPACE
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.allow_remote, bool):
+            raise InputError(f"udp allow_remote must be true or false, got {self.allow_remote!r}")
+        object.__setattr__(self, "host", _ipv4("udp host", self.host))
+        object.__setattr__(self, "port", _port("udp port", self.port, zero=True))
+        if self.reply_port is not None:
+            object.__setattr__(self, "reply_port",
+                               _port("udp reply_port", self.reply_port, zero=False))
+        for name in ("timeout", "max_force", "max_torque", "workspace"):
+            object.__setattr__(self, name, _positive("udp", name, getattr(self, name)))
+        if self.token is not None and (isinstance(self.token, bool) or not isinstance(
+                self.token, (int, np.integer)) or not 0 < int(self.token) < 2**63):
+            raise InputError(f"udp token {self.token!r} is not a session token: a whole number "
+                             "from 1 to 2**63 - 1 (make one with python -c \"import secrets; "
+                             "print(secrets.randbits(63))\")")
+        if self.peer is not None:
+            host, _, port = str(self.peer).partition(":")
+            address = _ipv4("udp peer", host)
+            if port:
+                try:
+                    number = int(port)
+                except ValueError:
+                    number = -1
+                address += f":{_port('udp peer port', number, zero=False)}"
+            object.__setattr__(self, "peer", address)
+        remote = [f"{name} {value}" for name, value in (("host", self.host), ("peer", self.peer))
+                  if value is not None and not _loopback(value)]
+        if remote and not self.allow_remote:
+            raise InputError(
+                f"udp {remote[0]} is beyond this machine, where any host that reaches the port "
+                "could drive the proxy; use 127.0.0.1, or add allow_remote = true and a token")
+        if remote and self.token is None:
+            raise InputError(f"udp {remote[0]} with allow_remote needs a session token "
+                             "(token = a whole number from 1 to 2**63 - 1 that the client sends)")
+
+    @property
+    def remote(self) -> bool:
+        """True when the bridge listens beyond loopback."""
+        return not _loopback(self.host)
+
+    @property
+    def peer_address(self) -> tuple[str, int | None] | None:
+        """The configured peer as (host, port or None for any port), or None."""
+        if self.peer is None:
+            return None
+        host, _, port = self.peer.partition(":")
+        return host, int(port) if port else None
+
+    @classmethod
+    def from_options(cls, options: dict[str, Any]) -> UdpBridgeParams:
+        """From a ``[device]`` table's udp options; ``"auto"`` or None: the default."""
+        keys = DEVICE_OPTIONS["udp"]
+        unknown = [k for k in options if k not in keys]
+        if unknown:
+            raise InputError(f"udp options {unknown} are unknown; valid: {', '.join(keys)}")
+        return cls(**{k: v for k, v in options.items() if v is not None and v != "auto"})
+
+
 @dataclass(frozen=True)
 class DeviceConfig:
     """The ``[device]`` table: which input drives the proxy and how force is rendered.
@@ -487,6 +626,26 @@ class DeviceConfig:
             valid = ", ".join(DEVICE_OPTIONS[self.kind]) or "none"
             raise InputError(f"device options {bad} do not apply to a {self.kind} device; "
                              f"its options: {valid}")
+        if self.kind == "udp":
+            self._carry_udp_limits()
+
+    def _carry_udp_limits(self) -> None:
+        # The device sees only the options (open_device(kind, pose, options)), so the table's
+        # max_force travels among them too: the bridge clamps what it sends at the same value
+        # as the simulation. "auto" (or no value) leaves the default, UDP_MAX_FORCE.
+        options = dict(self.options)
+        given = options.pop("max_force", None)
+        if given is not None and given != "auto":
+            given = _positive("device", "max_force", given)
+            if self.max_force is not None and given != self.max_force:
+                raise InputError(f"device max_force is given twice ({self.max_force!r} and "
+                                 f"{given!r}); give it once")
+            object.__setattr__(self, "max_force", given)
+        if self.max_force is not None:
+            options["max_force"] = self.max_force
+        UdpBridgeParams.from_options(options)  # every udp key checked when the scene is read
+        object.__setattr__(self, "options", tuple(
+            (k, options[k]) for k in DEVICE_OPTIONS["udp"] if k in options))
 
     def option(self, key: str, default: Any = None) -> Any:
         """A device-specific option."""
@@ -633,6 +792,14 @@ class HapticLimits:
 
     @classmethod
     def from_device(cls, device: DeviceConfig) -> HapticLimits:
-        """The limits a ``[device]`` table asks for (no clamp where it gives none)."""
+        """The limits a ``[device]`` table asks for (no clamp where it gives none).
+
+        A udp bridge always clamps: its "auto" resolves to :data:`UDP_MAX_FORCE` and
+        :data:`UDP_MAX_TORQUE` (or its ``max_force`` / ``max_torque``), never to infinity.
+        """
+        if device.kind == "udp":
+            udp = UdpBridgeParams.from_options(dict(device.options))
+            return cls(force_scale=device.force_scale, max_force=udp.max_force,
+                       max_torque=udp.max_torque)
         return cls(force_scale=device.force_scale,
                    max_force=math.inf if device.max_force is None else device.max_force)

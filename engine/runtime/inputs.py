@@ -73,8 +73,13 @@ class DeviceSlot:
         except Exception as exc:  # noqa: BLE001 -- a driver's failure must not stop the loop
             self._fall_back(f"{self.device.name}: {exc}")
             return
-        if pose is not None:
-            self.sim.set_proxy(pose)
+        if pose is None:
+            return
+        if not np.all(np.isfinite(pose)):  # a driver's bad sample must not stop the loop
+            self._fall_back(f"{self.device.name}: sent a pose that is not finite "
+                            f"({np.asarray(pose).tolist()})")
+            return
+        self.sim.set_proxy(pose)
 
     def write(self) -> None:
         """Render the simulation's haptic force (devices with force feedback)."""
