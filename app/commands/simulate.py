@@ -129,10 +129,6 @@ def run(args: argparse.Namespace) -> int:
     if device_stats.get("dropped"):
         reasons = ", ".join(f"{k} {n}" for k, n in device_stats["dropped_by_reason"].items())
         notes.append(f"{device.name}: dropped {device_stats['dropped']} packet(s) ({reasons})")
-    device_stats = device.stats()  # the UDP bridge: packets in, replies, drops by reason
-    if device_stats.get("dropped"):
-        reasons = ", ".join(f"{k} {n}" for k, n in device_stats["dropped_by_reason"].items())
-        notes.append(f"{device.name}: dropped {device_stats['dropped']} packet(s) ({reasons})")
     for event in loop.poll_events():
         msg = getattr(event, "message", "")
         if msg and type(event).__name__ in ("DeviceEvent", "ErrorEvent"):
@@ -171,7 +167,6 @@ def run(args: argparse.Namespace) -> int:
         "eval_us_median_last": float(np.median(eval_us)) if eval_us else 0.0,
         "final_energy": float(sim.sample.energy),
         "haptic_force": [float(v) for v in sim.haptic_force],
-        "device": {"name": device.name, **device_stats},
         "device": {"name": device.name, **device_stats},
         "notes": notes,
     }
