@@ -13,9 +13,13 @@ pose); a mode list (selection "largest") needs one sine and cosine per mode.
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import inspect
 import os
 import types
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numba
@@ -203,13 +207,30 @@ def compiled_helpers() -> dict[str, Any]:
     return _NAMESPACE
 
 
+@functools.lru_cache(maxsize=1)
+def helpers_digest() -> str:
+    """Short digest of the helpers' source (interpolation and finishing modules).
+
+    numba's on-disk cache checks only the file that defines a function, not the files of
+    the functions it inlines: a kernel compiled before a change to the interpolation would
+    be loaded again unchanged. The digest in the kernel's name gives every version of the
+    helpers its own cache entry.
+    """
+    digest = hashlib.sha256()
+    for module in (interpolation, finishing):
+        digest.update(Path(inspect.getfile(module)).read_bytes())
+    return digest.hexdigest()[:12]
+
+
 def compile_with_helpers(source: Callable[..., Any], name: str, *, parallel: bool = False
                          ) -> Callable[..., Any]:
     """``source`` compiled under ``name``, with its own entry in numba's on-disk cache.
 
-    The variant calls the compiled helpers of :func:`compiled_helpers` by their names.
+    The variant calls the compiled helpers of :func:`compiled_helpers` by their names; the
+    cache entry is keyed by :func:`helpers_digest` as well.
     """
     namespace = compiled_helpers()
+    name = f"{name}_{helpers_digest()}"
     variant = types.FunctionType(source.__code__.replace(co_name=name), namespace, name)
     variant.__qualname__ = name
     variant.__doc__ = source.__doc__
