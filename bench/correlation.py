@@ -266,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
     for name, backend, label, med, p99, e_err, f_err, angle, _shift, cells in rows:
         print(f"| {name} | {backend} | {label} | {med:.1f} | {p99:.1f} | {e_err:.2e} | {f_err:.2e} "
               f"| {angle:.2f} | {cells:.2f} |")
-    print("\nInterpolation error of the rotated spectrum (gradient-enhanced, against the "
+    print("\nInterpolation error of the rotated spectrum (cubic Hermite, against the "
           "exact non-uniform Fourier sum of the sampled field):\n")
     print("| pair | rotation (rad) | K | lattice | spectrum rel. RMS (weighted by abs rho1^) "
           "| score rel. err |")

@@ -164,7 +164,7 @@ def mode_terms(table, cell, c_re, c_im, rk0, rk1, rk2, moments):
     ``Re(c dG/du) x R^T k`` (zeros without).
 
     ``c`` is the mode's coefficient (part 1's spectrum times the phase), ``G`` part 2's
-    interpolated spectrum at the cell (gradient-enhanced with ``moments``, trilinear
+    interpolated spectrum at the cell (cubic Hermite with ``moments``, trilinear
     without) and ``R^T k = (rk0, rk1, rk2)``.
     """
     if moments:

@@ -116,7 +116,7 @@ class Landscape:
     def lookup(self, translation: np.ndarray) -> Evaluation:
         """Energy and force at one translation.
 
-        With the force field present the energy is interpolated by the gradient-enhanced
+        With the force field present the energy is interpolated by the cubic Hermite
         scheme of :func:`engine.correlation.interpolation.hermite` (the force is the
         energy's derivative on the lattice) and the force returned is minus the gradient
         of that interpolant, so a part moving in a locked-rotation scene sees a
@@ -168,7 +168,7 @@ class Landscape:
 def _hermite_lookup(
     energy: np.ndarray, force: np.ndarray, frac: np.ndarray, spacing: float
 ) -> tuple[float, np.ndarray]:
-    """Energy and ``-grad`` of the gradient-enhanced interpolant in one lattice cell.
+    """Energy and ``-grad`` of the cubic Hermite interpolant in one lattice cell.
 
     ``energy`` (2, 2, 2) and ``force`` (3, 2, 2, 2) at the cell's corners, ``frac`` (3,) the
     position in the cell. The corners become rows ``4 dx + 2 dy + dz`` of a table whose

@@ -26,7 +26,7 @@ def interpolate_rows(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Part 2's spectrum at ``-R^T w`` and its lattice gradient.
 
-    With rotation on (moment spectra present) the interpolant is the gradient-enhanced one
+    With rotation on (moment spectra present) the interpolant is the cubic Hermite one
     of :func:`engine.correlation.interpolation.hermite`; without, plain trilinear.
 
     Parameters

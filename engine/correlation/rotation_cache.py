@@ -3,7 +3,7 @@
 Works on one :class:`~engine.correlation.tables.ModeTable` (kept cube, rotation on) and a
 reference rotation ``R0``. :func:`build_rotation_cache` interpolates part 2's spectrum
 once at ``u0 = -q R0^T k`` for every kept mode (value ``G0`` and lattice gradient ``g0``,
-gradient-enhanced) and keeps, with part 1's coefficients ``c1`` folded in,
+cubic Hermite) and keeps, with part 1's coefficients ``c1`` folded in,
 
     A(k) = c1 (G0 - g0 . u0),     B(k) = c1 g0          (8 float32 per mode)
 

@@ -219,7 +219,7 @@ def refined_table(
     computed, so this costs far less than the ``refine^3`` zero-padded FFTs of size
     ``size`` that give the same lattice. This is what the interpolation at rotated
     frequencies reads; its error falls as ``refine^-2`` for trilinear interpolation and
-    faster for the gradient-enhanced one.
+    faster for the cubic Hermite one.
 
     Parameters
     ----------
