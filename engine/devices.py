@@ -491,22 +491,27 @@ FORCE_PACKET = struct.Struct("<Q6d")
 FORCE_CLAMPED, TORQUE_CLAMPED, POSE_REFUSED = 1, 2, 4
 #: Why a packet is dropped: the keys of :attr:`UdpBridgeDevice.dropped`.
 DROP_REASONS = ("size", "header", "token", "legacy", "foreign", "non_finite", "workspace")
-#: Most packets one read takes from the socket, so that a flood cannot stall a step; the rest
-#: wait for the next step (or the kernel drops them when its buffer is full).
-MAX_PACKETS_PER_READ = 256
+#: Most packets one read takes from the socket (about 4 us each), so that a flood costs a step
+#: at most a quarter of a millisecond; the rest wait for the next step (or the kernel drops
+#: them when its buffer is full). A servo loop sends one per step.
+MAX_PACKETS_PER_READ = 64
 
 _log = logging.getLogger(__name__)
 
 
-def _clamped(vector: Any, limit: float) -> tuple[np.ndarray, bool]:
-    """(3,) float64 with its norm at most ``limit``; non-finite input becomes zero."""
-    v = np.asarray(vector, dtype=np.float64).reshape(3)
-    if not np.all(np.isfinite(v)):
-        return np.zeros(3), True
-    norm = float(np.linalg.norm(v))
+def _clamped(vector: Any, limit: float) -> tuple[tuple[float, float, float], bool]:
+    """A (3,) vector as three floats with its norm at most ``limit`` (and whether it was cut).
+
+    Non-finite input becomes zero. Plain floats: a few microseconds less per step than numpy.
+    """
+    x, y, z = (float(v) for v in vector)
+    norm = math.hypot(x, y, z)
+    if not math.isfinite(norm):  # a NaN or an infinity (or an overflow) somewhere in it
+        return (0.0, 0.0, 0.0), True
     if norm > limit:
-        return v * (limit / norm), True
-    return v, False
+        k = limit / norm
+        return (x * k, y * k, z * k), True
+    return (x, y, z), False
 
 
 class UdpBridgeDevice(Device):
@@ -647,7 +652,7 @@ class UdpBridgeDevice(Device):
         return None
 
     def _pose_problem(self, pose: tuple[float, ...]) -> str | None:
-        if not all(math.isfinite(v) for v in pose):
+        if not all(map(math.isfinite, pose)):
             return "non_finite"
         if (math.hypot(*pose[:3]) > self.params.workspace
                 or math.hypot(*pose[3:]) > UDP_MAX_ROTATION):
@@ -724,12 +729,12 @@ class UdpBridgeDevice(Device):
         f, f_clamped = _clamped(force, self.params.max_force)
         t, t_clamped = _clamped(torque, self.params.max_torque)
         if self._legacy:
-            packet = FORCE_PACKET.pack(self._seq, *f.tolist(), *t.tolist())
+            packet = FORCE_PACKET.pack(self._seq, *f, *t)
         else:
             flags = (FORCE_CLAMPED * f_clamped) | (TORQUE_CLAMPED * t_clamped) | (
                 POSE_REFUSED * self._refused)
             packet = FORCE_V1.pack(WIRE_MAGIC, WIRE_VERSION, FORCE_TYPE, flags,
-                                   self.params.token or 0, self._seq, *f.tolist(), *t.tolist())
+                                   self.params.token or 0, self._seq, *f, *t)
         self._owed = False
         try:
             self._sock.sendto(packet, self._reply_to)
