@@ -9,7 +9,10 @@ the fitted rotation. Also measures the interpolation error of the rotated spectr
 against the exact spectrum of the sampled field at the rotated frequencies (a direct,
 non-uniform Fourier sum over every sample: the field rotated exactly, no interpolation).
 Prints a markdown table and writes a PNG (energy error against time, one curve per
-backend).
+backend), then a per-pose cost table (median and p99 microseconds per K, per backend, up to
+K = 64) and a second PNG beside the first (``<output>_pose_cost.png``: cost against K).
+Rows where a compiled backend could not take the table and ran on the numpy reference are
+marked.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import types
 
 import numpy as np
 
-DEFAULT_MODES = ("4", "8", "16", "24", "32", "full")
+DEFAULT_MODES = ("4", "8", "16", "24", "32", "48", "64", "full")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -185,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
     from engine.correlation.tables import cube_reach
     from engine.pose import rotation_matrix
 
+    _check_output(args.output)
     rng = np.random.default_rng(args.seed)
     note = ""
     paths = args.scenes if args.scenes is not None else sorted(glob.glob("assets/*/scene.toml"))
@@ -202,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
         print(note)
 
     rows = []
+    costs: list[tuple[str, str, int, float, float, bool]] = []
     curves: dict[tuple[str, str], list[tuple[float, float, str]]] = {}
     interp_rows = []
     for name, d1, d2, fitted, spread in pairs:
@@ -233,6 +238,7 @@ def run(args: argparse.Namespace) -> int:
                 if k == corr.size and backend != "numpy":
                     continue  # the per-pose tables of the compiled paths cover K <= ~64
                 corr.use_backend(backend)
+                fallbacks = corr.stats["reference_fallbacks"]
                 if backend == "numpy":
                     if k == corr.size:
                         med, p99 = full_us, full_us
@@ -241,11 +247,14 @@ def run(args: argparse.Namespace) -> int:
                 else:
                     _time_backend(corr, timing_poses[:5])  # warm-up
                     med, p99 = _time_backend(corr, timing_poses)
+                ran_on_reference = corr.stats["reference_fallbacks"] > fallbacks
                 results = [corr.evaluate(rot, t) for rot, t in error_poses]
                 e_err, f_err, angle = _errors(results, reference)
                 label = "full" if k == corr.size else f"{k}^3"
                 rows.append((name, backend, label, med, p99, e_err, f_err, angle,
                              shift, shift / corr.spacing))
+                if k < corr.size:  # the full lattice's cost is in the table above
+                    costs.append((name, backend, k, med, p99, ran_on_reference))
                 curves.setdefault((name, backend), []).append((med, max(e_err, 1e-9), label))
                 print(f"  {backend:6s} {label:>6s}: {med:9.1f} us (p99 {p99:9.1f}), energy err "
                       f"{e_err:.2e}, |F| err {f_err:.2e}, F dir {angle:.2f} deg, min shift "
@@ -273,9 +282,73 @@ def run(args: argparse.Namespace) -> int:
     print("|---|---:|---:|---|---:|---:|")
     for name, angle, k, lattice, spectral, score in interp_rows:
         print(f"| {name} | {angle:.3g} | {k} | {lattice} | {spectral:.2e} | {score:.2e} |")
+    cost_path = _cost_path(args.output)
+    _print_costs(costs)
     _plot(curves, args.output)
-    print(f"\nwrote {args.output}")
+    _plot_costs(costs, cost_path)
+    print(f"\nwrote {args.output} and {cost_path}")
     return 0
+
+
+def _check_output(path: str) -> None:
+    """Refuse, before any work, a plot path whose folder is missing or not writable."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"{path}: the folder {folder} does not exist; create it or "
+                                "pass -o with an existing folder")
+    if not os.access(folder, os.W_OK):
+        raise PermissionError(f"{path}: the folder {folder} is not writable; pass -o with a "
+                              "writable folder")
+
+
+def _cost_path(path: str) -> str:
+    """The per-pose cost plot's path: ``<output stem>_pose_cost.png`` beside the first."""
+    stem, _ = os.path.splitext(path)
+    return f"{stem}_pose_cost.png"
+
+
+def _print_costs(costs) -> None:
+    """Per-pose cost per pair and K: median (p99) microseconds, one column per backend."""
+    backends = [b for b in ("numba", "opencl", "numpy") if any(c[1] == b for c in costs)]
+    table: dict[tuple[str, int], dict[str, str]] = {}
+    for name, backend, k, med, p99, on_reference in costs:
+        mark = " (ran on numpy)" if on_reference and backend != "numpy" else ""
+        table.setdefault((name, k), {})[backend] = f"{med:.0f} ({p99:.0f}){mark}"
+    print("\nPer-pose cost, full 6-DOF (energy, force, torque), median (p99) microseconds:\n")
+    print("| pair | K | m' | " + " | ".join(backends) + " |")
+    print("|---|---:|---:|" + "---:|" * len(backends))
+    for (name, k), cells in sorted(table.items()):
+        print(f"| {name} | {k} | {k**3} | "
+              + " | ".join(cells.get(b, "-") for b in backends) + " |")
+
+
+def _plot_costs(costs, path: str) -> None:
+    """Median microseconds per pose against K, per pair and backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
+    styles = {"numpy": "s-", "numba": "o-", "opencl": "^-"}
+    series: dict[tuple[str, str], list[tuple[int, float]]] = {}
+    for name, backend, k, med, _p99, _ref in costs:
+        series.setdefault((name, backend), []).append((k, med))
+    for (name, backend), points in sorted(series.items()):
+        points = sorted(points)
+        ax.plot([p[0] for p in points], [p[1] for p in points], styles.get(backend, "x-"),
+                label=f"{name} / {backend}")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.axhline(100, color="grey", lw=0.8, ls="--")
+    ax.axhline(1000, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("modes per axis K (m' = K^3)")
+    ax.set_ylabel("median time per 6-DOF evaluation (us)")
+    ax.set_title("Per-pose cost against K (dashed: 100 us, dotted: 1 ms)", fontsize=10)
+    ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def _auto_pick(d1, d2, args) -> str:
