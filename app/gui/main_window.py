@@ -766,7 +766,7 @@ class MainWindow(QtWidgets.QMainWindow):
         r.set("eval", f"{f.eval_us:.1f} µs per step",
               f"Time the correlator took for this step's energy, force and torque\n"
               f"evaluator: {self._backend}")
-        r.set("modes", f"m' = {f.modes ** 3:,} modes (K = {f.modes})",
+        r.set("modes", f"{f.modes ** 3:,} modes (K = {f.modes})",
               "K Fourier modes per axis are kept, m' = K³ in all: more is more accurate "
               "and slower")
         r.set("device", f.device + ("  (paused)" if f.paused else ""))

@@ -51,7 +51,7 @@ class ParamsPanel(QtWidgets.QWidget):
         self._show_modes(16)
         lay.addWidget(acc)
 
-        desc = QtWidgets.QGroupBox("Descriptors (apply on release, recomputed in the background)")
+        desc = QtWidgets.QGroupBox("Descriptors (apply on release)")
         form = QtWidgets.QFormLayout(desc)
         self.sigma = SliderField(0.05, 3.0, 0.5, decimals=3, log=True, on_release=True)
         self.penalty = SliderField(1.0, 20.0, 3.0, decimals=2, log=True, on_release=True)

@@ -17,8 +17,9 @@ class ViewPanel(QtWidgets.QGroupBox):
     opacity_changed(float)
         0.05 (nearly clear) to 1 (solid).
     clip_changed(object)
-        ``(axis, fraction)``: cut normal to axis 0, 1, 2 of part 1's frame at that fraction
-        of the part's extent, the +axis side removed; None: no cut.
+        ``(axis, fraction, side)``: cut normal to axis 0, 1, 2 of part 1's frame at that
+        fraction of the part's extent, removing the ``side`` (+1 or -1) of the plane; None:
+        no cut.
     """
 
     opacity_changed = QtCore.Signal(float)
@@ -39,11 +40,13 @@ class ViewPanel(QtWidgets.QGroupBox):
         row.addWidget(self.opacity_label)
         form.addRow("opacity", row)
         self.clip = QtWidgets.QCheckBox("cut open")
-        self.clip.setToolTip("Cut the fixed part by a plane (the side towards +axis is "
-                             "removed), to see into a hole")
+        self.clip.setToolTip("Cut the fixed part by a plane and remove one side, to see "
+                             "into a hole")
         self.clip_axis = QtWidgets.QComboBox()
-        self.clip_axis.addItems(["normal x", "normal y", "normal z"])
-        self.clip_axis.setCurrentIndex(1)
+        self.clip_axis.setToolTip("The side removed (axes of part 1's frame); −y faces the "
+                                  "default camera")
+        self.clip_axis.addItems([f"remove {s}{a} side" for a in "xyz" for s in "−+"])
+        self.clip_axis.setCurrentIndex(2)  # -y: towards the default (isometric) camera
         row = QtWidgets.QHBoxLayout()
         row.addWidget(self.clip)
         row.addWidget(self.clip_axis)
@@ -67,4 +70,6 @@ class ViewPanel(QtWidgets.QGroupBox):
         if not self.clip.isChecked():
             self.clip_changed.emit(None)
             return
-        self.clip_changed.emit((self.clip_axis.currentIndex(), self.clip_position.value() / 100))
+        index = self.clip_axis.currentIndex()
+        self.clip_changed.emit((index // 2, self.clip_position.value() / 100,
+                                -1 if index % 2 == 0 else 1))

@@ -150,7 +150,7 @@ class Viewport(QtCore.QObject):
         self._centre_world = np.zeros(3)  # scene box centre, where standard views look
         self._clip_plane = vtk.vtkPlane()
         self._fixed_opacity = 1.0
-        self._clip: tuple[int, float] | None = None  # (axis of part 1's frame, offset)
+        self._clip: tuple[int, float, int] | None = None  # (axis, fraction, side removed)
         self._fixed_bounds = (np.zeros(3), np.zeros(3))  # world box of the fixed part
 
     # ----------------------------------------------------------------- scene
@@ -310,7 +310,7 @@ class Viewport(QtCore.QObject):
         length = 1.6 * self._size
         m = np.eye(4)
         m[:3, 0], m[:3, 1], m[:3, 2] = x * length, y, z
-        m[:3, 3] = posemath.pose_to_matrix(self._proxy_pose)[:3] @ np.append(self._centroid, 1)
+        m[:3, 3] = self._drag_centre()
         _set_matrix(handle, m)
         handle.GetProperty().SetColor(pv.Color(AXIS_COLOURS[self.constraint]).float_rgb)
         handle.SetVisibility(True)
@@ -322,14 +322,14 @@ class Viewport(QtCore.QObject):
         self._fixed_opacity = min(max(float(opacity), 0.05), 1.0)
         self._apply_fixed_look()
 
-    def set_clip(self, clip: tuple[int, float] | None) -> None:
+    def set_clip(self, clip: tuple[int, float, int] | None) -> None:
         """Clip the fixed part by a plane, or not (None).
 
-        ``clip = (axis, fraction)``: the plane is normal to axis 0, 1 or 2 of part 1's frame,
-        at ``fraction`` (0..1) of the part's extent along it; the side towards +axis is cut
-        away.
+        ``clip = (axis, fraction, side)``: the plane is normal to axis 0, 1 or 2 of part 1's
+        frame, at ``fraction`` (0..1) of the part's extent along it; the side towards
+        ``side`` (+1 or -1) times the axis is cut away.
         """
-        self._clip = None if clip is None else (int(clip[0]), float(clip[1]))
+        self._clip = None if clip is None else (int(clip[0]), float(clip[1]), int(clip[2]))
         self._apply_fixed_look()
 
     def _apply_fixed_look(self) -> None:
@@ -341,7 +341,7 @@ class Viewport(QtCore.QObject):
             mapper = actor.GetMapper()
             mapper.RemoveAllClippingPlanes()
             if self._clip is not None:
-                axis, fraction = self._clip
+                axis, fraction, side = self._clip
                 normal = self.frame[:, axis]
                 # the box's extent along the normal, in world coordinates
                 corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
@@ -351,7 +351,8 @@ class Viewport(QtCore.QObject):
                     along.min() + fraction * (along.max() - along.min())
                     - float(self._centre_world @ normal))
                 self._clip_plane.SetOrigin(*origin)
-                self._clip_plane.SetNormal(*(-normal))  # VTK keeps the side the normal faces
+                # VTK keeps the side the plane's normal points to
+                self._clip_plane.SetNormal(*(-side * normal))
                 mapper.AddClippingPlane(self._clip_plane)
         self._dirty = True
 
@@ -537,8 +538,12 @@ class Viewport(QtCore.QObject):
                 return True
         return False
 
+    def _drag_centre(self) -> np.ndarray:
+        """(3,) world position of the proxy's centre of mass (what drags turn about)."""
+        return posemath.pose_to_matrix(self._proxy_pose)[:3] @ np.append(self._centroid, 1.0)
+
     def _begin_drag(self, pos: QtCore.QPointF, mods) -> None:
-        centre = posemath.pose_to_matrix(self._proxy_pose)[:3] @ np.append(self._centroid, 1.0)
+        centre = self._drag_centre()
         disp = self._world_to_display(centre)
         x, y = self._display_xy(pos)
         self._drag = {
