@@ -153,7 +153,13 @@ class Guidance:
         rv = tuple(float(v) for v in (self.sim.part_pose()[3:] if rotvec is None else rotvec))
         request = LandscapeRequest(next_id(), fld.correlator, rotation_matrix(np.array(rv)), rv)
         self._landscape_id = request.id
-        self.worker.submit("landscape", lambda cancelled: compute_landscape(request))
+
+        def progress(fraction: float) -> None:
+            if request.id == self._landscape_id:
+                self.events.append(ProgressEvent("landscape", float(fraction)))
+
+        self.worker.submit("landscape", lambda cancelled: compute_landscape(
+            request, progress=progress, cancel=cancelled))
 
     def _request(self, task: str) -> None:
         model = self.model
@@ -233,6 +239,8 @@ class Guidance:
         if req.task == "correlator":
             self.events.append(ReadyEvent(r.descriptors, backend_name(r.field),
                                           self.ready_message))
+        elif req.task == "field":  # built without progress reports: say that it is done
+            self.events.append(ProgressEvent("field", 1.0, "done"))
         elif req.task == "descriptors":
             sigma, penalty = req.sigma or 0.0, req.penalty or 0.0
             if r.descriptors:

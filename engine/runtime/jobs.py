@@ -207,9 +207,14 @@ def build_field(
     return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0)
 
 
-def compute_landscape(request: LandscapeRequest) -> LandscapeResponse:
+def compute_landscape(
+    request: LandscapeRequest,
+    *,
+    progress: Callable[[float], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> LandscapeResponse:
     """Run a :class:`LandscapeRequest` (in the worker)."""
-    land = request.correlator.landscape(request.rotation)
+    land = request.correlator.landscape(request.rotation, progress=progress, cancel=cancel)
     return LandscapeResponse(request.id, request.rotvec, land)
 
 
