@@ -34,7 +34,14 @@ from typing import Any
 
 import numpy as np
 
-from engine.files import TEMP_PREFIX, TEMP_SUFFIX, atomic_write, disk_space_error, write_text
+from engine.files import (
+    TEMP_PREFIX,
+    TEMP_SUFFIX,
+    atomic_write,
+    disk_space_error,
+    human_size,
+    write_text,
+)
 
 #: The folder holding the ``engine`` package (module names are resolved under it).
 SOURCE_ROOT = Path(__file__).resolve().parent.parent
@@ -299,8 +306,8 @@ def load(kind: str, key: str) -> dict[str, np.ndarray] | None:
     is returned: the caller recomputes it.
     """
     path = entry_path(kind, key)
-    try:
-        with np.load(path, allow_pickle=False) as data:
+    try:  # the file is opened here: np.load leaks its handle when the zip is bad
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
     except FileNotFoundError:
         return None
@@ -348,9 +355,10 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path | None:
     nbytes = sum(np.asarray(a).nbytes for a in arrays.values()) + 1024 * (len(arrays) + 1)
     cap = max_bytes()
     if nbytes > cap:
-        _warn_once(path.parent, "cap", f"cache: a {kind} entry of {nbytes / 2**30:.2f} GiB "
-                   f"is larger than the cache's cap ({cap / 2**30:.2f} GiB, "
-                   "SKELASM_CACHE_MAX_GB); not stored, it is computed each time")
+        _warn_once(path.parent, "cap", f"cache: a {kind} entry of {human_size(nbytes)} is "
+                   f"larger than the cache's cap ({human_size(cap)}, "
+                   "SKELASM_CACHE_MAX_GB); not stored, it is computed each time: raise the cap "
+                   "to keep it")
         return None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -129,11 +129,12 @@ def disk_space_error(path: str | os.PathLike, nbytes: int, *, what: str) -> str 
         return None
     if int(nbytes) <= free:
         return None
-    return (f"{p}: the {what} needs about {_size(nbytes)} but its folder has {_size(free)} "
-            "free; free some space or choose another folder")
+    return (f"{p}: the {what} needs about {human_size(nbytes)} but its folder has "
+            f"{human_size(free)} free; free some space or choose another folder")
 
 
-def _size(nbytes: int | float) -> str:
+def human_size(nbytes: int | float) -> str:
+    """``nbytes`` in bytes, KB, MB, GB or TB (powers of 1000)."""
     value = float(nbytes)
     for unit in ("bytes", "KB", "MB", "GB", "TB"):
         if value < 1000 or unit == "TB":
@@ -202,14 +203,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb", *, what: str = "file
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        if p.exists():  # keep the permissions the user gave the file being replaced
-            with contextlib.suppress(OSError):
-                shutil.copymode(p, tmp)
-        else:
-            with contextlib.suppress(OSError):
-                os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, p)
-        _fsync_folder(folder)
+        move_into_place(tmp, p)
     except OSError as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -218,6 +212,23 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb", *, what: str = "file
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def move_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
+    """Rename a finished, fsynced temporary file over ``path`` and make the rename durable.
+
+    The new file takes the permissions of the file it replaces, or the usual ones for a new
+    file (0666 less the umask; temporary files are created 0600).
+    """
+    p = Path(path)
+    if p.exists():  # keep the permissions the user gave the file being replaced
+        with contextlib.suppress(OSError):
+            shutil.copymode(p, tmp)
+    else:
+        with contextlib.suppress(OSError):
+            os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, p)
+    _fsync_folder(p.parent)
 
 
 def _umask() -> int:

@@ -397,10 +397,10 @@ def check_mesh(
     if len(f) == 0:
         if weld_tolerance is None and floor >= WELD_RELATIVE * diagonal:
             raise PartError(
-                f"{source}: no usable triangles: the part is {diagonal:.3g} across but lies "
-                f"{largest:.3g} from the origin, where its coordinates resolve only "
-                f"{resolution * largest:.2g}; move the part near the origin or export it in "
-                "a smaller unit"
+                f"{source}: no usable triangles: the part is {diagonal:.3g} across as stored "
+                f"but lies {largest:.3g} from the origin, where its coordinates resolve only "
+                f"{resolution * largest:.2g}; move the part near the origin before export, or "
+                "export it in a smaller unit"
             )
         raise PartError(
             f"{source}: no usable triangles (all were degenerate); the mesh has no area, "

@@ -34,7 +34,7 @@ import numpy as np
 
 from engine.devices import TrajectoryDevice
 from engine.errors import InputError
-from engine.files import TEMP_PREFIX, TEMP_SUFFIX, atomic_write, write_error
+from engine.files import TEMP_PREFIX, TEMP_SUFFIX, atomic_write, move_into_place, write_error
 
 COLUMNS = (
     "t", "tx", "ty", "tz", "rx", "ry", "rz",
@@ -177,7 +177,7 @@ class RecordingWriter:
             if self._npz:
                 self._finish_npz()
             else:
-                os.replace(self._tmp, self.path)
+                move_into_place(self._tmp, self.path)
         except OSError as exc:
             self.discard()
             raise write_error(self.path, exc, what="recording") from exc
@@ -223,7 +223,7 @@ def recording_scene(path: str | Path) -> str | None:
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":
-            with np.load(path, allow_pickle=False) as data:
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
                 return str(data["scene"]) if "scene" in data.files else None
         with open(path, encoding="utf-8-sig") as fh:
             last = fh.readline().rstrip("\r\n").split(",")[-1].strip()
@@ -238,7 +238,7 @@ def load_recording(path: str | Path) -> np.ndarray:
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":
-            with np.load(path, allow_pickle=False) as data:
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
                 columns = tuple(str(c) for c in data["columns"])
                 rows = data["rows"]
         else:

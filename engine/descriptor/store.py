@@ -138,7 +138,7 @@ class Descriptor:
         p = Path(path)
         t0 = time.perf_counter()
         try:
-            with np.load(p, allow_pickle=False) as data:
+            with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in data.files}
         except FileNotFoundError:
             raise InputError(f"{p}: no such descriptor file") from None

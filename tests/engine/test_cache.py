@@ -1,4 +1,7 @@
+import os
+
 import numpy as np
+import pytest
 
 from engine import cache
 
@@ -125,3 +128,167 @@ def test_code_digest_never_skips_a_missing_file(tmp_path):
         cache.code_digest("engine.descriptor.compute", root=root)
     with pytest.raises(FileNotFoundError, match="engine.nowhere"):
         cache.code_digest("engine.nowhere", root=root)
+
+
+# --------------------------------------------------------------------------- reliability
+def _key(n):
+    return cache.content_key("descriptor", {"n": n})
+
+
+def test_eviction_touches_only_the_cache_s_own_entries(tmp_path, monkeypatch):
+    """A cache pointed at a project folder: the user's .npz files survive any cap."""
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    user = [tmp_path / "results" / "a.npz", tmp_path / "descriptor" / "mine.npz",
+            tmp_path / "My Results" / f"{'0' * 64}.npz", tmp_path / "top.npz"]
+    for path in user:
+        path.parent.mkdir(exist_ok=True)
+        path.write_bytes(b"user data" * 1000)
+    cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.ones(10)})
+    cache.load_or_compute("descriptor", {"n": 2}, lambda: {"x": np.ones(10)})
+    assert len(cache.entries()) == 2
+    cache.evict(0)  # a cap of 0 bytes: every entry of the cache's own goes
+    assert all(p.read_bytes() == b"user data" * 1000 for p in user)
+    assert cache.entries() == []
+    assert (tmp_path / "CACHEDIR.TAG").read_text().startswith("Signature: 8a477f597d28d172")
+
+
+def test_non_finite_results_are_never_cached(tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"rho": np.full(4, np.nan + 0j, dtype=np.complex64)}
+
+    for _ in range(2):
+        arrays, hit = cache.load_or_compute("descriptor", {"n": 1}, compute)
+        assert not hit and np.isnan(arrays["rho"]).all()
+    assert len(calls) == 2 and cache.entries() == []
+    assert "not storing a descriptor with non-finite values (in rho)" in caplog.text
+
+
+def test_a_non_finite_entry_on_disk_is_dropped(tmp_path, monkeypatch, caplog):
+    """An entry written by an older version with NaN in it is not served."""
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    path = tmp_path / "descriptor" / f"{_key(1)}.npz"
+    path.parent.mkdir()
+    np.savez(path, x=np.array([1.0, np.inf]))
+    arrays, hit = cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.ones(2)})
+    assert not hit and np.array_equal(arrays["x"], np.ones(2))
+    assert "holds non-finite values (in x); deleted" in caplog.text
+    assert np.array_equal(np.load(path)["x"], np.ones(2))
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "empty"])
+def test_unreadable_entries_are_dropped_with_a_warning(tmp_path, monkeypatch, caplog, damage):
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    value = np.arange(20000, dtype=np.float64)
+    cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": value})
+    path = tmp_path / "descriptor" / f"{_key(1)}.npz"
+    data = bytearray(path.read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) // 2]
+    elif damage == "flip":
+        data[len(data) // 2] ^= 0x01  # inside the array: the zip CRC catches it
+    else:
+        data = bytearray()
+    path.write_bytes(bytes(data))
+    arrays, hit = cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": value + 1})
+    assert not hit and np.array_equal(arrays["x"], value + 1)
+    assert f"entry {path} cannot be read" in caplog.text and "deleted" in caplog.text
+    again, hit = cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": value})
+    assert hit and np.array_equal(again["x"], value + 1)  # healed: the recomputed entry
+
+
+def test_the_cap_holds_for_an_entry_larger_than_the_cap(tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    monkeypatch.setenv("SKELASM_CACHE_MAX_GB", str(100_000 / 2**30))
+    small = np.zeros(1000)
+    cache.load_or_compute("spectrum", {"n": 1}, lambda: {"x": small})
+    big = np.zeros(50_000)  # 400 KB, four times the cap
+    for _ in range(2):
+        cache.load_or_compute("spectrum-table", {"n": 2}, lambda: {"x": big})
+    sizes = sum(p.stat().st_size for p in cache.entries())
+    assert sizes <= cache.max_bytes()
+    assert [p.parent.name for p in cache.entries()] == ["spectrum"]
+    assert caplog.text.count("larger than the cache's cap") == 1  # said once
+
+
+def test_concurrent_writers_leave_one_whole_entry(tmp_path, monkeypatch):
+    import threading
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    value = np.arange(200_000, dtype=np.float64)
+    key = _key(1)
+    errors = []
+
+    def writer():
+        try:
+            for _ in range(5):
+                cache.store("descriptor", key, {"x": value})
+                got = cache.load("descriptor", key)
+                assert got is not None and np.array_equal(got["x"], value)
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=writer) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert [p.name for p in (tmp_path / "descriptor").iterdir()] == [f"{key}.npz"]
+
+
+def test_read_only_cache_is_read_and_skipped_for_writing(tmp_path, monkeypatch, caplog):
+    """Another user's cache: entries load, stores are skipped with one warning."""
+    import engine.cache as module
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.ones(3)})
+    monkeypatch.setattr(module, "_warned", set())
+
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(module.os, "utime", denied)
+    monkeypatch.setattr(module, "atomic_write", denied)
+    arrays, hit = cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.zeros(3)})
+    assert hit and np.array_equal(arrays["x"], np.ones(3))
+    for n in (2, 3):
+        arrays, hit = cache.load_or_compute("descriptor", {"n": n}, lambda: {"x": np.zeros(3)})
+        assert not hit
+    assert caplog.text.count("cannot write to") == 1
+    assert "results are not cached" in caplog.text
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores file permissions")
+def test_read_only_cache_folder_for_real(tmp_path, monkeypatch):  # pragma: no cover - not root
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.ones(3)})
+    for folder in (tmp_path / "descriptor", tmp_path):
+        folder.chmod(0o555)
+    try:
+        assert cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.zeros(3)})[1]
+        assert not cache.load_or_compute("descriptor", {"n": 2}, lambda: {"x": np.zeros(3)})[1]
+    finally:
+        for folder in (tmp_path, tmp_path / "descriptor"):
+            folder.chmod(0o755)
+
+
+def test_stale_temporaries_of_killed_writes_are_cleaned(tmp_path, monkeypatch):
+    import time
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    cache.load_or_compute("descriptor", {"n": 1}, lambda: {"x": np.ones(3)})
+    folder = tmp_path / "descriptor"
+    old = folder / f".skelasm-{_key(2)}.npz.abc.partial"
+    fresh = folder / f".skelasm-{_key(3)}.npz.def.partial"
+    user = folder / "notes.partial"
+    for path in (old, fresh, user):
+        path.write_bytes(b"x")
+    past = time.time() - 2 * cache.STALE_SECONDS
+    os.utime(old, (past, past))
+    os.utime(user, (past, past))
+    cache.evict()
+    assert not old.exists() and fresh.exists() and user.exists()

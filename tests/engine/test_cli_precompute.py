@@ -56,11 +56,11 @@ def test_json_and_output_file(tmp_path, capfd):
 def test_second_run_hits_the_cache_and_parameters_recompute(capfd):
     first = run_json(capfd, SLIDE, *SMALL)
     assert first["output"] == str(Path.cwd() / "slide.npz")  # default: current directory
-    second = run_json(capfd, SLIDE, *SMALL)
+    second = run_json(capfd, SLIDE, *SMALL, "--force")  # replaces the first run's file
     assert second["from_cache"] is True and second["seconds"] < 0.5
-    third = run_json(capfd, SLIDE, *SMALL, "--sigma", "0.7")
+    third = run_json(capfd, SLIDE, *SMALL, "--sigma", "0.7", "--force")
     assert third["from_cache"] is False and third["sigma"] == 0.7
-    fourth = run_json(capfd, SLIDE, *SMALL, "--no-cache")
+    fourth = run_json(capfd, SLIDE, *SMALL, "--no-cache", "--force")
     assert fourth["from_cache"] is False
 
 

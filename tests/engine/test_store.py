@@ -214,3 +214,65 @@ def test_edited_kernel_file_recomputes(fake_compute, monkeypatch, tmp_path):
     monkeypatch.setattr(store_module, "_CODE_DIGEST", None)  # a new process
     assert not descriptor_for_part(part, grid, backend="numba").from_cache
     assert len(fake_compute) == 2
+
+
+# --------------------------------------------------------------------------- reliability
+def _saved(tmp_path):
+    grid = Grid((0.0, 0.0, 0.0), 0.5, (20, 20, 20))
+    rho = (np.arange(8000).reshape(20, 20, 20) * (1 + 1j)).astype(np.complex64)
+    d = Descriptor(rho=rho, grid=grid, params=DescriptorParams(), triangles=12,
+                   backend="numba", seconds=1.0, name="peg")
+    return d, d.save(tmp_path / "peg.npz")
+
+
+@pytest.mark.parametrize("damage", ["half", "flip"])
+def test_load_of_a_damaged_file_names_it(tmp_path, damage):
+    """A half-written or bit-flipped file: the project's error with the file and the fix."""
+    _, path = _saved(tmp_path)
+    data = bytearray(path.read_bytes())
+    if damage == "half":
+        data = data[: len(data) // 2]
+    else:
+        data[len(data) // 3] ^= 0x10
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"peg.npz: not a readable descriptor file \(BadZip"
+                                         r"File: .*compute it again with `skelasm precompute`"):
+        Descriptor.load(path)
+
+
+def test_load_refuses_non_finite_rho(tmp_path):
+    d, path = _saved(tmp_path)
+    arrays = d.arrays()
+    arrays["rho"] = np.full_like(arrays["rho"], np.nan)
+    np.savez(path, **arrays)
+    with pytest.raises(InputError, match="peg.npz: rho holds non-finite values"):
+        Descriptor.load(path)
+
+
+def test_save_is_atomic_and_keeps_the_old_file_on_failure(tmp_path, monkeypatch):
+    d, path = _saved(tmp_path)
+    before = path.read_bytes()
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full)
+    with pytest.raises(OSError, match=r"peg.npz: cannot write the descriptor \(No space left"):
+        d.save(path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["peg.npz"]
+    with pytest.raises(InputError, match="no such folder for the descriptor"):
+        d.save(tmp_path / "absent" / "x.npz")
+
+
+def test_a_non_finite_descriptor_is_refused_and_not_cached(monkeypatch, private_cache):
+    def nan_compute(vertices, faces, grid, params, **kwargs):
+        return np.full(grid.shape, np.nan, dtype=np.complex64)
+
+    monkeypatch.setattr(store_module, "compute_descriptor", nan_compute)
+    part = box_part()
+    grid = grid_for_part(part, samples=8, padding=1)
+    with pytest.raises(InputError, match=r"box: the descriptor has 1331 of 1331 non-finite "
+                                         r"samples .* sigma = 0.5"):
+        descriptor_for_part(part, grid)
+    assert list(private_cache.glob("*/*.npz")) == []
