@@ -25,6 +25,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from engine.errors import InputError
+
 #: The backend names, reference first.
 BACKENDS = ("numpy", "numba", "opencl")
 #: What a user may ask for.
@@ -242,15 +244,73 @@ def get_backend(
         error.
     """
     name = check_name(name or os.environ.get("SKELASM_BACKEND") or "auto")
+    asked = "device" if device else "SKELASM_DEVICE"
     device = device or os.environ.get("SKELASM_DEVICE") or None
     if name != "auto":
         return _create(name, device)
     for candidate in order:
         try:
             return _create(check_name(candidate), device)
-        except BackendError:
+        except BackendError as exc:
+            if candidate == "opencl" and device is not None:
+                # a device was asked for: passing over it silently would hide the typo
+                raise InputError(
+                    f"{asked} = {device!r} picks no usable OpenCL device "
+                    f"({str(exc).splitlines()[0]}); give part of a device's name or "
+                    "PLATFORM:DEVICE indices, or unset it to let the engine choose") from exc
             continue
     return _create("numpy", None)
+
+
+def check_environment() -> None:
+    """Check the ``SKELASM_*`` variables that pick backends, once, at start-up.
+
+    Each is otherwise read deep inside an "auto" choice that passes over a backend that
+    fails, so a typo would be ignored without a word. ``SKELASM_DEVICE`` is checked only
+    when set (it starts OpenCL to find the device).
+
+    Raises
+    ------
+    InputError
+        Naming the variable, its value and the fix.
+    """
+    name = os.environ.get("SKELASM_BACKEND", "").strip()
+    if name:
+        try:
+            check_name(name)
+        except ValueError as exc:
+            raise InputError(f"SKELASM_BACKEND = {name!r}: {exc}; or unset it") from None
+    env_count("SKELASM_CORRELATION_THREADS", 1)
+    device = os.environ.get("SKELASM_DEVICE", "").strip()
+    if device:
+        try:
+            _create("opencl", device)
+        except BackendError as exc:
+            raise InputError(
+                f"SKELASM_DEVICE = {device!r} picks no usable OpenCL device "
+                f"({str(exc).splitlines()[0]}); give part of a device's name or "
+                "PLATFORM:DEVICE indices, or unset it to let the engine choose") from exc
+
+
+def env_count(name: str, default: int) -> int:
+    """A positive whole number from the environment variable ``name`` (``default`` if unset).
+
+    Raises
+    ------
+    InputError
+        The variable is set to anything but a positive whole number.
+    """
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise InputError(f"{name} = {text!r} is not a positive whole number: set it to 1 or "
+                         "more, or unset it for the default")
+    return value
 
 
 def backend_problem(name: str, device: str | None = None) -> str | None:

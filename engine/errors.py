@@ -13,3 +13,11 @@ class InputError(ValueError):
 
 class ResourceError(RuntimeError):
     """A resource is too small or missing (memory for a grid, a device)."""
+
+
+class Diverged(InputError):
+    """The simulation's state left every physical bound; the message names the likely cause.
+
+    A subclass of :class:`InputError`: a divergence comes from the parameters or the input
+    (a gain too stiff for the time step, a proxy thrown far away), never from the part.
+    """

@@ -8,11 +8,63 @@ lies at ``origin + h * (i, j, k)``.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from engine.params import DEFAULT_PADDING
+from engine.errors import InputError, ResourceError
+from engine.params import DEFAULT_PADDING, MAX_GRID, MAX_PADDING
+
+#: The largest share of the machine's physical memory one computation may plan to use.
+MEMORY_SHARE = 0.5
+#: Bytes per sample a descriptor computation holds at its peak (the result, the adaptive
+#: sampler's index and work arrays, the points): measured about 100, rounded up.
+DESCRIPTOR_BYTES_PER_SAMPLE = 128
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory of this machine (None where the system does not say)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return None
+
+
+def check_memory(need: int, what: str, fix: str, *, total: int | None = None) -> None:
+    """Refuse a computation that would need more than :data:`MEMORY_SHARE` of the memory.
+
+    ``need`` is computed by the caller in Python integers (no overflow) before anything is
+    allocated.
+
+    Raises
+    ------
+    ResourceError
+        Naming ``what``, the bytes it needs, what the machine has, and ``fix``.
+    """
+    total = physical_memory() if total is None else total
+    if total is None:  # pragma: no cover - non-POSIX
+        return
+    if need > MEMORY_SHARE * total:
+        raise ResourceError(
+            f"{what} needs about {_gib(need)} of memory but this machine has "
+            f"{_gib(total)} (at most {MEMORY_SHARE:.0%} is planned for one computation): {fix}")
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.1f} GiB" if n < 2**70 else f"{float(n):.2g} bytes"
+
+
+def fft_bytes(size: int, arrays: int) -> int:
+    """Bytes of ``arrays`` complex64 cubes of ``size^3`` (Python integers)."""
+    return int(arrays) * int(size) ** 3 * 8
+
+
+def check_fft_memory(size: int, arrays: int, what: str) -> None:
+    """Refuse an FFT of ``size^3`` holding ``arrays`` complex64 cubes that does not fit."""
+    check_memory(fft_bytes(size, arrays), f"{what} ({arrays} arrays of {size}^3 complex64)",
+                 "use a coarser grid (a smaller [descriptor] grid or a larger spacing) or "
+                 "less padding")
 
 
 @dataclass(frozen=True)
@@ -112,15 +164,34 @@ def grid_for_bounds(
     if samples is not None:
         if samples < 2:
             raise ValueError(f"samples must be at least 2, got {samples}")
+        if samples > MAX_GRID:
+            raise InputError(f"grid = {samples} samples is above {MAX_GRID}: "
+                             f"{MAX_GRID}^3 samples take 64 GiB per part; use a smaller grid")
         if longest <= 0:
             raise ValueError("the part has zero extent: cannot derive a spacing from it")
         spacing = longest / samples
     assert spacing is not None
     if not (math.isfinite(spacing) and spacing > 0):
         raise ValueError(f"spacing must be a positive finite number, got {spacing!r}")
-    if padding < 0:
-        raise ValueError(f"padding must be non-negative, got {padding!r}")
-    shape = np.ceil(extent / spacing - 1e-9).astype(int) + 1 + 2 * int(math.ceil(padding))
+    if not (0 <= padding <= MAX_PADDING):
+        raise InputError(f"padding = {padding!r} cells is outside its range 0 to "
+                         f"{MAX_PADDING:g}: the outside tail fades within a few cells, more "
+                         "only grows the grid and its FFT")
+    # Counted in Python numbers first: a tiny spacing must give a clear refusal, not an
+    # integer overflow or an allocation of terabytes.
+    cells = longest / spacing
+    if not (math.isfinite(cells) and cells <= MAX_GRID):
+        lo = longest / MAX_GRID
+        raise InputError(
+            f"spacing = {spacing:g} gives {cells:.3g} samples along the part's longest side "
+            f"({longest:g}), above {MAX_GRID}: for this part the spacing must be at least "
+            f"{lo:.3g} ({MAX_GRID}^3 samples take 64 GiB)")
+    pad = int(math.ceil(padding))
+    counts = [int(math.ceil(float(e) / spacing - 1e-9)) + 1 + 2 * pad for e in extent]
+    check_memory(DESCRIPTOR_BYTES_PER_SAMPLE * math.prod(counts),
+                 f"a {counts[0]} x {counts[1]} x {counts[2]} descriptor grid",
+                 "use a coarser grid (a smaller grid, a larger spacing or less padding)")
+    shape = np.asarray(counts, dtype=np.int64)
     center = 0.5 * (lower + upper)
     origin = center - 0.5 * spacing * (shape - 1)
     return Grid(tuple(origin), spacing, tuple(int(n) for n in shape))  # type: ignore[arg-type]

@@ -124,6 +124,57 @@ DEFAULT_MODES = 16
 #: Ways of choosing the retained modes (``CorrelationParams.selection``).
 MODE_SELECTIONS = ("cube", "largest")
 
+# Ranges that keep every computation finite and bounded (docs/limits.md gives the reasons
+# and the measurements behind each).
+#: sigma: below 0.05 the quadrature refines every piece of surface to ``sigma |xi|`` and its
+#: cost grows like 1/sigma^2 (0.01 took about 4 minutes on a 16-sample grid that 0.5 does
+#: in 1 s), while the ridge gets narrower than any grid resolves; above 50 the Gaussian is
+#: flat over any part (rho only scales as 1/sigma) and the cost keeps growing.
+SIGMA_RANGE = (0.05, 50.0)
+#: penalty = lambda_in / lambda_out: the descriptor is stored as complex64 and the energy
+#: sums products of two of them over up to 1e8 samples, so the weights stay within a few
+#: decades of 1 (the product of the extremes, squared, stays far below float32's 3e38).
+PENALTY_RANGE = (1e-3, 1e3)
+#: lambda_out: as penalty.
+LAMBDA_OUT_RANGE = (1e-6, 1e6)
+#: Samples along one side of a grid (``grid``, or part size / ``spacing``): 2048^3 complex64
+#: is 64 GiB per part before its FFT, more than any machine this runs on; memory is checked
+#: against the machine as well (engine.grid.check_memory).
+MAX_GRID = 2048
+#: Free cells around a part: the outside tail fades within a few cells, so more than this
+#: only costs memory (the FFT grows with the cube of the padded size).
+MAX_PADDING = 64.0
+#: Retained modes per axis K: m' = K^3 terms per pose, so K = 128 is 2.1 million terms, a
+#: fraction of a second per pose, far below any interactive rate; K is also at most the
+#: scene's FFT size (the correlator says so when it is smaller).
+MAX_MODES = 128
+
+
+def check_steps(seconds: float, rate_hz: float, what: str) -> int:
+    """Steps of a run of ``seconds`` at ``rate_hz``; an InputError above :data:`MAX_STEPS`."""
+    steps = seconds * rate_hz
+    if not (math.isfinite(steps) and steps <= MAX_STEPS):
+        raise InputError(
+            f"{what} = {seconds:g} s at {rate_hz:g} Hz is {steps:.3g} steps, above the "
+            f"{MAX_STEPS:.0e} one run may take ({MAX_STEPS / rate_hz:.3g} s at this rate): "
+            "shorten it (times are seconds from the start, not Unix times or milliseconds)")
+    return max(1, int(round(steps)))
+
+
+def check_range(what: str, value: Any, bounds: tuple[float, float], why: str) -> float:
+    """``value`` as a float when within ``bounds`` (inclusive), else an InputError.
+
+    The message gives the value, the range and ``why`` (what goes wrong outside it).
+    """
+    lo, hi = bounds
+    try:
+        ok = (not isinstance(value, bool)) and lo <= float(value) <= hi
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise InputError(f"{what} = {value!r} is outside its range {lo:g} to {hi:g}: {why}")
+    return float(value)
+
 
 @dataclass(frozen=True)
 class DescriptorParams:
@@ -160,6 +211,15 @@ class DescriptorParams:
         for name in ("sigma", "penalty", "lambda_out"):
             object.__setattr__(self, name, _positive("descriptor parameter", name,
                                                      getattr(self, name)))
+        check_range("descriptor sigma", self.sigma, SIGMA_RANGE,
+                    "a smaller sigma makes the quadrature's cost grow like 1/sigma^2 (minutes "
+                    "at 0.01) and a larger one flattens the density while the cost grows")
+        check_range("descriptor penalty", self.penalty, PENALTY_RANGE,
+                    "the descriptor is stored in single precision and its products overflow "
+                    "or vanish beyond it")
+        check_range("descriptor lambda_out", self.lambda_out, LAMBDA_OUT_RANGE,
+                    "the descriptor is stored in single precision and its products overflow "
+                    "or vanish beyond it")
         if self.spacing is not None:
             object.__setattr__(self, "spacing", _positive("descriptor", "spacing",
                                                           self.spacing))
@@ -169,10 +229,15 @@ class DescriptorParams:
                              "spacing; give one of them")
         else:
             grid = self.grid
-            if isinstance(grid, bool) or not isinstance(grid, (int, np.integer)) or grid < 4:
-                raise InputError(f"descriptor grid must be an integer of at least 4, got {grid!r}")
+            if (isinstance(grid, bool) or not isinstance(grid, (int, np.integer))
+                    or not 4 <= grid <= MAX_GRID):
+                raise InputError(f"descriptor grid must be an integer from 4 to {MAX_GRID}, "
+                                 f"got {grid!r}: {MAX_GRID}^3 samples take 64 GiB per part")
             object.__setattr__(self, "grid", int(grid))
         object.__setattr__(self, "padding", _at_least("descriptor", "padding", self.padding, 0.0))
+        check_range("descriptor padding", self.padding, (0.0, MAX_PADDING),
+                    "the outside tail fades within a few cells; more padding only grows the "
+                    "grid and its FFT")
 
     @property
     def lambda_in(self) -> float:
@@ -210,6 +275,10 @@ class CorrelationParams:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise InputError(f"correlation {name} must be a positive integer, got {value!r}")
             object.__setattr__(self, name, int(value))
+        if self.modes > MAX_MODES:
+            raise InputError(f"correlation modes K = {self.modes} is above {MAX_MODES}: each "
+                             f"pose sums K^3 terms ({self.modes**3:,} here), far too slow to "
+                             f"run; use K from 1 to {MAX_MODES} (16 to 48 is usual)")
         object.__setattr__(self, "oversample", _at_least("correlation", "oversample",
                                                          self.oversample, 1.0))
         if self.selection not in MODE_SELECTIONS:
@@ -309,6 +378,27 @@ class SeatSpec:
 
 #: Engine rate (``[simulation] rate_hz``): the haptic loop's 1 kHz.
 DEFAULT_RATE_HZ = 1000.0
+#: Engine rates: above 100 kHz a step is shorter than one field evaluation (50 us or more),
+#: so no loop holds the rate and each simulated second costs 1e5 steps or more.
+RATE_RANGE = (1.0, 100_000.0)
+#: Most steps one run may take (duration times rate): 1e8 steps is 28 hours at 1 kHz and
+#: hours of computing; a duration beyond it is almost always a unit slip (Unix times,
+#: milliseconds).
+MAX_STEPS = 100_000_000
+#: Gravity, in standard gravities: beyond it the pull dwarfs every other force and the
+#: part leaves the grid within a step.
+MAX_GRAVITY_G = 100.0
+#: Masses in kg (or the unit mass when a scene gives none): outside this the coupling's
+#: gains ``m (2 pi f)^2`` and their square roots overflow or vanish.
+MASS_RANGE = (1e-9, 1e9)
+#: A given inertia may differ from the mesh's own (for the part's mass) by at most this
+#: factor: a real part's density varies less, and larger factors are unit slips
+#: (kg m^2 against kg mm^2 is 1e6).
+INERTIA_FACTOR = 10.0
+#: kappa may be at most this multiple of its scale-free default (``guidance_gain k / L``
+#: with the default gain): beyond it the geometric force is so much stiffer than the
+#: coupling that the fixed step cannot follow it.
+MAX_KAPPA_FACTOR = 1e4
 #: Geometric guidance kinds (``[effects] guidance``).
 GUIDANCE = ("skeletal", "collision", "none")
 #: Input device kinds (``[device] kind``).
@@ -356,6 +446,10 @@ class SimulationParams:
     def __post_init__(self) -> None:
         object.__setattr__(self, "rate_hz", _positive("simulation", "rate_hz", self.rate_hz))
         object.__setattr__(self, "seconds", _positive("simulation", "seconds", self.seconds))
+        check_range("simulation rate_hz", self.rate_hz, RATE_RANGE,
+                    "above it a step is shorter than one field evaluation, so no loop holds "
+                    "the rate")
+        check_steps(self.seconds, self.rate_hz, "[simulation] seconds")
         for name in ("guidance_gain", "body_damping_ratio"):
             object.__setattr__(self, name, _at_least("simulation", name, getattr(self, name),
                                                      0.0))
@@ -669,6 +763,10 @@ class MassSpec:
         for name in ("mass", "density"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, _positive("part", name, getattr(self, name)))
+        if self.mass is not None:
+            check_range("part mass", self.mass, MASS_RANGE,
+                        "the coupling's gains m (2 pi f)^2 and their square roots overflow or "
+                        "vanish outside it")
         if self.inertia is not None:
             try:
                 arr = np.asarray(self.inertia, dtype=np.float64)

@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
+from app.commands.arguments import finite_float, modes
 from engine.backend import CHOICES
 
 
@@ -20,11 +21,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("scene", help="scene file (TOML)")
     parser.add_argument(
-        "--pose", nargs=6, type=float, metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
+        "--pose", nargs=6, type=finite_float, metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
         help="translation (scene units) and rotation vector (radians); default: the "
         "scene's assembled pose",
     )
-    parser.add_argument("--modes", type=int, help="modes per axis K (m' = K^3); default: the "
+    parser.add_argument("--modes", type=modes, help="modes per axis K (m' = K^3); default: the "
                         "scene's [correlation] modes")
     parser.add_argument("--backend", default="auto", choices=CHOICES,
                         help="per-pose backend (auto measures the compiled ones and keeps the "

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 
+from app.commands.arguments import finite_float
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add ``skelasm gui`` (the desktop application) to ``sub``."""
@@ -22,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--screenshot", metavar="OUT.png", default=None,
                         help="save a picture of the whole window (after --quit-after seconds, "
                         "default 5) and quit")
-    parser.add_argument("--quit-after", metavar="SECONDS", type=float, default=None,
+    parser.add_argument("--quit-after", metavar="SECONDS", type=finite_float, default=None,
                         help="quit after this many seconds")
     parser.add_argument("--engine", choices=("process", "thread"), default="process",
                         help="where the engine loop runs: its own process (default; VTK holds "
@@ -43,9 +45,22 @@ def run(args: argparse.Namespace) -> int:
     try:
         from app.gui.app import run as run_gui
     except ImportError as exc:
-        raise RuntimeError(
-            f"the GUI needs PySide6, pyvista and pyvistaqt ({exc}); "
-            "install them with: pip install 'skelasm[gui]'"
-        ) from exc
-    return run_gui(args.scene, screenshot=args.screenshot, quit_after=args.quit_after,
-                   engine_process=args.engine == "process")
+        raise _missing_gui(exc) from exc
+    try:
+        return run_gui(args.scene, screenshot=args.screenshot, quit_after=args.quit_after,
+                       engine_process=args.engine == "process")
+    except ModuleNotFoundError as exc:  # the window imports Qt and VTK only when it opens
+        if (exc.name or "").split(".")[0] not in GUI_MODULES:
+            raise
+        raise _missing_gui(exc) from exc
+
+
+#: Top-level modules the ``gui`` extra brings (PySide6, pyvista, pyvistaqt and VTK).
+GUI_MODULES = ("PySide6", "shiboken6", "pyvista", "pyvistaqt", "vtk", "vtkmodules", "qtpy")
+
+
+def _missing_gui(exc: ImportError) -> RuntimeError:
+    return RuntimeError(
+        f"the window needs the `gui` extra (PySide6, pyvista, pyvistaqt), and "
+        f"{exc.name or exc} is not installed; install it with: pip install 'skelasm[gui]' "
+        "(or, from a clone: pip install -e '.[gui]'); the other commands work without it")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from app.commands.arguments import finite_float, modes
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add ``skelasm landscape`` (an image of the translational energy landscape) to ``sub``."""
@@ -16,11 +18,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("scene", help="scene file (TOML)")
     parser.add_argument("--plane", default="xy", choices=("xy", "xz", "yz"),
                         help="translation plane of the section")
-    parser.add_argument("--offset", type=float, default=None,
+    parser.add_argument("--offset", type=finite_float, default=None,
                         help="translation along the plane's normal (default: the fitted pose's)")
-    parser.add_argument("--rotation", nargs=3, type=float, metavar=("RX", "RY", "RZ"),
+    parser.add_argument("--rotation", nargs=3, type=finite_float, metavar=("RX", "RY", "RZ"),
                         help="rotation vector of part 2 (radians); default: the fitted pose's")
-    parser.add_argument("--modes", type=int, help="modes per axis K (default: the scene's)")
+    parser.add_argument("--modes", type=modes, help="modes per axis K (default: the scene's)")
     parser.add_argument("-o", "--output", required=True, help="image file to write (PNG)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing image (never an input file)")

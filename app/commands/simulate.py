@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
+
+from app.commands.arguments import finite_float, modes, positive_float
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--trajectory", metavar="IN.csv", help="proxy trajectory CSV")
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=positive_float, default=None,
                    help="simulated seconds (default: the trajectory's length + 1 s, else the "
                    "scene's [simulation] seconds)")
     p.add_argument("--log", metavar="OUT.csv", help="record every step (CSV, or .npz), "
@@ -34,10 +35,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(realtime=False)
     p.add_argument("--guidance", choices=("skeletal", "collision", "none"),
                    help="override the scene's [effects] guidance")
-    p.add_argument("--modes", type=int, help="override the scene's [correlation] modes")
+    p.add_argument("--modes", type=modes, help="override the scene's [correlation] modes")
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba", "opencl"),
                    help="per-pose evaluator of the correlator")
-    p.add_argument("--start", type=float, nargs=6, metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
+    p.add_argument("--start", type=finite_float, nargs=6,
+                   metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
                    help="start pose of part 2 relative to part 1 (default: the scene's)")
     p.set_defaults(run=run)
 
@@ -71,11 +73,18 @@ def run(args: argparse.Namespace) -> int:
         handle = replace(handle, config=replace(handle.config, effects=effects))
     if args.start is not None:
         handle = replace(handle, start_pose=np.asarray(args.start, float))
+    # Before any work: the run's length, its step count and the trajectory's poses.
+    trajectory = TrajectoryDevice(args.trajectory) if args.trajectory else None
+    seconds, steps = _duration(args, trajectory, handle)
     sim, model = build_simulation(handle, modes=args.modes, backend=args.backend, prepare=True)
 
-    notes = []
-    if args.trajectory:
-        device = TrajectoryDevice(args.trajectory)
+    notes = [f"{w}" for part in handle.parts for w in part.warnings]
+    field_modes = getattr(sim.field, "modes", None)
+    if args.modes is not None and field_modes is not None and int(field_modes) < args.modes:
+        notes.append(f"--modes {args.modes} is more than this scene's FFT holds per axis: "
+                     f"K = {int(field_modes)} used (a finer grid holds more)")
+    if trajectory is not None:
+        device = trajectory
         recorded_with = recording_scene(args.trajectory)
         if recorded_with is not None and recorded_with != scene_tag:
             notes.append(f"{args.trajectory} was recorded with another scene (or other part "
@@ -88,15 +97,6 @@ def run(args: argparse.Namespace) -> int:
         except DeviceError as exc:
             notes.append(f"{exc}")
             device = MouseDevice(sim.proxy_pose)
-    if args.seconds is not None:
-        seconds = args.seconds
-    elif isinstance(device, TrajectoryDevice):
-        seconds = device.duration + 1.0
-    else:
-        seconds = handle.config.simulation.seconds
-    if not (seconds > 0 and math.isfinite(seconds)):
-        raise ValueError(f"--seconds must be positive, got {seconds!r}")
-    steps = max(1, int(round(seconds / sim.dt)))
 
     recorder = None
     if args.log:
@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         device=device,
         realtime=args.realtime,
         keep_periods=True,
-        on_frame=recorder.on_frame if recorder else None,
+        on_frame=_with_progress(recorder.on_frame if recorder else None, steps, sim.dt),
     )
     import time
 
@@ -191,3 +191,55 @@ def run(args: argparse.Namespace) -> int:
         if args.log:
             print(f"log: {args.log}")
     return 0
+
+
+def _duration(args: argparse.Namespace, trajectory, handle) -> tuple[float, int]:
+    """Simulated seconds and steps of the run, checked before any work (InputError)."""
+    import numpy as np
+
+    from engine.errors import InputError
+    from engine.params import check_steps
+    from engine.sim.guard import check_proxy_pose
+
+    rate = handle.config.simulation.rate_hz
+    if trajectory is not None:
+        times = trajectory.times
+        if times[0] < 0 or not np.all(np.isfinite(times)):
+            raise InputError(f"{args.trajectory}: its times run from {times[0]:g} to "
+                             f"{times[-1]:g} s; they are seconds from the start of the run, "
+                             "from 0 on (shift them so the first row is at 0)")
+        length = float(np.max(handle.parts[-1].extent))
+        for row, pose in enumerate(trajectory.poses, start=2):
+            check_proxy_pose(pose, length, f"{args.trajectory}: row {row}: the pose")
+    if args.seconds is not None:
+        seconds, what = args.seconds, "--seconds"
+    elif trajectory is not None:
+        seconds, what = trajectory.duration + 1.0, f"{args.trajectory}: its last time + 1 s"
+    else:
+        seconds, what = handle.config.simulation.seconds, "[simulation] seconds"
+    return seconds, check_steps(seconds, rate, what)
+
+
+def _with_progress(on_frame, steps: int, dt: float):
+    """``on_frame`` that also reports progress on stderr every 5 s of a long run."""
+    import time
+
+    started = time.monotonic()
+    state = {"count": 0, "next": started + 5.0}
+
+    def frame(f) -> None:
+        if on_frame is not None:
+            on_frame(f)
+        state["count"] += 1
+        if state["count"] % 1000:
+            return
+        now = time.monotonic()
+        if now < state["next"]:
+            return
+        state["next"] = now + 5.0
+        done = state["count"] / steps
+        left = (now - started) * (1.0 / max(done, 1e-9) - 1.0)
+        print(f"simulate: {state['count'] * dt:.1f} of {steps * dt:.1f} s simulated "
+              f"({100 * done:.0f} %), about {left:.0f} s left", file=sys.stderr, flush=True)
+
+    return frame

@@ -16,7 +16,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import inspect
-import os
 import types
 from collections.abc import Callable
 from pathlib import Path
@@ -27,6 +26,7 @@ import numpy as np
 
 import engine.correlation.finishing as finishing
 import engine.correlation.interpolation as interpolation
+from engine.backend import env_count
 from engine.correlation.tables import ModeTable
 
 # The functions below call the interpolation and finishing helpers by these names; numba
@@ -278,7 +278,7 @@ class NumbaKernel:
     name = "numba"
 
     def __init__(self, selection: str) -> None:
-        wanted = int(os.environ.get("SKELASM_CORRELATION_THREADS", "1") or 1)
+        wanted = env_count("SKELASM_CORRELATION_THREADS", 1)
         self.threads = max(1, min(wanted, numba.get_num_threads()))
         self.kind = "cube" if selection == "cube" else "list"
         self._serial = kernel_function(self.kind, False)

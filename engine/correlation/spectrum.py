@@ -26,7 +26,7 @@ import numpy as np
 import scipy.fft
 
 from engine import cache
-from engine.grid import Grid
+from engine.grid import Grid, check_fft_memory
 
 #: Bumped whenever the stored layout or the definition of a spectrum changes.
 SPECTRUM_VERSION = 2
@@ -146,6 +146,8 @@ def compute_spectrum(
         raise ValueError(f"FFT size {size} is smaller than the grid {grid.shape}")
     if not np.all(np.isfinite(rho)):
         raise ValueError("descriptor contains NaN or infinite values: recompute the descriptor")
+    # the padded cube and the FFT's output, plus the three moment cubes and a temporary
+    check_fft_memory(size, 2 + 4 * int(moments), f"the spectrum's {size}^3 FFT")
     rho = rho.astype(np.complex64, copy=False)
     h = grid.spacing
 

@@ -73,7 +73,7 @@ from __future__ import annotations
 
 import logging
 import math
-import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -86,8 +86,8 @@ from engine.descriptor.adaptive import sample_grid
 from engine.descriptor.numba_kernels import evaluate as _evaluate_numba
 from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
 from engine.descriptor.tree import TriangleTree, build_tree, pack_triangles, split_slivers
-from engine.errors import Cancelled, InputError, ResourceError
-from engine.grid import Grid
+from engine.errors import Cancelled, InputError
+from engine.grid import DESCRIPTOR_BYTES_PER_SAMPLE, Grid, check_memory
 from engine.params import DescriptorParams
 
 _log = logging.getLogger(__name__)
@@ -97,6 +97,15 @@ DESCRIPTOR_BACKENDS = ("numba", "opencl")
 
 #: What ``backend=`` accepts.
 BackendLike = Backend | str | None
+
+#: Chunks of points are sized to take about this many seconds: cancel and Ctrl+C are
+#: honoured between chunks. They start at FIRST_CHUNK_POINTS, grow at most fourfold per
+#: chunk, and stay between MIN_CHUNK_POINTS and ``constants.CHUNK_POINTS``. (Kept here,
+#: not in ``constants``: those are part of the descriptor's cache key, and chunking does
+#: not change a single value.)
+CHUNK_SECONDS = 0.2
+FIRST_CHUNK_POINTS = 256
+MIN_CHUNK_POINTS = 16
 
 
 # --------------------------------------------------------------------------------------
@@ -129,16 +138,8 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _check_memory(n_points: int, what: str) -> None:
-    need = n_points * (8 + 4 * 8 + 3 * 8)  # result, per-point work array, points
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
-        return
-    if need > 0.5 * total:
-        raise ResourceError(
-            f"{what} needs about {need / 2**30:.1f} GiB but this machine has "
-            f"{total / 2**30:.1f} GiB: use a coarser grid (smaller --grid or larger --spacing)"
-        )
+    check_memory(int(n_points) * DESCRIPTOR_BYTES_PER_SAMPLE, what,
+                 "use a coarser grid (smaller --grid or larger --spacing)")
 
 
 def _numba_backend() -> Backend:
@@ -250,14 +251,25 @@ def _run(
             finally:
                 numba.set_parallel_chunksize(previous)
 
-    step = _c.CHUNK_POINTS
-    for lo in range(0, n, step):
+    # Chunks are sized by time, not by count: a point's cost varies a hundredfold (sigma,
+    # distance to the surface), and cancel and Ctrl+C (Python runs its signal handler only
+    # between chunks) must be honoured within a second. Start small and grow towards
+    # CHUNK_SECONDS per chunk.
+    step = min(_c.CHUNK_POINTS, FIRST_CHUNK_POINTS)
+    lo = 0
+    while lo < n:
         if cancel is not None and cancel():
             raise Cancelled("descriptor computation cancelled")
         hi = min(n, lo + step)
+        started = time.perf_counter()
         chunk(lo, hi)
+        took = time.perf_counter() - started
         if progress is not None:
             progress(hi / n)
+        rate = (hi - lo) / max(took, 1e-6)
+        step = int(max(MIN_CHUNK_POINTS, min(rate * CHUNK_SECONDS, 4 * (hi - lo),
+                                             _c.CHUNK_POINTS)))
+        lo = hi
     return out
 
 

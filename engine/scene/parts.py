@@ -2,7 +2,7 @@
 
 Each part has a unit: the ``unit`` of its ``[[part]]`` if given, else the one its STEP
 header declares; a mesh file (STL, OBJ, PLY, OFF) carries none and is read in the scene's
-unit. Every part is converted into the scene's unit. Two checks warn, once per scene:
+unit. Every part is converted into the scene's unit. Three checks warn, once per scene:
 
 - a scene that declares no ``units`` and holds a mesh part without a ``unit`` (the mesh is
   read as millimetres, which is wrong for the many OBJ files drawn in metres);
@@ -10,7 +10,9 @@ unit. Every part is converted into the scene's unit. Two checks warn, once per s
   mating parts of somewhat different size): the signature of a part read in the wrong
   unit, such as an inch declaration on a part drawn in millimetres, or a mesh in metres
   read as millimetres. The message names the part, the unit it was read in and where that
-  came from, the unit that would explain it, and the ``unit`` line that fixes it.
+  came from, the unit that would explain it, and the ``unit`` line that fixes it;
+- poses that keep the parts many times their size apart (``units = "m"`` over poses
+  written in millimetres): the energy is 0 wherever part 2 goes.
 """
 
 from __future__ import annotations
@@ -79,7 +81,38 @@ def load_scene_parts(scene: Scene) -> list[Part]:
         message = unit_mismatch(sizes, pair, units[:2], kinds[:2], scene.units)
         if message is not None:
             parts[1] = _warn(parts[1], f"{scene.path}: {message}")
+        message = out_of_reach(scene, sizes)
+        if message is not None:
+            parts[1] = _warn(parts[1], f"{scene.path}: {message}")
     return parts
+
+
+#: Poses that keep the parts farther apart than this many times their summed sizes never
+#: let their densities meet (the energy is 0 there): the signature of poses written in
+#: another unit than the scene's (``units = "m"`` over poses in millimetres).
+POSE_REACH = 10.0
+
+
+def out_of_reach(scene: Scene, sizes: list[float]) -> str | None:
+    """A warning when the scene's poses keep part 2 out of part 1's reach, else None.
+
+    Parameters
+    ----------
+    scene : Scene
+    sizes : list of 2 float
+        Largest bounding-box side of each part, in the scene's unit.
+    """
+    reach = POSE_REACH * (sizes[0] + sizes[1])
+    start = float(np.linalg.norm(scene.parts[1].pose[:3] - scene.parts[0].pose[:3]))
+    seat = float(np.linalg.norm(np.asarray(scene.assembled_pose, float)[:3]))
+    if not (reach > 0) or min(start, seat) <= reach:
+        return None
+    u = scene.units
+    return (f"part 2 starts {start:.4g} {u} from part 1 and is assembled {seat:.4g} {u} from "
+            f"it, more than {POSE_REACH:g} times the parts' sizes ({sizes[0]:.4g} and "
+            f"{sizes[1]:.4g} {u}): their densities never meet there and the energy is 0. "
+            f"Poses are read in the scene's unit ({u}); if they were written in another, "
+            "correct `units` or the poses")
 
 
 _SOURCES = {"part": "its [[part]] unit", "header": "its STEP header",

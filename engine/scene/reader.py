@@ -26,6 +26,8 @@ from engine.params import (
     DEVICES,
     GUIDANCE,
     LENGTH_UNITS,
+    MAX_GRAVITY_G,
+    STANDARD_GRAVITY,
     CorrelationParams,
     CouplingParams,
     DescriptorParams,
@@ -260,6 +262,11 @@ def parse_scene(text: str, path: Path) -> Scene:
     p = Path(path).resolve()
     try:
         data = tomllib.loads(text)
+    except RecursionError:
+        # tomllib parses nested arrays recursively: thousands of levels exhaust the stack
+        raise SceneError(f"{p}: nested too deeply to read (arrays or tables within each "
+                         "other thousands of levels deep); a scene nests at most a 3x3 "
+                         "list: check the file", path=str(p)) from None
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"at line (\d+)", str(exc))
         line = int(m.group(1)) if m else None
@@ -407,6 +414,15 @@ def _effects(e: _Table, units: str) -> Effects:
     else:
         g = e.vector("gravity", 3)
         gravity = (float(g[0]), float(g[1]), float(g[2]))
+        top = MAX_GRAVITY_G * STANDARD_GRAVITY / LENGTH_UNITS[units]
+        size = math.hypot(*gravity)
+        if size > top:
+            raise e.fail("gravity", f"gravity in [effects] has magnitude {size:.3g} "
+                                    f"{units}/s^2, above "
+                                    f"{MAX_GRAVITY_G:g} standard gravities ({top:g} {units}/s^2): "
+                                    "the pull would dwarf every other force",
+                         "write `gravity = true` for standard gravity, or a vector in the "
+                         f"scene's unit per second squared ({units}/s^2)")
     return e.build(Effects, guidance=guidance, axes=axes, damping=damping, gravity=gravity)
 
 

@@ -31,9 +31,23 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from engine.errors import Cancelled
+from engine.errors import Cancelled, InputError
 from engine.loading import Part
-from engine.params import CouplingParams, Effects, HapticLimits, MassSpec, Physics, SimConfig
+from engine.params import (
+    DEFAULT_UNIT,
+    INERTIA_FACTOR,
+    MASS_RANGE,
+    MAX_KAPPA_FACTOR,
+    CouplingParams,
+    Effects,
+    HapticLimits,
+    MassSpec,
+    Physics,
+    SimConfig,
+    SimulationParams,
+    check_range,
+    unit_scale,
+)
 from engine.pose import rotation_matrix
 from engine.sim.body import RigidBody
 from engine.sim.fields import GeometricField, NullField, field_for_effects
@@ -68,7 +82,7 @@ class LoadedScene(Protocol):
 
 
 def mass_properties(
-    vertices: np.ndarray, faces: np.ndarray, spec: MassSpec
+    vertices: np.ndarray, faces: np.ndarray, spec: MassSpec, units: str = DEFAULT_UNIT
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Mass, (3, 3) inertia about the centre of mass, (3,) centre, from a mesh and a MassSpec.
 
@@ -77,6 +91,8 @@ def mass_properties(
     vertices : (n, 3) float64
     faces : (m, 3) int64
     spec : MassSpec
+    units : str
+        The scene's length unit (names the unit of a refused inertia).
 
     Notes
     -----
@@ -109,9 +125,60 @@ def mass_properties(
     inertia = mass * unit_inertia
     if spec.inertia is not None:
         inertia = np.asarray(spec.inertia, float)
+        check_inertia(inertia, mass * unit_inertia, mass, units)
     if spec.center_of_mass is not None:
         center = np.asarray(spec.center_of_mass, float)
     return float(mass), inertia, center
+
+
+def check_inertia(given: np.ndarray, own: np.ndarray, mass: float, units: str) -> None:
+    """Refuse a given inertia far from the mesh's own for the part's mass.
+
+    Within :data:`engine.params.INERTIA_FACTOR` either way (largest principal moments
+    compared) it is taken as given; beyond, it is almost always a unit slip, which the
+    message names.
+
+    Parameters
+    ----------
+    given, own : (3, 3) float64
+        The scene's inertia and the uniform-density mesh's, both about the centre of mass.
+    mass : float
+    units : str
+        The scene's length unit (inertia is in kg times its square).
+    """
+    ratio = float(np.max(np.linalg.eigvalsh(own)) / np.max(np.linalg.eigvalsh(given)))
+    if 1.0 / INERTIA_FACTOR <= ratio <= INERTIA_FACTOR:
+        return
+    how = f"{ratio:.3g} times smaller" if ratio > 1 else f"{1 / ratio:.3g} times larger"
+    moments = ", ".join(f"{v:.4g}" for v in np.linalg.eigvalsh(own))
+    given_moments = ", ".join(f"{v:.4g}" for v in np.linalg.eigvalsh(given))
+    other = "m" if units != "m" else "mm"
+    factor = unit_scale(other, units) ** 2
+    raise InputError(
+        f"part inertia (principal moments {given_moments}) is {how} than the mesh's own for "
+        f"mass {mass:g} ({moments}). Inertia is in kg {units}^2 (the mass times the scene's "
+        f"unit squared): a value in kg {other}^2 is {factor:g} times "
+        f"{'smaller' if factor > 1 else 'larger'}, so check its unit. A given inertia may "
+        f"differ from the mesh's by at most a factor of {INERTIA_FACTOR:g} (uneven "
+        "density); remove it to use the mesh's")
+
+
+def check_physics(physics: Physics, default_kappa: float) -> None:
+    """Refuse gains that no fixed step can integrate: a kappa far above its default.
+
+    Parameters
+    ----------
+    physics : Physics
+    default_kappa : float
+        The scale-free default (``guidance_gain k / L`` with the default gain).
+    """
+    top = MAX_KAPPA_FACTOR * default_kappa
+    if physics.kappa > top:
+        raise InputError(
+            f"kappa = {physics.kappa:g} is {physics.kappa / default_kappa:.3g} times its "
+            f"scale-free default ({default_kappa:.4g} for this part and coupling); at most "
+            f"{MAX_KAPPA_FACTOR:g} times that ({top:.4g}) keeps the geometric force within "
+            "what the time step can follow: lower [simulation] kappa or write \"auto\"")
 
 
 #: Near a fit the geometric torque is left in charge of the part's orientation: the default
@@ -204,7 +271,7 @@ def resolve_physics(
     """
     effects = effects or config.effects
     spec = config.mass_spec(part_index)
-    mass, inertia, center = mass_properties(vertices, faces, spec)
+    mass, inertia, center = mass_properties(vertices, faces, spec, config.units)
     v = np.asarray(vertices, float)
     length = float(np.max(np.ptp(v, axis=0))) if len(v) else 1.0
     length = length if length > 0 else 1.0
@@ -213,6 +280,7 @@ def resolve_physics(
     zeta = config.coupling.damping_ratio
     c = config.coupling
     k_lin = c.stiffness if c.stiffness is not None else mass * omega**2
+    default_kappa = SimulationParams().guidance_gain * k_lin / length
     if kappa is None:
         kappa = config.simulation.kappa
     if kappa is None:
@@ -233,7 +301,10 @@ def resolve_physics(
     if not effects.damping:
         c_lin = c_rot = body_c_lin = body_c_rot = 0.0
     gravity = np.zeros(3) if effects.gravity is None else np.asarray(effects.gravity, float)
-    return Physics(
+    check_range("part mass", mass, MASS_RANGE,
+                "the coupling's gains m (2 pi f)^2 and their square roots overflow or vanish "
+                "outside it (a density times the mesh's volume gives this mass)")
+    physics = Physics(
         mass=mass,
         inertia=inertia,
         center=center,
@@ -247,6 +318,8 @@ def resolve_physics(
         kappa=float(kappa),
         gravity=gravity,
     )
+    check_physics(physics, default_kappa)
+    return physics
 
 
 def rigid_body(physics: Physics) -> RigidBody:

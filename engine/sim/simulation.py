@@ -21,6 +21,7 @@ from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
 from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy
 from engine.sim.coupling import coupling_energy, coupling_wrench, haptic_reaction
 from engine.sim.fields import ZERO_EVALUATION, GeometricField
+from engine.sim.guard import check_motion, check_proxy_pose
 
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
@@ -133,8 +134,8 @@ class Simulation:
         self.haptic_torque = _ZERO3
 
     def set_proxy(self, pose: np.ndarray) -> None:
-        """Move the proxy to ``pose`` (6,)."""
-        p = np.asarray(pose, np.float64).reshape(6)
+        """Move the proxy to ``pose`` (6,): finite and within reach (else an InputError)."""
+        p = check_proxy_pose(pose, self.physics.length)
         self.proxy_pose = p.copy()
         self._proxy_t = p[:3].copy()
         self._proxy_q = rotvec_to_quaternion(p[3:])
@@ -208,10 +209,12 @@ class Simulation:
         tmask, rmask = self._tmask, self._rmask
         force, torque = self._total_forces()
         kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
+        check_motion(self)  # before the drift takes a sine of a diverged angle
         drift(body, state, dt, translation_mask=tmask, rotation_mask=rmask)
         sample = self.evaluate_field()
         force, torque = self._total_forces()
         kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
+        check_motion(self)
         self.step_time = self.time
         self.time += dt
         self.steps += 1
