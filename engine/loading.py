@@ -398,7 +398,7 @@ def check_mesh(
         if weld_tolerance is None and floor >= WELD_RELATIVE * diagonal:
             raise PartError(
                 f"{source}: no usable triangles: the part is {diagonal:.3g} across as stored "
-                f"but lies {largest:.3g} from the origin, where its coordinates resolve only "
+                f"but has coordinates as large as {largest:.3g}, where they resolve only "
                 f"{resolution * largest:.2g}; move the part near the origin before export, or "
                 "export it in a smaller unit"
             )

@@ -10,6 +10,7 @@ import pytest
 
 from engine.errors import InputError
 from engine.loading import (
+    Part,
     PartError,
     _edge_defects,
     check_mesh,
@@ -509,3 +510,112 @@ def test_flat_triangle_chain_on_one_edge_is_flipped_away():
 def _tri_areas(v, f):
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+# --------------------------------------------------------------------------- reliability
+def _box(lo, hi):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    v = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                  for z in (lo[2], hi[2])])
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, f
+
+
+def _write_stl(path, v, f):
+    import trimesh
+
+    trimesh.Trimesh(v, f, process=False).export(str(path))
+    return path
+
+
+def test_overlapping_shells_have_the_inside_density_of_their_union(tmp_path):
+    """Two overlapping boxes in one STL: before, the overlap counted twice (volume 16, Im rho
+    higher in the overlap); now the part is their union (volume 15) with its density.
+    """
+    import manifold3d
+
+    from engine.descriptor import descriptor_for_part, grid_for_part
+
+    a, fa = _box((0, 0, 0), (2, 2, 2))
+    b, fb = _box((1, 1, 1), (3, 3, 3))
+    path = _write_stl(tmp_path / "two.stl", np.vstack([a, b]), np.vstack([fa, fb + 8]))
+    part = load_part(path)
+    assert part.volume == pytest.approx(15.0, rel=1e-12)
+    assert _edge_defects(part.faces) == (0, 0)
+    assert any("2 closed shells overlap" in w and "joined into 1 solid" in w
+               for w in part.warnings)
+    # the union made independently of the loader, as one shell
+    solids = [manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v,
+                                                    tri_verts=f.astype(np.uint64)))
+              for v, f in ((a, fa), (b, fb))]
+    union = (solids[0] + solids[1]).to_mesh64()
+    reference = part_from_mesh(union.vert_properties[:, :3], union.tri_verts.astype(np.int64))
+    grid = grid_for_part(part, samples=16, padding=2)
+    rho = descriptor_for_part(part, grid, method="brute", use_cache=False).rho
+    expected = descriptor_for_part(reference, grid, method="brute", use_cache=False).rho
+    np.testing.assert_allclose(rho, expected, rtol=1e-4, atol=1e-4 * np.abs(expected).max())
+    # without the union the overlap counts twice: the density in it is visibly off
+    v2, f2, _ = check_mesh(np.vstack([a, b]), np.vstack([fa, fb + 8]), source="raw",
+                           union=False)
+    doubled = descriptor_for_part(Part("raw", v2, f2), grid, method="brute",
+                                  use_cache=False).rho
+    centre = tuple(np.round((1.5 - np.asarray(grid.origin)) / grid.spacing).astype(int))
+    assert abs(doubled[centre].imag - rho[centre].imag) > 0.05 * abs(rho[centre].imag)
+
+
+def test_disjoint_shells_and_cavities_are_left_as_they_are():
+    outer, fo = _box((0, 0, 0), (4, 4, 4))
+    inner, fi = _box((1, 1, 1), (2, 2, 2))
+    far, ff = _box((10, 0, 0), (11, 1, 1))
+    v = np.vstack([outer, inner, far])
+    f = np.vstack([fo, fi[:, ::-1] + 8, ff + 16])  # the cavity faces inwards
+    part = part_from_mesh(v, f)
+    assert part.triangles == 36 and part.warnings == ()
+    assert part.volume == pytest.approx(64 - 1 + 1)
+
+
+def test_random_bytes_named_stl_say_so_without_trimesh_s_optional_module(tmp_path,
+                                                                         monkeypatch):
+    import sys
+
+    junk = tmp_path / "junk.stl"
+    junk.write_bytes(np.random.default_rng(1).bytes(5000))
+    monkeypatch.setitem(sys.modules, "charset_normalizer", None)
+    with pytest.raises(PartError, match=r"junk.stl: not an STL file: not binary STL \(its "
+                                        r"header announces \d+ triangles.*not ASCII STL"):
+        load_part(junk)
+
+
+def test_a_tiny_cube_away_from_the_origin_loads():
+    """Welding took 1e-6 of the position (1e-6 at (1, 1, 1)): the whole cube was welded."""
+    v, f = _box((1, 1, 1), (1 + 1e-6,) * 3)
+    part = part_from_mesh(v.astype(np.float32).astype(np.float64), f)
+    assert part.triangles == 12
+    assert part.volume == pytest.approx(1e-18, rel=1e-3)
+
+
+def test_a_cube_below_the_float32_resolution_where_it_lies_says_why():
+    v, f = _box((100, 100, 100), (100 + 1e-6,) * 3)
+    with pytest.raises(PartError, match=r"tiny: no usable triangles: the part is 0 across as "
+                                        r"stored but has coordinates as large as 100, where "
+                                        r"they resolve only 1.2e-05; move the part near the "
+                                        r"origin"):
+        check_mesh(v.astype(np.float32).astype(np.float64), f, source="tiny")
+
+
+def test_a_step_part_too_small_for_opencascade_is_refused(tmp_path):
+    text = (ASSETS / "dovetail/slide.step").read_text()
+    tiny = tmp_path / "tiny.step"
+    tiny.write_text(text.replace("SI_UNIT(.MILLI.,.METRE.)", "SI_UNIT(.NANO.,.METRE.)"))
+    with pytest.raises(PartError, match=r"tiny.step: the model is 38.3 nm \(3.83e-05 mm\) "
+                                        r"across, too small for OpenCASCADE to tessellate"):
+        load_part(tiny)
+
+
+def test_a_too_fine_step_tolerance_is_refused_before_tessellating():
+    """``--tolerance 1e-7`` ran over 150 s and 2.4 GB; now refused at once with the finest."""
+    with pytest.raises(PartError, match=r"peg.step: a tessellation tolerance of 1e-07 mm would "
+                                        r"make about .* triangles .*use a tolerance of at "
+                                        r"least [0-9.e-]+ mm"):
+        load_part(ASSETS / "peg_in_hole" / "peg.step", tolerance=1e-7)
