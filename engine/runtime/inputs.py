@@ -17,7 +17,7 @@ import numpy as np
 
 from engine.devices import Device, DeviceError, MouseDevice, open_device
 from engine.runtime.frames import encode_device_name
-from engine.runtime.messages import DeviceEvent, Event, SetDevice
+from engine.runtime.messages import DeviceEvent, ErrorEvent, Event, SetDevice
 from engine.sim import Simulation
 
 __all__ = ["DeviceSlot"]
@@ -48,6 +48,7 @@ class DeviceSlot:
 
     def _use(self, device: Device) -> None:
         self.device = device
+        self.refused = 0  # poses of this device the simulation refused (out of reach)
         self.mouse = device if isinstance(device, MouseDevice) else None
         self.name_code = encode_device_name(device.name)
         # clamp the rendered force to the device's maximum unless the scene set a lower one
@@ -75,11 +76,25 @@ class DeviceSlot:
             return
         if pose is None:
             return
-        if not np.all(np.isfinite(pose)):  # a driver's bad sample must not stop the loop
+        try:
+            self.sim.set_proxy(pose)
+        except ValueError as exc:  # a device's pose must not stop the loop
+            self._refuse(pose, exc)
+
+    def _refuse(self, pose: np.ndarray, exc: ValueError) -> None:
+        """Handle a pose the simulation refused; the loop goes on either way.
+
+        A pose that is not finite means a broken driver: the mouse takes over. A pose out of
+        reach is dropped, reported once (non-fatal), and the device kept.
+        """
+        if not np.all(np.isfinite(pose)):
             self._fall_back(f"{self.device.name}: sent a pose that is not finite "
                             f"({np.asarray(pose).tolist()})")
             return
-        self.sim.set_proxy(pose)
+        self.refused += 1
+        if self.refused == 1:
+            self.events.append(ErrorEvent(f"{self.device.name}: pose dropped ({exc}); later "
+                                          "ones are dropped without a message", "InputError"))
 
     def write(self) -> None:
         """Render the simulation's haptic force (devices with force feedback)."""

@@ -452,6 +452,25 @@ def test_non_finite_pose_from_any_device_falls_back_instead_of_stopping():
     assert lost and "not finite" in lost[-1].message
 
 
+def test_pose_out_of_the_simulations_reach_is_dropped_and_the_device_kept():
+    from test_loop import make_loop
+
+    from engine import runtime
+    from engine.devices import Device
+
+    class Far(Device):
+        def read_pose(self, time_s):  # finite, but a million part lengths away
+            return np.array([1e6, 0, 0, 0, 0, 0])
+
+    loop, _, _ = make_loop(realtime=False, device=Far())
+    loop.run(max_steps=50)
+    assert loop.sim.steps == 50 and loop.device.name == "device"
+    np.testing.assert_array_equal(loop.sim.proxy_pose, np.zeros(6))
+    errors = [e for e in loop.poll_events() if isinstance(e, runtime.ErrorEvent)]
+    assert len(errors) == 1 and not errors[0].fatal and "pose dropped" in errors[0].message
+    assert loop.inputs.refused == 50
+
+
 ROOT = Path(__file__).resolve().parents[2]
 PEG = ROOT / "assets" / "peg_in_hole" / "scene.toml"
 
