@@ -431,6 +431,14 @@ def check_mesh(
         v, f, joined = union_shells(v, f, source=source)
         if joined:
             warnings.append(joined)
+        crossing = buried_triangles(v, f)
+        if crossing is not None:
+            warnings.append(
+                f"{source}: the surface intersects itself or overlaps itself (near "
+                f"({', '.join(f'{c:.4g}' for c in crossing)}), a triangle lies inside the "
+                "solid or two layers cover one place); the inside is ambiguous there: repair "
+                "the mesh (a mesh repair or a CAD 'make solid') for reliable results"
+            )
     if boundary or nonmanifold:
         what = []
         if boundary:
@@ -546,6 +554,63 @@ def union_shells(v: np.ndarray, f: np.ndarray, *, source: str
         f"{total - joined.volume():.4g}, would count twice); joined into {pieces} solid"
         f"{'s' if pieces != 1 else ''} by a mesh union (volume {joined.volume():.6g})"
     )
+
+
+#: Triangles whose sides are probed for self-intersection (all of them below this count).
+SELF_INTERSECTION_SAMPLES = 64
+
+
+def winding_numbers(v: np.ndarray, f: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(k,) generalized winding numbers of ``points (k, 3)`` for the mesh ``v``, ``f``.
+
+    Sum over the triangles of their signed solid angles (Van Oosterom and Strackee) over
+    4 pi: 1 inside a closed outward surface, 0 outside, 2 where two layers overlap.
+    """
+    out = np.zeros(len(points))
+    tri = v[f]  # (m, 3, 3)
+    step = max(1, 2_000_000 // max(len(f), 1))
+    for start in range(0, len(points), step):
+        d = tri[None] - points[start:start + step, None, None, :]  # (s, m, 3, 3)
+        a, b, c = d[..., 0, :], d[..., 1, :], d[..., 2, :]
+        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        numerator = np.einsum("...i,...i", a, np.cross(b, c))
+        denominator = (la * lb * lc + np.einsum("...i,...i", a, b) * lc
+                       + np.einsum("...i,...i", b, c) * la + np.einsum("...i,...i", c, a) * lb)
+        out[start:start + step] = np.arctan2(numerator, denominator).sum(axis=1) / (2 * np.pi)
+    return out
+
+
+def buried_triangles(v: np.ndarray, f: np.ndarray, *,
+                     samples: int = SELF_INTERSECTION_SAMPLES) -> np.ndarray | None:  # fmt: skip
+    """Where a closed mesh intersects or overlaps itself, as far as a sample shows; or None.
+
+    Just in front of each probed triangle (along its normal, a thousandth of its inradius
+    away) the winding number is 0 on a valid closed outward surface and just behind it 1; a
+    triangle buried in the solid, or a second layer over the same place, shows 1 and 2 (or
+    -1 and 0). Every triangle is probed up to ``samples`` triangles; beyond, a fixed sample
+    of that many, so a small local fold may go unseen. Returns the centroid (3,) of one
+    such triangle.
+    """
+    m = len(f)
+    if m == 0:
+        return None
+    pick = (np.arange(m) if m <= samples
+            else np.sort(np.random.default_rng(0).choice(m, samples, replace=False)))
+    p = v[f[pick]]  # (s, 3, 3)
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    double_area = np.linalg.norm(normal, axis=1)
+    good = double_area > 0
+    p, normal, double_area, pick = p[good], normal[good], double_area[good], pick[good]
+    perimeter = sum(np.linalg.norm(p[:, k] - p[:, (k + 1) % 3], axis=1) for k in range(3))
+    offset = 1e-3 * double_area / perimeter  # a thousandth of the inradius
+    unit = normal / double_area[:, None]
+    centre = p.mean(axis=1)
+    front = winding_numbers(v, f, centre + offset[:, None] * unit)
+    back = winding_numbers(v, f, centre - offset[:, None] * unit)
+    bad = (np.abs(front) > 0.5) | (np.abs(back - 1) > 0.5)
+    if not bad.any():
+        return None
+    return centre[int(np.argmax(bad))]
 
 
 # --------------------------------------------------------------------------- STEP

@@ -619,3 +619,17 @@ def test_a_too_fine_step_tolerance_is_refused_before_tessellating():
                                         r"make about .* triangles .*use a tolerance of at "
                                         r"least [0-9.e-]+ mm"):
         load_part(ASSETS / "peg_in_hole" / "peg.step", tolerance=1e-7)
+
+
+def test_a_surface_folded_through_itself_is_reported():
+    import manifold3d
+
+    sphere = manifold3d.Manifold.sphere(1.0, 32).to_mesh64()
+    v = np.array(sphere.vert_properties[:, :3])
+    f = np.array(sphere.tri_verts, dtype=np.int64)
+    assert part_from_mesh(v, f).warnings == ()
+    cap = v[:, 2] > 0.3
+    v[cap, 2] = -v[cap, 2] - 0.2  # the top cap pushed down through the bottom
+    warnings = part_from_mesh(v, f, name="folded").warnings
+    assert any("folded: the surface intersects itself or overlaps itself" in w
+               for w in warnings)
