@@ -223,10 +223,10 @@ def recording_scene(path: str | Path) -> str | None:
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":
-            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
+            with open(path, "rb") as raw, np.load(raw, allow_pickle=False) as data:
                 return str(data["scene"]) if "scene" in data.files else None
-        with open(path, encoding="utf-8-sig") as fh:
-            last = fh.readline().rstrip("\r\n").split(",")[-1].strip()
+        with open(path, encoding="utf-8-sig") as text:
+            last = text.readline().rstrip("\r\n").split(",")[-1].strip()
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
         return None
     m = _SCENE_FIELD.match(last)
@@ -238,15 +238,15 @@ def load_recording(path: str | Path) -> np.ndarray:
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":
-            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
+            with open(path, "rb") as raw, np.load(raw, allow_pickle=False) as data:
                 columns = tuple(str(c) for c in data["columns"])
                 rows = data["rows"]
         else:
-            with open(path, encoding="utf-8-sig") as fh:  # -sig: a byte-order mark is no column
-                columns = tuple(c.strip() for c in fh.readline().split(","))
+            with open(path, encoding="utf-8-sig") as text:  # -sig: a byte-order mark is no column
+                columns = tuple(c.strip() for c in text.readline().split(","))
                 if columns and _SCENE_FIELD.match(columns[-1]):
                     columns = columns[:-1]
-                rows = np.loadtxt(fh, delimiter=",", ndmin=2)
+                rows = np.loadtxt(text, delimiter=",", ndmin=2)
     except OSError as exc:
         raise InputError(f"{path}: cannot read the recording ({exc})") from exc
     except (ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
