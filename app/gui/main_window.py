@@ -773,7 +773,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self._show_engine_state(f)
         if (self._requested_modes is not None and f.modes == self._requested_modes):
             self._requested_modes = None
-            self.tasks.finish("field")
+            if self.tasks.get("field") is not None:
+                self.tasks.finish("field")
+                self.params.set_progress(None, f"K = {f.modes} in use")
         self._show_tasks()
 
     def _show_engine_state(self, f: runtime.Frame | None = None) -> None:
@@ -882,6 +884,7 @@ class MainWindow(QtWidgets.QMainWindow):
         elif isinstance(event, runtime.DescriptorsSwapped):
             self.guidance_ready = bool(event.descriptors)
             self.tasks.finish("descriptors")
+            self.tasks.finish("field")  # a field request that had to recompute descriptors
             self.slice_view.set_descriptors(event.descriptors)
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")

@@ -1,8 +1,10 @@
 """Screenshots of the running application for the documentation.
 
 ``python -m app.gui.screenshots OUTDIR [SCENE]`` (under ``xvfb-run -a`` without a screen)
-opens the window on a scene, waits for the engine's descriptors and a landscape, pulls the
-part towards its fit with the proxy, and saves the whole window and each view as PNG.
+opens the window on a scene at 1280 x 800, waits for the engine's descriptors and a
+landscape, pulls the part towards its fit with the proxy, and saves the whole window and each
+view as PNG; then it moves the proxy down the insertion axis to the assembled pose, lets the
+engine seat the part, cuts the fixed part open and saves the seated part and its readouts.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
     tmp = tempfile.TemporaryDirectory()
     settings = QtCore.QSettings(str(Path(tmp.name) / "s.ini"), QtCore.QSettings.IniFormat)
     win = MainWindow(settings=settings)
-    win.resize(1600, 980)
+    win.resize(1280, 800)
     win.show()
 
     def spin(seconds: float, until=None) -> bool:
@@ -81,6 +83,22 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
         "parameters.png": win.dock_params,
     }
     written = [win.save_screenshot(outdir / name, widget) for name, widget in shots.items()]
+    # seat the part with the proxy alone: back to the start, then down to the fit
+    win.session.send(runtime.Reset())
+    spin(1.0)
+    for f in np.linspace(0.0, 1.0, 60):
+        win.session.send(runtime.SetProxyPose(tuple(start + f * (goal - start))))
+        spin(0.05)
+    spin(10.0, lambda: win.seat is not None and win.seat.seated)
+    spin(1.0)
+    if win.seat is None or not win.seat.seated:
+        print(f"warning: the part did not seat: {win.seat_label.text()}", file=sys.stderr)
+    win.view_panel.clip.setChecked(True)
+    win.view_panel.opacity.setValue(60)
+    spin(1.0)
+    written += [win.save_screenshot(outdir / "seated_window.png"),
+                win.save_screenshot(outdir / "seated_view_3d.png", win.viewport.widget),
+                win.save_screenshot(outdir / "seated_readouts.png", win.dock_readouts)]
     win.close()
     tmp.cleanup()
     from app.gui.session import wait_for_workers

@@ -62,8 +62,7 @@ def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
     old = win.slice_view._descriptors
     assert old, "the slice view got the descriptors with ReadyEvent"
     # 1. start a recompute and cancel it at once: the old descriptors stay in use
-    panel.sigma.setValue(0.8)
-    panel.flush()
+    panel.sigma.setValue(0.8)  # a typed value: applied at once (a slider on release)
     assert panel.cancel.isEnabled()
     panel.cancel.click()
     assert panel.progress.format() == "cancelled" and not panel.cancel.isEnabled()
@@ -80,7 +79,6 @@ def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
     timer.timeout.connect(lambda: ticks.append(time.perf_counter()))
     timer.start(20)
     panel.sigma.setValue(1.2)
-    panel.flush()
     wait_until(lambda: win.descriptor_seconds is not None, 60000, "the new descriptors")
     timer.stop()
     assert any(0 < v < 1000 for v in values), values  # seen part-way
