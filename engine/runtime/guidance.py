@@ -93,6 +93,9 @@ class Guidance:
         self._field_task = ""
         self._landscape_id = 0
         self._physics_dirty = False
+        # the last physics resolved and what it was resolved from: resolving reads the
+        # mesh's mass properties (milliseconds), so a K change must not do it on the loop
+        self._resolved: tuple[tuple[object, ...], Physics] | None = None
 
     # -- requests -------------------------------------------------------------------------------
     def prepare(self, modes: int) -> None:
@@ -170,13 +173,13 @@ class Guidance:
         if not reuse and task == "field" and self.effects.guidance != "none":
             task = "descriptors"  # no descriptors to reuse: they are computed (or loaded)
         fld = self.sim.field
-        backend = (fld.correlator.backend if isinstance(fld, (CorrelatorField, LandscapeField))
-                   else "")
+        current = fld.correlator if isinstance(fld, (CorrelatorField, LandscapeField)) else None
         rot = self.sim.state.rotation.copy()
         rot.setflags(write=False)
         request = FieldRequest(
             next_id(), task, self.effects, self._physics().kappa, rot, self.modes,
-            self.sigma, self.penalty, reuse, backend,
+            self.sigma, self.penalty, reuse, current.backend if current is not None else "",
+            correlator=current if reuse else None,
         )
         self._field_id, self._field_task = request.id, task
         report = task != "field"
@@ -252,7 +255,10 @@ class Guidance:
         if self.model is None:
             kappa = self.sim.physics.kappa if self.kappa is None else self.kappa
             return replace(self.sim.physics, kappa=kappa)
-        return self.model.physics(self.effects, self.coupling, self.kappa)
+        key = (self.effects, self.coupling, self.kappa, self.model.geometric_rotation)
+        if self._resolved is None or self._resolved[0] != key:
+            self._resolved = (key, self.model.physics(self.effects, self.coupling, self.kappa))
+        return self._resolved[1]
 
     def close(self) -> None:
         """Cancel the jobs and stop the worker."""

@@ -66,6 +66,8 @@ class FieldModel(Protocol):
     backend: str
     modes: int
     config: SimConfig
+    #: Rotational stiffness of the field last built (part of what physics depends on).
+    geometric_rotation: float | None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None,
@@ -112,6 +114,10 @@ class FieldRequest:
         Reuse these (only K or the rotation lock changed); empty: compute them.
     backend : str
         Per-pose evaluator for a rebuilt correlator ("" : the model's).
+    correlator : Correlator or None
+        The field in use's correlator, built from ``descriptors``: only K changed, so its
+        spectra and compiled kernels are shared (:meth:`Correlator.with_modes`) and only the
+        mode table is cut again; nothing is read from disk or transformed.
     """
 
     id: int
@@ -124,6 +130,7 @@ class FieldRequest:
     penalty: float | None = None
     descriptors: tuple[Descriptor, ...] = ()
     backend: str = ""
+    correlator: Correlator | None = None
 
 
 @dataclass(frozen=True)
@@ -189,6 +196,8 @@ def build_field(
         backend = r.backend or model.backend
 
         def make(rotation: bool) -> Correlator:
+            if r.correlator is not None and r.correlator.rotation == rotation:
+                return r.correlator.with_modes(r.modes)
             return Correlator(d1, d2, modes=r.modes, rotation=rotation, backend=backend,
                               kappa=1.0)
 
@@ -213,8 +222,13 @@ def compute_landscape(
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> LandscapeResponse:
-    """Run a :class:`LandscapeRequest` (in the worker)."""
-    land = request.correlator.landscape(request.rotation, progress=progress, cancel=cancel)
+    """Run a :class:`LandscapeRequest` (in the worker); a failure comes back as ``error``."""
+    try:
+        land = request.correlator.landscape(request.rotation, progress=progress, cancel=cancel)
+    except Cancelled:
+        raise
+    except Exception as exc:  # delivered to the loop (LandscapeFailed), never lost in the worker
+        return LandscapeResponse(request.id, request.rotvec, error=exc)
     return LandscapeResponse(request.id, request.rotvec, land)
 
 

@@ -142,6 +142,7 @@ class ProcessEngine:
         self._events, event_write = ctx.Pipe(duplex=False)
         self._send_lock = threading.Lock()
         self._pending: list[Event] = []
+        self._said_stopped = False  # a StoppedEvent was delivered (real or made here)
         self._result: _Result | None = None
         self._proc = ctx.Process(
             target=_child_main,
@@ -216,8 +217,26 @@ class ProcessEngine:
                 self._pending.append(message)  # type: ignore[arg-type]  # only events come
 
     def poll_events(self) -> list[Event]:
-        """Events since the last call, oldest first."""
+        """Events since the last call, oldest first.
+
+        A child that ended without saying so (killed, or crashed before its loop started)
+        gets a fatal ErrorEvent and a StoppedEvent here, so no caller waits for it forever.
+        """
         self._drain()
+        if (not self._closed and not self._said_stopped and self._events.closed
+                and not self._proc.is_alive()):
+            self._proc.join(0.1)
+            code = self._proc.exitcode
+            how = (f"was killed by signal {-code}" if code is not None and code < 0
+                   else f"exited with status {code}")
+            self._pending += [
+                ErrorEvent(f"the engine process {how} before it reported why; its output "
+                           "(stderr of this program) has the details", "EngineProcessDied",
+                           fatal=True),
+                StoppedEvent(0, "engine process died"),
+            ]
+        if any(isinstance(e, StoppedEvent) for e in self._pending):
+            self._said_stopped = True
         out, self._pending = self._pending, []
         return out
 

@@ -53,9 +53,19 @@ class ThreadLog(SpringCorrelator):
         self.calls.append(("set_modes", threading.current_thread().name))
         super().set_modes(k)
 
-    def landscape(self, R):
+    def landscape(self, R, *, progress=None, cancel=None):
         self.calls.append(("landscape", threading.current_thread().name))
         return super().landscape(R)
+
+    def with_modes(self, k):
+        """As Correlator.with_modes: a new well with K = ``k``, this one untouched."""
+        self.calls.append(("with_modes", threading.current_thread().name))
+        other = ThreadLog(self.points, self.anchors, self.a, rotation=self.rotation,
+                          modes=int(k))
+        other.sigma = getattr(self, "sigma", None)
+        if FakeModel.current is not None:
+            FakeModel.current.built.append(other)
+        return other
 
 
 def logged_well(**kw):
@@ -71,6 +81,7 @@ class FakeModel:
 
     backend = "numpy"
     modes = 16
+    geometric_rotation = None
     current: FakeModel | None = None
 
     def __init__(self, delay=0.2):
@@ -471,3 +482,18 @@ def test_another_thread_can_take_real_time_priority_away(monkeypatch):
     drop_realtime_priority(seen["tid"])
     dropped.set()
     assert done.wait(5) and seen["after"] == os.SCHED_OTHER
+
+
+def test_a_failing_landscape_is_reported_not_lost():
+    loop, corr, _ = make_loop(realtime=True)
+
+    def broken(R, **kw):
+        raise ValueError("landscape grid too large for memory")
+
+    corr.landscape = broken
+    loop.start()
+    loop.send(rt.RequestLandscape((0.0, 0.0, 0.1)))
+    assert wait_for(lambda: any(isinstance(e, rt.LandscapeFailed) for e in list(loop.events)))
+    loop.stop()
+    failed = [e for e in loop.poll_events() if isinstance(e, rt.LandscapeFailed)]
+    assert "too large for memory" in failed[0].message and failed[0].kind == "ValueError"

@@ -121,3 +121,29 @@ def test_messages_carry_large_arrays_out_of_band():
     writer.join()
     np.testing.assert_array_equal(got["landscape"], big)
     assert got["note"] == "x" and not got["landscape"].flags.writeable
+
+
+def test_a_killed_engine_process_is_reported_not_waited_for():
+    # an engine process that dies without a word (killed, or crashed during its imports)
+    # must not leave its handle waiting forever: the GUI would show "preparing" for ever
+    from dataclasses import replace
+
+    from engine import runtime as rt
+
+    h = rt.open_scene(SCENE)
+    cfg = h.config
+    h = replace(h, config=replace(cfg, effects=replace(cfg.effects, guidance="none")))
+    engine = rt.start_engine(h, process=True)
+    try:
+        assert wait_for(lambda: any(isinstance(e, rt.ReadyEvent)
+                                    for e in engine.poll_events()), 60.0)
+        os.kill(engine.transport.pid, signal.SIGKILL)
+        seen: list = []
+        assert wait_for(lambda: seen.extend(engine.poll_events()) or any(
+            isinstance(e, rt.StoppedEvent) for e in seen), 10.0)
+        fatal = [e for e in seen if isinstance(e, rt.ErrorEvent) and e.fatal]
+        assert fatal and "killed by signal 9" in fatal[0].message
+        # said once, not at every poll
+        assert not engine.poll_events()
+    finally:
+        engine.stop()

@@ -1,0 +1,76 @@
+"""The job worker's field builds: a K change reuses the spectra in use (issue 10, bug 3)."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import engine.correlation.correlator as correlator_module
+import engine.runtime as rt
+from engine.runtime.jobs import FieldRequest, build_field
+from engine.sim.build import SceneModel
+from engine.sim.fields import CorrelatorField, LandscapeField
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    src = ROOT / "assets" / "peg_in_hole"
+    lines = []
+    for line in (src / "scene.toml").read_text().splitlines():
+        key = line.split("=")[0].strip()
+        if key == "grid":
+            line = "grid = 16"
+        elif key == "modes":
+            line = "modes = 8"
+        elif key == "file":
+            line = f'file = "{(src / line.split(chr(34))[1]).as_posix()}"'
+        lines.append(line)
+    path = tmp_path_factory.mktemp("jobs") / "scene.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return SceneModel(rt.open_scene(path), backend="numba")
+
+
+@pytest.mark.parametrize("rotation", [True, False])
+def test_a_k_change_cuts_the_spectra_in_use_again(model, rotation, monkeypatch):
+    axes = ("x", "y", "z", "rx", "ry", "rz") if rotation else ("x", "y", "z")
+    effects = replace(model.config.effects, axes=axes)
+    kappa = model.physics(effects).kappa
+    field, descriptors = model.field(effects, kappa, np.eye(3))
+    old = field.correlator
+
+    # from here on, building spectra (disk cache or FFT) fails the test
+    def no_spectra(*args, **kwargs):
+        raise AssertionError("a K change rebuilt the spectra")
+
+    monkeypatch.setattr(correlator_module, "build_spectra", no_spectra)
+    request = FieldRequest(1, "field", effects, kappa, np.eye(3), 12, descriptors=descriptors,
+                           correlator=old)
+    response = build_field(model, request)
+    assert response.error is None
+    new = response.field
+    assert isinstance(new, CorrelatorField if rotation else LandscapeField)
+    assert new.correlator.spectra is old.spectra
+    assert new.correlator.table.modes == 12 and old.table.modes == 8
+    # the shared spectra give the same result as a correlator built from scratch at K = 12
+    monkeypatch.undo()
+    fresh, _ = model.field(effects, kappa, np.eye(3), modes=12)
+    pose = (np.eye(3), np.array([0.3, -0.2, 4.0]))
+    a, b = new.evaluate(*pose), fresh.evaluate(*pose)
+    assert a.energy == pytest.approx(b.energy, rel=1e-12)
+    assert np.allclose(a.force, b.force, rtol=1e-10, atol=1e-12 * abs(a.energy))
+
+
+def test_without_the_correlator_in_use_the_spectra_are_built(model, monkeypatch):
+    effects = model.config.effects
+    kappa = model.physics(effects).kappa
+    _, descriptors = model.field(effects, kappa, np.eye(3))
+    calls = []
+    real = correlator_module.build_spectra
+    monkeypatch.setattr(correlator_module, "build_spectra",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    build_field(model, FieldRequest(2, "field", effects, kappa, np.eye(3), 12,
+                                    descriptors=descriptors))
+    assert calls
