@@ -224,6 +224,9 @@ def dovetail_slide() -> int:
 
 
 # --------------------------------------------------------------------------- scenes
+# Each moving part starts far enough back that the two parts' descriptor grids (the parts
+# plus `padding` cells) do not overlap: no geometric force acts before the user moves the
+# proxy, so a scene opens at rest (7 mm clear of contact at grid 56, 10 for boss_pins).
 #: The degrees of freedom each fit leaves free (part 1's frame): the round peg turns in its
 #: blind hole; the others are locked by their walls, floors and ends.
 FREE_AXES = {"peg_in_hole": ["rz"], "boss_pins": [], "bracket_slot": [], "dovetail": []}
@@ -302,16 +305,16 @@ def main() -> int:
     try:
         write_pair("peg_in_hole", "Peg in hole", "blind hole, zero clearance",
                    ("block", peg_block), ("peg", peg, (0, 0, -HOLE_DEPTH)),
-                   [0, 0, -HOLE_DEPTH, 0, 0, 0], [0, 0, -1], backoff=20)
+                   [0, 0, -HOLE_DEPTH, 0, 0, 0], [0, 0, -1], backoff=27)
         write_pair("boss_pins", "Boss and pins", "filleted boss, two pins, matching cover",
                    ("base", boss_base), ("cover", boss_cover, (0, 0, 0)),
-                   [0, 0, 0, 0, 0, 0], [0, 0, -1], backoff=16)
+                   [0, 0, 0, 0, 0, 0], [0, 0, -1], backoff=27)
         write_pair("bracket_slot", "Bracket in slot", "2 mm wall in a 2 mm slot",
                    ("block", slot_block), ("bracket", bracket, (0, 0, -SLOT_D)),
-                   [0, 0, -SLOT_D, 0, 0, 0], [0, 0, -1], backoff=15)
+                   [0, 0, -SLOT_D, 0, 0, 0], [0, 0, -1], backoff=22)
         write_pair("dovetail", "Dovetail", "blind dovetail groove, slides in along +y",
                    ("block", dovetail_block), ("slide", dovetail_slide, (0, DT_END, 0)),
-                   [0, DT_END, 0, 0, 0, 0], [0, 1, 0], backoff=35)
+                   [0, DT_END, 0, 0, 0, 0], [0, 1, 0], backoff=42)
         # a multi-body STEP: the peg-in-hole pair, seated, in one file
         gmsh.clear()
         _start("two_bodies")

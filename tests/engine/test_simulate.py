@@ -45,7 +45,7 @@ def test_trajectory_moves_part_and_log_replays(tmp_path, capsys):
 
 def test_no_trajectory_keeps_proxy_at_start(capsys):
     out = run_json(capsys, PEG, "--guidance", "none", "--seconds", 0.2)
-    np.testing.assert_allclose(out["final_pose"], [0, 0, 5, 0, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(out["final_pose"], [0, 0, 12, 0, 0, 0], atol=1e-9)
     assert out["steps"] == 200
 
 
@@ -102,6 +102,11 @@ SEATING_MODES = 48
 #: this run takes about 100 s.
 PAIR_MODES = {"bracket_slot": 96}
 
+#: Where the seating protocol starts, back along the insertion axis from the seat (mm): inside
+#: the descriptors' reach, as the scenes started before they were moved out of it to open at
+#: rest; the push covers this in ``push_s``.
+APPROACH = {"peg_in_hole": 20.0, "boss_pins": 16.0, "bracket_slot": 15.0, "dovetail": 35.0}
+
 
 def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, push_s=2.0,
                 hold_s=2.0, modes=None, gain=None):
@@ -129,6 +134,8 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
     tilt_axis = np.cross(axis, lateral)
     width = float(np.ptp(handle.parts[1].vertices @ lateral))
     start = np.array(handle.start_pose, float)
+    if name in APPROACH:
+        start = np.asarray(handle.assembled_pose, float) - np.r_[APPROACH[name] * axis, 0, 0, 0]
     start[:3] += offset_frac * width * lateral
     start[3:] += np.radians(tilt_deg) * tilt_axis
     handle = replace(handle, start_pose=start)
