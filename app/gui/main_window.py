@@ -798,10 +798,11 @@ class MainWindow(QtWidgets.QMainWindow):
             text, style = "PAUSED (Space resumes)", "color: white; background: #555; padding: 0 4px"
             self.readouts.set("rate", "paused", detail)
         elif self.rate_low:
-            text = f"engine slow: {rate:,.0f} of {target:,.0f} steps/s"
+            text = f"engine slow: {rate:,.0f} of {target:,.0f} steps/s (lower K?)"
             style = "color: black; background: #ffb000; padding: 0 4px"
-            self.readouts.set("rate", f"{rate:,.0f} steps/s, below its {target:,.0f}: lower K "
-                              "or close other programs", detail)
+            self.readouts.set("rate", f"{rate:,.0f} steps/s, below its {target:,.0f}",
+                              "Forces come less often than the engine's rate: lower K, or "
+                              f"close other programs\n{detail}")
         else:
             text, style = (f"engine {rate:,.0f} steps/s" if f is not None else "engine: -"), ""
             self.readouts.set("rate", f"{rate:,.0f} steps/s (target {target:,.0f})", detail)
@@ -822,7 +823,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if task.reports_fraction and task.clock.fraction is not None:
             left = task.clock.seconds_left()
             suffix = f", {quantities.duration_text(left)} left" if left is not None else ""
-            self.params.set_progress(task.clock.fraction, f"{task.label} %p%{suffix}",
+            self.params.set_progress(task.clock.fraction,
+                                     f"{task.label} {100 * task.clock.fraction:.0f} %{suffix}",
                                      cancellable=self.tasks.get("correlator") is None)
         elif not task.reports_fraction:
             self.params.set_progress(-1.0, f"{task.label}…", cancellable=False)

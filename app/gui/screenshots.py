@@ -36,7 +36,7 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
     scene = Path(scene) if scene else DEFAULT_SCENE
     tmp = tempfile.TemporaryDirectory()
     settings = QtCore.QSettings(str(Path(tmp.name) / "s.ini"), QtCore.QSettings.IniFormat)
-    win = MainWindow(settings=settings)
+    win = MainWindow(settings=settings, engine_kwargs={"process": True})  # as `skelasm gui`
     win.resize(1280, 800)
     win.show()
 

@@ -193,3 +193,27 @@ def test_failed_recompute_and_missing_device_are_reported_and_the_session_goes_o
     n = win.frames_received
     wait_until(lambda: win.frames_received > n + 5, 5000, "frames after both failures")
     assert win.latest_frame.device == "mouse"
+
+
+def test_the_engine_reports_new_k_tables_and_landscape_progress(ready_window, wait_until):
+    """A new K's field says when it is in use and a landscape reports its progress, so the
+    window can show both waits (the status bar's task ends; the landscape header shows it).
+    """
+    win = ready_window
+    seen = []
+    handle = win._handle_event
+    win._handle_event = lambda event: (seen.append(event), handle(event))
+    k = win.latest_frame.modes + 2
+    win.params.modes.setValue(k)
+    assert win.tasks.get("field").label.startswith(f"building the tables for K = {k}")
+    wait_until(lambda: any(isinstance(e, runtime.ProgressEvent) and e.task == "field"
+                           and e.message == "done" for e in seen), 30000, "the field's done")
+    wait_until(lambda: win.tasks.get("field") is None, 5000, "the K task to end")
+    assert win.params.progress.format() in ("ready", f"K = {k} in use")
+    win.session.send(runtime.RequestLandscape())
+    wait_until(lambda: any(isinstance(e, runtime.LandscapeReady) for e in seen), 60000,
+               "a landscape")
+    fractions = [e.fraction for e in seen
+                 if isinstance(e, runtime.ProgressEvent) and e.task == "landscape"]
+    assert fractions and max(fractions) == pytest.approx(1.0)
+    assert fractions == sorted(fractions)
