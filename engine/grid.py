@@ -16,8 +16,10 @@ import numpy as np
 from engine.errors import InputError, ResourceError
 from engine.params import DEFAULT_PADDING, MAX_GRID, MAX_PADDING
 
-#: The largest share of the machine's physical memory one computation may plan to use.
+#: The largest share of the machine's physical memory one computation may plan to use,
+#: and of the memory available when it starts.
 MEMORY_SHARE = 0.5
+AVAILABLE_SHARE = 0.8
 #: Bytes per sample a descriptor computation holds at its peak (the result, the adaptive
 #: sampler's index and work arrays, the points): measured about 100, rounded up.
 DESCRIPTOR_BYTES_PER_SAMPLE = 128
@@ -31,9 +33,23 @@ def physical_memory() -> int | None:
         return None
 
 
-def check_memory(need: int, what: str, fix: str, *, total: int | None = None) -> None:
-    """Refuse a computation that would need more than :data:`MEMORY_SHARE` of the memory.
+def available_memory() -> int | None:
+    """Bytes of memory available now without swapping (Linux's MemAvailable), else None."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
+
+def check_memory(need: int, what: str, fix: str) -> None:
+    """Refuse a computation that would need more memory than it may plan on.
+
+    That is :data:`MEMORY_SHARE` of the machine's physical memory, and no more than
+    :data:`AVAILABLE_SHARE` of what is available now (other programs hold the rest).
     ``need`` is computed by the caller in Python integers (no overflow) before anything is
     allocated.
 
@@ -42,13 +58,18 @@ def check_memory(need: int, what: str, fix: str, *, total: int | None = None) ->
     ResourceError
         Naming ``what``, the bytes it needs, what the machine has, and ``fix``.
     """
-    total = physical_memory() if total is None else total
+    total = physical_memory()
     if total is None:  # pragma: no cover - non-POSIX
         return
-    if need > MEMORY_SHARE * total:
-        raise ResourceError(
-            f"{what} needs about {_gib(need)} of memory but this machine has "
-            f"{_gib(total)} (at most {MEMORY_SHARE:.0%} is planned for one computation): {fix}")
+    budget = MEMORY_SHARE * total
+    available = available_memory()
+    has = f"this machine has {_gib(total)}"
+    if available is not None and AVAILABLE_SHARE * available < budget:
+        budget = AVAILABLE_SHARE * available
+        has += f", {_gib(available)} of it available now"
+    if need > budget:
+        raise ResourceError(f"{what} needs about {_gib(need)} of memory but {has} (at most "
+                            f"{_gib(int(budget))} is planned for one computation): {fix}")
 
 
 def _gib(n: int) -> str:

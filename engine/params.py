@@ -172,7 +172,8 @@ def check_range(what: str, value: Any, bounds: tuple[float, float], why: str) ->
     except (TypeError, ValueError):
         ok = False
     if not ok:
-        raise InputError(f"{what} = {value!r} is outside its range {lo:g} to {hi:g}: {why}")
+        shown = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
+        raise InputError(f"{what} = {shown} is outside its range {lo:g} to {hi:g}: {why}")
     return float(value)
 
 

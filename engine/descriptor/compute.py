@@ -103,7 +103,7 @@ BackendLike = Backend | str | None
 #: chunk, and stay between MIN_CHUNK_POINTS and ``constants.CHUNK_POINTS``. (Kept here,
 #: not in ``constants``: those are part of the descriptor's cache key, and chunking does
 #: not change a single value.)
-CHUNK_SECONDS = 0.2
+CHUNK_SECONDS = 0.05
 FIRST_CHUNK_POINTS = 256
 MIN_CHUNK_POINTS = 16
 

@@ -413,6 +413,22 @@ class SceneModel:
             d2 = collision_descriptor(d2, self.parts[1])
         return d1, d2
 
+    def check_memory(self) -> None:
+        """Refuse a scene whose correlation FFT would not fit (ResourceError), before work.
+
+        The grids of both parts and the FFT size follow from the part sizes alone
+        (``grid_for_part`` itself refuses a descriptor grid that does not fit).
+        """
+        from engine.correlation.correlator import required_fft_size
+        from engine.descriptor import grid_for_part, scene_spacing
+        from engine.grid import check_fft_memory
+
+        spacing = scene_spacing(self.scene, self.parts)
+        shapes = [grid_for_part(p, spacing=spacing, padding=self.scene.descriptor.padding).shape
+                  for p in self.parts[:2]]
+        size = required_fft_size(shapes[0], shapes[-1])
+        check_fft_memory(size, 2 + 4, f"the correlation's {size}^3 FFT")
+
     def field(
         self,
         effects: Effects,
@@ -453,6 +469,7 @@ class SceneModel:
                 return None
             return lambda f: progress(lo + (hi - lo) * float(f))
 
+        self.check_memory()  # before minutes of descriptors, not at the FFT after them
         d1, d2 = self.descriptors(
             effects, sigma=sigma, penalty=penalty, progress=stage(0.0, 0.9), cancel=cancel
         )

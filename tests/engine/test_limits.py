@@ -1,0 +1,427 @@
+"""Limits: every parameter has a range, memory and time are bounded before work starts.
+
+Each command-line case asserts the message, exit status 2 and, where the input would have
+cost minutes or gigabytes, that the refusal comes before the work: the expensive function
+is replaced by one that fails the test if it is reached. The scene is the peg in hole at
+grid 16, K = 8 (docs/limits.md lists every range and why).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import engine.descriptor.compute as compute
+import engine.grid
+from app.cli import main
+from engine.errors import Cancelled, Diverged, InputError, ResourceError
+from engine.grid import Grid, grid_for_bounds
+from engine.params import (
+    MAX_MODES,
+    SIGMA_RANGE,
+    CorrelationParams,
+    DescriptorParams,
+    MassSpec,
+    Physics,
+    SimulationParams,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+PEG = ROOT / "assets" / "peg_in_hole"
+SCENE = """name = "Peg in hole, small"
+units = "mm"
+assembled_pose = [0, 0, -15, 0, 0, 0]
+insertion_axis = [0, 0, -1]
+{top}
+[descriptor]
+grid = 16
+padding = 6
+{descriptor}
+[correlation]
+modes = 8
+{tables}
+[[part]]
+name = "block"
+file = "block.step"
+fixed = true
+[[part]]
+name = "peg"
+file = "peg.step"
+pose = [0, 0, 5, 0, 0, 0]
+{part}
+"""
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """A folder with the peg's parts and a private cache shared by this module's tests."""
+    path = tmp_path_factory.mktemp("limits")
+    for name in ("block.step", "peg.step"):
+        shutil.copy(PEG / name, path / name)
+    return path
+
+
+@pytest.fixture(autouse=True)
+def private_cache(folder, monkeypatch):
+    monkeypatch.setenv("SKELASM_CACHE", str(folder / "cache"))
+    for name in ("SKELASM_DEVICE", "SKELASM_CORRELATION_THREADS", "SKELASM_BACKEND"):
+        monkeypatch.delenv(name, raising=False)
+
+
+def scene(folder: Path, *, top="", descriptor="", tables="", part="", name="s.toml") -> Path:
+    path = folder / name
+    path.write_text(SCENE.format(top=top, descriptor=descriptor, tables=tables, part=part))
+    return path
+
+
+def run(capsys, *argv) -> tuple[int, str]:
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse's refusals of an option's value
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err
+
+
+def refused(capsys, *argv) -> str:
+    """Run the command line; assert exit status 2 and one line of error; return it."""
+    code, err = run(capsys, *argv)
+    assert code == 2, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("skelasm ")
+    return err
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Reaching a descriptor computation or a simulation fails the test."""
+
+    def reached(*args, **kwargs):
+        raise AssertionError("the work started before the input was refused")
+
+    import engine.descriptor.store
+    import engine.sim
+
+    monkeypatch.setattr(compute, "compute_descriptor", reached)
+    monkeypatch.setattr(engine.descriptor.store, "compute_descriptor", reached)
+    monkeypatch.setattr(engine.sim, "build_simulation", reached)
+
+
+# --------------------------------------------------------------------------- descriptor
+@pytest.mark.parametrize("key,value,match", [
+    ("sigma", "1e-3", "sigma = 0.001 is outside its range 0.05 to 50: a smaller sigma"),
+    ("sigma", "1e6", "sigma = 1e\\+06 is outside its range 0.05 to 50"),
+    ("penalty", "1e6", "penalty = 1e\\+06 is outside its range 0.001 to 1000: .*single"),
+    ("lambda-out", "1e9", "lambda_out = 1e\\+09 is outside its range 1e-06 to 1e"),
+    ("padding", "1e308", "padding = 1e\\+308 cells is outside its range 0 to 64"),
+    ("spacing", "1e-9", "spacing = 1e-09 gives 3e\\+10 samples along the part's longest side "
+                        "\\(30\\), above 2048: for this part the spacing must be at least 0.0146"),
+])
+def test_precompute_refuses_out_of_range_before_work(folder, capsys, no_work, key, value, match):
+    err = refused(capsys, "precompute", folder / "peg.step", f"--{key}", value,
+                  "-o", folder / "out.npz")
+    assert err.count("\n") == 1
+    import re
+
+    assert re.search(match, err), err
+    assert not (folder / "out.npz").exists()
+
+
+@pytest.mark.parametrize("text,match", [
+    ("sigma = 1e-3", "sigma = 0.001 is outside its range"),
+    ("sigma = 1e6", "sigma = 1e+06 is outside its range"),
+    ("penalty = 1e-9", "penalty = 1e-09 is outside its range"),
+    ("grid = 100000000000000000000", "grid must be an integer from 4 to 2048"),
+    ("padding = 1000", "padding = 1000 is outside its range 0 to 64"),
+])
+def test_scene_descriptor_ranges_name_file_and_line(folder, capsys, no_work, text, match):
+    path = scene(folder, descriptor=text)
+    key = text.split(" =")[0]
+    base = {"grid": "grid = 16\n", "padding": "padding = 6\n"}.get(key)
+    if base is not None:  # the scene's own line goes, so the key is not given twice
+        path.write_text(path.read_text().replace(base, "", 1))
+    err = refused(capsys, "precompute", path, "-o", folder)
+    assert f"{path}:" in err and match in err, err
+
+
+def test_params_ranges_hold_in_the_python_api():
+    low, high = SIGMA_RANGE
+    DescriptorParams(sigma=low)
+    DescriptorParams(sigma=high)  # the ends are inside
+    for bad in (dict(sigma=low / 2), dict(sigma=high * 2), dict(penalty=1e4),
+                dict(lambda_out=1e-7), dict(grid=4096), dict(padding=65.0)):
+        with pytest.raises(InputError, match="range|from 4 to"):
+            DescriptorParams(**bad)
+    with pytest.raises(InputError, match=f"above {MAX_MODES}"):
+        CorrelationParams(modes=MAX_MODES + 1)
+    with pytest.raises(InputError, match="rate_hz = 1e\\+12 is outside its range 1 to 100000"):
+        SimulationParams(rate_hz=1e12)
+    with pytest.raises(InputError, match="mass = 1e\\+300 is outside"):
+        MassSpec(mass=1e300)
+
+
+def test_grid_sizes_are_counted_in_python_integers():
+    lo, hi = np.zeros(3), np.full(3, 30.0)
+    for kwargs, match in [(dict(spacing=1e-9), "3e\\+10 samples"),
+                          (dict(spacing=1e-300), "3e\\+301 samples"),
+                          (dict(samples=10**19), "above 2048"),
+                          (dict(spacing=1.0, padding=1e308), "outside its range 0 to 64")]:
+        with pytest.raises(InputError, match=match):
+            grid_for_bounds(lo, hi, **kwargs)
+    g = grid_for_bounds(lo, hi, spacing=1.0, padding=2)
+    assert g.shape == (35, 35, 35)
+
+
+def test_memory_refusals_exit_2_before_allocating(folder, capsys, monkeypatch, no_work):
+    # a machine of 1 GiB: a 600-sample grid (600^3 samples at 128 bytes) is refused
+    monkeypatch.setattr(engine.grid, "physical_memory", lambda: 2**30)
+    monkeypatch.setattr(engine.grid, "available_memory", lambda: None)
+    err = refused(capsys, "precompute", folder / "peg.step", "--grid", "600",
+                  "-o", folder / "out.npz")
+    assert "descriptor grid needs about" in err and "this machine has 1.0 GiB (at most 0.5" in err
+    assert "coarser grid" in err
+
+
+def test_fft_is_guarded_before_it_allocates(monkeypatch):
+    from engine.correlation.spectrum import compute_spectrum
+
+    monkeypatch.setattr(engine.grid, "physical_memory", lambda: 2**40)
+    monkeypatch.setattr(engine.grid, "available_memory", lambda: 2**33)  # 8 GiB free now
+    grid = Grid((0.0, 0.0, 0.0), 1.0, (8, 8, 8))
+    rho = np.ones((8, 8, 8), np.complex64)
+    with pytest.raises(ResourceError, match=r"the spectrum's 588\^3 FFT .*needs about 9.1 GiB.*"
+                                            r"8.0 GiB of it available now.*coarser grid"):
+        compute_spectrum(rho, grid, 588, moments=True, use_cache=False)
+
+
+# --------------------------------------------------------------------------- cancel
+def test_descriptor_chunks_are_sized_by_time(monkeypatch):
+    """Cancel is polled between chunks; each chunk takes about CHUNK_SECONDS of (fake) time.
+
+    The numba kernel is replaced by one that advances a fake clock by 1 ms per point (the
+    cost near the surface at the smallest sigma allowed), so the test is deterministic.
+    """
+    clock = [0.0]
+    chunks: list[float] = []
+
+    def kernel(points, *args):
+        cost = 1e-3 * len(points)
+        clock[0] += cost
+        chunks.append(cost)
+        args[-1][:] = 0.0
+
+    monkeypatch.setattr(compute, "_evaluate_numba", kernel)
+    monkeypatch.setattr(compute.time, "perf_counter", lambda: clock[0])
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    grid = grid_for_bounds(v.min(0), v.max(0), samples=16, padding=6)
+    polls: list[float] = []
+
+    def cancel() -> bool:
+        polls.append(clock[0])
+        return clock[0] > 3.0
+
+    with pytest.raises(Cancelled):
+        compute.compute_descriptor(v, f, grid, backend="numba", method="tree", cancel=cancel)
+    assert max(chunks) <= 0.3  # the first chunk: 256 points, then about CHUNK_SECONDS each
+    assert max(np.diff(polls)) <= 0.3 and polls[-1] < 3.3
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_a_slow_descriptor_within_a_second(tmp_path):
+    """A timing check (slow-marked, skipped on a loaded machine): SIGINT during the
+    computation at the smallest sigma allowed ends the process within a second.
+    """
+    import os
+    import signal
+    import subprocess
+    import time
+
+    if os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1):
+        pytest.skip(f"machine loaded (load average {os.getloadavg()[0]:.1f})")
+    env = dict(os.environ, SKELASM_CACHE=str(tmp_path / "cache"))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "precompute", str(PEG / "peg.step"), "--grid", "48",
+         "--sigma", str(SIGMA_RANGE[0]), "--no-cache", "-o", str(tmp_path / "p.npz")],
+        env=env, stderr=subprocess.PIPE, cwd=ROOT)
+    time.sleep(12.0)  # imports, the STEP part, then well into the computation
+    assert proc.poll() is None
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=30)
+    assert time.monotonic() - sent < 1.0 and proc.returncode == 130
+
+
+# --------------------------------------------------------------------------- simulation
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(part="inertia = [1, 1, 1]"),
+     "part inertia \\(principal moments 1, 1, 1\\) is 80.8 times smaller than the mesh's own"
+     ".*kg mm\\^2.*kg m\\^2 is 1e\\+06 times smaller"),
+    (dict(tables="[simulation]\nkappa = 1e300"),
+     "kappa = 1e\\+300 is .* times its scale-free default"),
+    (dict(tables="[effects]\ngravity = [0, 0, -1e300]"),
+     "gravity in \\[effects\\] has magnitude 1e\\+300 mm/s\\^2, above 100 standard gravities"),
+    (dict(part="mass = 1e300"), "part mass = 1e\\+300 is outside its range 1e-09 to 1e\\+09"),
+    (dict(tables="[simulation]\nrate_hz = 1e12"), "rate_hz = 1e\\+12 is outside its "
+                                                  "range 1 to 100000"),
+])
+def test_simulation_values_that_used_to_break(folder, capsys, kwargs, match):
+    import re
+
+    err = refused(capsys, "simulate", scene(folder, **kwargs), "--seconds", "0.2")
+    assert re.search(match, err), err
+    assert "math domain error" not in err
+
+
+@pytest.mark.parametrize("rows,match", [
+    ("0,0,0,5,0,0,0\n0.1,1e300,0,5,0,0,0", "row 3: the pose puts part 2 1e\\+300 from part 1"),
+    ("0,0,0,5,0,0,0\n0.1,0,0,5,1e300,0,0", "row 3: the pose has a rotation vector of 1e\\+300"),
+    ("0,0,0,5,0,0,0\n0.1,nan,0,5,0,0,0", "not finite|NaN"),
+    ("-2,0,0,5,0,0,0\n-1,0,0,5,0,0,0", "its times run from -2 to -1 s; they are seconds from "
+                                        "the start"),
+    ("0,0,0,5,0,0,0\n1e9,0,0,5,0,0,0", "its last time \\+ 1 s = 1e\\+09 s at 1000 Hz is 1e\\+12 "
+                                       "steps.*not Unix times"),
+])
+def test_trajectories_are_checked_before_the_run(folder, capsys, no_work, rows, match):
+    import re
+
+    traj = folder / "t.csv"
+    traj.write_text("t,tx,ty,tz,rx,ry,rz\n" + rows + "\n")
+    err = refused(capsys, "simulate", scene(folder), "--trajectory", traj, "--log",
+                  folder / "log.csv")
+    assert re.search(match, err), err
+    assert "--seconds must be positive" not in err
+    assert not (folder / "log.csv").exists()
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--modes", "0"], "argument --modes: K must be from 1 to 128"),
+    (["--modes", "1000"], "argument --modes: K must be from 1 to 128"),
+    (["--seconds", "-1"], "argument --seconds: must be positive"),
+    (["--seconds", "inf"], "argument --seconds: must be a finite number"),
+    (["--seconds", "1e9"], "--seconds = 1e\\+09 s at 1000 Hz is 1e\\+12 steps"),
+    (["--start", "0", "0", "nan", "0", "0", "0"], "argument --start: must be a finite number"),
+])
+def test_simulate_options_have_ranges(folder, capsys, no_work, argv, match):
+    import re
+
+    err = refused(capsys, "simulate", scene(folder), *argv)
+    assert re.search(match, err), err
+
+
+def test_negative_numbers_in_any_float_notation(folder, capsys):
+    from app.cli import build_parser
+
+    args = build_parser().parse_args(
+        ["simulate", "s.toml", "--start", "0", "-0.3", "38.8", "-4.2e-18", "0.0685", "3.14"])
+    assert args.start == [0.0, -0.3, 38.8, -4.2e-18, 0.0685, 3.14]
+    args = build_parser().parse_args(
+        ["evaluate", "s.toml", "--pose", "-1E+2", "-.5", "-1_0.5", "-0", "-3.", "-2e0"])
+    assert args.pose == [-100.0, -0.5, -10.5, 0.0, -3.0, -2.0]
+    with pytest.raises(SystemExit):  # an unknown option is still an option
+        build_parser().parse_args(["simulate", "s.toml", "-e5"])
+
+
+def test_landscape_rotation_nan_is_refused(folder, capsys, no_work):
+    err = refused(capsys, "landscape", scene(folder), "--rotation", "nan", "0", "0",
+                  "-o", folder / "l.png")
+    assert "argument --rotation: must be a finite number, got nan" in err
+
+
+def test_deep_toml_names_the_file(folder, capsys):
+    path = folder / "deep.toml"
+    path.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    err = refused(capsys, "simulate", path)
+    assert f"{path}: nested too deeply to read" in err
+
+
+@pytest.mark.parametrize("name,value,match", [
+    ("SKELASM_CORRELATION_THREADS", "abc", "SKELASM_CORRELATION_THREADS = 'abc' is not a "
+                                           "positive whole number"),
+    ("SKELASM_CORRELATION_THREADS", "0", "is not a positive whole number"),
+    ("SKELASM_DEVICE", "bogus", "SKELASM_DEVICE = 'bogus' picks no usable OpenCL device"),
+    ("SKELASM_BACKEND", "cuda", "SKELASM_BACKEND = 'cuda': unknown backend"),
+])
+def test_bad_environment_variables_are_named(folder, capsys, monkeypatch, no_work, name, value,
+                                             match):
+    monkeypatch.setenv(name, value)
+    err = refused(capsys, "simulate", scene(folder))
+    assert match in err, err
+
+
+def test_gui_without_its_extra_names_the_extra(monkeypatch, capsys):
+    import app.gui.app
+
+    def missing(*args, **kwargs):
+        raise ModuleNotFoundError("No module named 'PySide6'", name="PySide6")
+
+    monkeypatch.setattr(app.gui.app, "run", missing)
+    code, err = run(capsys, "gui", "--quit-after", "0")
+    assert code == 1 and "Traceback" not in err  # an installation problem, not an input
+    assert "needs the `gui` extra" in err and "pip install 'skelasm[gui]'" in err
+    assert "PySide6 is not installed" in err
+
+
+def test_poses_out_of_reach_of_the_parts_warn(folder, capsys):
+    # units = "m" over poses written in millimetres: the peg starts 5 m from a 40 mm block
+    path = scene(folder, name="metres.toml")
+    path.write_text(path.read_text().replace('units = "mm"', 'units = "m"'))
+    from engine.scene import load_scene, load_scene_parts
+
+    parts = load_scene_parts(load_scene(path))
+    warning = parts[1].warnings[-1]
+    assert "part 2 starts 5 m from part 1 and is assembled 15 m from it" in warning
+    assert "the energy is 0" in warning and "units" in warning
+    # the same scene in millimetres gives no such warning
+    parts = load_scene_parts(load_scene(scene(folder)))
+    assert not any("never meet" in w for p in parts for w in p.warnings)
+
+
+# --------------------------------------------------------------------------- divergence
+def _free_body_sim(k_lin: float, start=(0.0, 0.0, 0.0, 0, 0, 0)):
+    from engine.params import Effects
+    from engine.sim import NullField, RigidBody, Simulation
+
+    physics = Physics(k_lin=k_lin, c_lin=0.0, k_rot=1.0, c_rot=0.0, length=10.0)
+    body = RigidBody(1.0, np.eye(3), np.zeros(3))
+    sim = Simulation(body, physics, Effects(guidance="none", damping=False), NullField(),
+                     np.asarray(start, float), dt=1e-3)
+    sim.set_proxy(np.array([1.0, 0, 0, 0, 0, 0]))
+    return sim
+
+
+def test_integrator_stops_on_divergence_with_the_cause():
+    sim = _free_body_sim(k_lin=1e9)  # sqrt(k/m) dt = 31.6: far beyond the limit of 2
+    with pytest.raises(Diverged, match="the simulation diverged at t = .* Likely cause: the "
+                                       "coupling stiffness 1e\\+09 for mass 1 is too stiff"):
+        sim.run(200)
+    assert sim.steps < 20  # caught while every number was finite, long before overflow
+    assert all(math.isfinite(v) for v in sim.state.velocity)
+    stable = _free_body_sim(k_lin=100.0)
+    stable.run(2000)  # a sound coupling runs on
+    assert stable.steps == 2000
+
+
+def test_proxy_poses_out_of_reach_are_refused():
+    sim = _free_body_sim(k_lin=100.0)
+    for pose, match in [([1e300, 0, 0, 0, 0, 0], "1e\\+300 from part 1"),
+                        ([0, 0, 0, 1e300, 0, 0], "rotation vector of 1e\\+300"),
+                        ([0, 0, float("nan"), 0, 0, 0], "not finite")]:
+        with pytest.raises(InputError, match=match):
+            sim.set_proxy(np.array(pose))
+
+
+def test_argument_types_read_python_floats():
+    from app.commands.arguments import finite_float, modes, positive_float
+
+    assert finite_float("-4.2e-18") == -4.2e-18 and finite_float("1_000.5") == 1000.5
+    for bad in ("nan", "inf", "-inf", "x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            finite_float(bad)
+    with pytest.raises(argparse.ArgumentTypeError, match="positive"):
+        positive_float("0")
+    assert modes("8") == 8
