@@ -17,7 +17,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="energy, force and torque of part 2 at one pose relative to part 1",
         description="Evaluate the Fourier-correlation energy E = -kappa Re f, the force "
         "-dE/dt and the torque -dE/dtheta on the moving part at one pose (part 2 relative "
-        "to part 1, the convention of the scene's assembled_pose).",
+        "to part 1, the convention of the scene's assembled_pose). kappa is the one the "
+        "simulation and the window use (the scene's [simulation] kappa or its scale-free "
+        "default); masses are in kg, so a millimetre scene's E is in µJ, F in mN, T in mN·mm.",
     )
     parser.add_argument("scene", help="scene file (TOML)")
     parser.add_argument(
@@ -45,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from app.commands.scale import energy_scale
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.scene import load_scene
@@ -53,10 +56,11 @@ def run(args: argparse.Namespace) -> int:
     if args.modes is not None and args.modes < 1:
         raise ValueError(f"--modes must be at least 1, got {args.modes}")
     pose = np.asarray(args.pose if args.pose is not None else scene.assembled_pose, dtype=float)
+    scale = energy_scale(scene)
     update, close = progress_bar("preparing", enabled=not args.json)
     try:
         corr = correlator_for_scene(scene, modes=args.modes, backend=args.backend,
-                                    progress=update)
+                                    kappa=scale.kappa, progress=update)
     finally:
         close()
     rot = rotation_matrix(pose[3:])
@@ -75,18 +79,21 @@ def run(args: argparse.Namespace) -> int:
         "backend": corr.backend,
         "backend_detail": corr.backend_name,
         "fft_size": corr.size,
+        **scale.as_json(),
     }
     if args.json:
         print(json.dumps(out))
         return 0
-    units = scene.units
+    units = scale.units
     print(f"scene      {scene.name} ({scene.path})")
-    print(f"pose       t = {pose[:3].tolist()} {units}, rotation vector = {pose[3:].tolist()} rad")
-    print(f"energy     {result.energy:.6g}")
-    print(f"force      {np.array2string(result.force, precision=5)}  (|F| = "
+    print(f"pose       t = {pose[:3].tolist()} {units.length}, rotation vector = "
+          f"{pose[3:].tolist()} rad")
+    print(f"energy     {result.energy:.6g} {units.energy}")
+    print(f"force      {np.array2string(result.force, precision=5)} {units.force}  (|F| = "
           f"{np.linalg.norm(result.force):.5g})")
     if result.torque is not None:
-        print(f"torque     {np.array2string(result.torque, precision=5)}")
+        print(f"torque     {np.array2string(result.torque, precision=5)} {units.torque}")
+    print(f"scale      {scale.describe()}")
     print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")

@@ -37,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.commands.evaluate import progress_bar
+    from app.commands.scale import energy_scale
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.scene import load_scene
@@ -46,10 +47,12 @@ def run(args: argparse.Namespace) -> int:
                        inputs=[scene.path, *(spec.file for spec in scene.parts)])
     fitted = np.asarray(scene.assembled_pose, dtype=float)
     rotvec = np.asarray(args.rotation if args.rotation is not None else fitted[3:], dtype=float)
+    scale = energy_scale(scene)
+    energy_unit = scale.units.energy
     update, close = progress_bar("landscape")
     try:
         corr = correlator_for_scene(
-            scene, modes=args.modes, backend="numpy",
+            scene, modes=args.modes, backend="numpy", kappa=scale.kappa,
             progress=None if update is None else (lambda f: update(0.8 * f)))
         land = corr.landscape(rotation_matrix(rotvec), forces=False,
                               progress=None if update is None else (
@@ -63,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     write_section_png(
         args.output, section, u, v, args.plane,
         title=f"{scene.name}: E(t), {args.plane} at {'xyz'[normal]} = {offset:g} {scene.units}, "
-        f"K = {land.modes}",
+        f"K = {land.modes}\nE in {energy_unit}, kappa = {scale.kappa:.4g} {scale.units.kappa}",
         units=scene.units,
         fitted=fitted[axes],
         lowest=np.unravel_index(int(np.argmin(section)), section.shape),
@@ -72,9 +75,11 @@ def run(args: argparse.Namespace) -> int:
     fit_energy = land.lookup(fitted[:3]).energy
     print(f"landscape  {land.energy.shape[0]}^3 translations in {land.seconds:.2f} s "
           f"(FFT size {corr.size}, K = {land.modes})")
-    print(f"section    min {section.min():.5g}, max {section.max():.5g}")
-    print(f"fitted     t = {fitted[:3].tolist()}: E = {fit_energy:.5g}")
-    print(f"minimum    t = {np.round(t_min, 4).tolist()}: E = {e_min:.5g} (whole landscape)")
+    print(f"section    min {section.min():.5g}, max {section.max():.5g} {energy_unit}")
+    print(f"fitted     t = {fitted[:3].tolist()}: E = {fit_energy:.5g} {energy_unit}")
+    print(f"minimum    t = {np.round(t_min, 4).tolist()}: E = {e_min:.5g} {energy_unit} "
+          "(whole landscape)")
+    print(f"scale      {scale.describe()}")
     print(f"wrote      {args.output}")
     return 0
 

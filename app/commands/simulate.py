@@ -56,10 +56,12 @@ def run(args: argparse.Namespace) -> int:
     from engine.devices import DeviceError, MouseDevice, TrajectoryDevice, open_device
     from engine.errors import InputError
     from engine.files import check_output, disk_space_error, files_digest
+    from engine.params import QuantityUnits
     from engine.pose import relative_pose
     from engine.recording import CSV_ROW_BYTES, NPZ_ROW_BYTES, RecordingWriter, recording_scene
     from engine.runtime import EngineLoop, open_scene, period_stats
     from engine.runtime.frames import RECORDING_INDEX
+    from engine.seat import seat_state
     from engine.sim import build_simulation
 
     handle = open_scene(args.scene)
@@ -139,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
     final = sim.part_pose()
     target = np.asarray(handle.assembled_pose, float)
     error_pose = relative_pose(target, final)
+    moving = handle.parts[-1]
+    seat = seat_state(final, target, sim.physics.center, handle.scene.seat,
+                      float(np.linalg.norm(np.ptp(moving.vertices, axis=0))))
+    units = QuantityUnits.of(handle.scene.units)
     stats = period_stats(np.asarray(loop.periods))
     frames = loop.poll_frames()
     eval_us = [f.eval_us for f in frames]
@@ -153,6 +159,9 @@ def run(args: argparse.Namespace) -> int:
         "assembled_pose": [float(v) for v in target],
         "distance_to_assembled": float(np.linalg.norm(error_pose[:3])),
         "angle_to_assembled_deg": float(np.degrees(np.linalg.norm(error_pose[3:]))),
+        "seat": {"seated": seat.seated, "distance": seat.distance, "angle_deg": seat.angle_deg,
+                 "free_travel": seat.free_travel, "free_axes": seat.free_axes,
+                 "tolerance": [seat.distance_tolerance, seat.angle_tolerance_deg]},
         "steps": int(taken),
         "simulated_seconds": float(sim.time),
         "wall_seconds": float(wall),
@@ -166,6 +175,9 @@ def run(args: argparse.Namespace) -> int:
         },
         "eval_us_median_last": float(np.median(eval_us)) if eval_us else 0.0,
         "final_energy": float(sim.sample.energy),
+        "kappa": float(sim.physics.kappa),
+        "units": {"length": units.length, "energy": units.energy, "force": units.force,
+                  "torque": units.torque, "kappa": units.kappa},
         "haptic_force": [float(v) for v in sim.haptic_force],
         "device": {"name": device.name, **device_stats},
         "notes": notes,
@@ -185,6 +197,13 @@ def run(args: argparse.Namespace) -> int:
               + ", ".join(f"{v:.4g}" for v in f[3:]) + ")")
         print(f"to assembled: {result['distance_to_assembled']:.4g} {handle.scene.units}, "
               f"{result['angle_to_assembled_deg']:.3g} deg")
+        free = (", ".join(seat.free_axes) or "none") if seat.free_axes is not None else "unknown"
+        print(f"seat: {'SEATED' if seat.seated else 'not seated'} ({seat.distance:.4g} "
+              f"{units.length} and {seat.angle_deg:.3g} deg from the seat along the locked axes; "
+              f"tolerance {seat.distance_tolerance:.3g} {units.length}, "
+              f"{seat.angle_tolerance_deg:.3g} deg; free axes: {free})")
+        print(f"energy: {result['final_energy']:.6g} {units.energy} (kappa = "
+              f"{sim.physics.kappa:.6g} {units.kappa})")
         p = result["period_us"]
         print(f"period us: median {p['median']:.1f}, p1 {p['p1']:.1f}, p99 {p['p99']:.1f}, "
               f"max {p['max']:.1f}")

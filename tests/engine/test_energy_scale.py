@@ -1,0 +1,90 @@
+"""One energy scale: evaluate, simulate and the simulation's own field report the same E."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+trimesh = pytest.importorskip("trimesh")
+
+SCENE = """
+name = "Box in a cup"
+units = "{units}"
+assembled_pose = [0, 0, 1, 0, 0, 0]
+{kappa}
+[descriptor]
+grid = 10
+padding = 3
+
+[correlation]
+modes = 6
+
+[[part]]
+name = "cup"
+file = "cup.stl"
+pose = [0, 0, 0, 0, 0, 0]
+
+[[part]]
+name = "box"
+file = "box.stl"
+pose = [0, 0, 6, 0, 0, 0]
+"""
+POSE = ["0.2", "0", "1.5", "0.1", "0", "0"]
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def scene(folder, *, units="mm", kappa=""):
+    folder.mkdir(parents=True, exist_ok=True)
+    trimesh.creation.box(extents=(6, 6, 4)).export(folder / "cup.stl")
+    trimesh.creation.box(extents=(3, 3, 2)).export(folder / "box.stl")
+    path = folder / "scene.toml"
+    path.write_text(SCENE.format(units=units, kappa=kappa))
+    return path
+
+
+def evaluate(capsys, path):
+    from app.cli import main
+
+    assert main(["evaluate", str(path), "--pose", *POSE, "--json", "--repeat", "1",
+                 "--backend", "numpy"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_evaluate_reports_the_simulations_energy(tmp_path, capsys):
+    import engine.runtime as rt
+    from engine.pose import rotation_matrix
+    from engine.sim import build_simulation
+
+    path = scene(tmp_path / "a")
+    out = evaluate(capsys, path)
+    assert out["units"] == {"length": "mm", "energy": "µJ", "force": "mN", "torque": "mN·mm",
+                            "kappa": "kg/(mm·s²)"}
+    assert out["kappa_source"] == "default"
+    sim, _ = build_simulation(rt.open_scene(path), prepare=True, backend="numpy")
+    assert out["kappa"] == pytest.approx(sim.physics.kappa, rel=1e-12)
+    pose = np.array([float(v) for v in POSE])
+    ev = sim.field.evaluate(rotation_matrix(pose[3:]), pose[:3])
+    assert ev.energy != 0.0
+    assert out["energy"] == pytest.approx(ev.energy, rel=1e-9)
+    np.testing.assert_allclose(out["force"], ev.force, rtol=1e-9, atol=1e-12)
+
+
+def test_a_scene_kappa_scales_every_reported_quantity(tmp_path, capsys):
+    base = evaluate(capsys, scene(tmp_path / "a"))
+    fixed = evaluate(capsys, scene(tmp_path / "b", kappa="[simulation]\nkappa = 2.5\n"))
+    assert fixed["kappa"] == 2.5 and fixed["kappa_source"] == "scene"
+    ratio = 2.5 / base["kappa"]
+    assert fixed["energy"] == pytest.approx(ratio * base["energy"], rel=1e-9)
+    np.testing.assert_allclose(fixed["torque"], ratio * np.asarray(base["torque"]), rtol=1e-9)
+
+
+def test_units_follow_the_scene_unit(tmp_path, capsys):
+    out = evaluate(capsys, scene(tmp_path / "m", units="m"))
+    assert (out["units"]["energy"], out["units"]["force"], out["units"]["torque"]) == (
+        "J", "N", "N·m")
