@@ -18,11 +18,11 @@ marked.
 from __future__ import annotations
 
 import argparse
-import glob
 import math
 import os
 import time
 import types
+from pathlib import Path
 
 import numpy as np
 
@@ -191,7 +191,10 @@ def run(args: argparse.Namespace) -> int:
     _check_output(args.output)
     rng = np.random.default_rng(args.seed)
     note = ""
-    paths = args.scenes if args.scenes is not None else sorted(glob.glob("assets/*/scene.toml"))
+    # the bundled scenes beside this package, wherever the command is run from
+    bundled = Path(__file__).resolve().parents[1] / "assets"
+    paths = (args.scenes if args.scenes is not None
+             else sorted(str(p) for p in bundled.glob("*/scene.toml")))
     pairs = []
     if not args.synthetic and paths:
         try:
