@@ -28,9 +28,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="quit after this many seconds")
     parser.add_argument("--engine", choices=("process", "thread"), default="process",
                         help="where the engine loop runs: its own process (default; VTK holds "
-                        "the GIL while it renders, which stalls a thread engine: measured "
-                        "1000 Hz in a process against 767 Hz in a thread beside the window) "
-                        "or a thread of the window's process")
+                        "the GIL while it renders, which slows a thread engine beside the "
+                        "window: `skelasm bench loop --gui` measures both, figures in "
+                        "docs/runtime.md) or a thread of the window's process")
     parser.set_defaults(run=run)
 
 
