@@ -544,7 +544,7 @@ class UdpBridgeDevice(Device):
         try:
             self.params = UdpBridgeParams.from_options({"host": host, "port": port, **options})
         except InputError as exc:
-            raise DeviceError(f"udp: {exc}") from None
+            raise DeviceError(str(exc)) from None  # its messages start with "udp"
         p = self.params
         self.capabilities = DeviceCapabilities(
             "udp", dof=6, force_feedback=True, torque_feedback=True, max_force=p.max_force,
