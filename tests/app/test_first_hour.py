@@ -425,3 +425,32 @@ def test_a_drag_before_the_engine_is_ready_says_why(make_window, small_scene, wa
     assert win.tasks.get("correlator") is None and win.params.progress.format() == "ready"
     win._proxy_dragged(win.session.world(np.asarray(win.session.handle.start_pose)))
     assert "not ready" not in win.statusBar().currentMessage()
+
+
+@pytest.mark.slow
+def test_the_peg_seats_with_one_mouse_drag_along_the_insertion_axis(make_window, wait_until,
+                                                                     qtbot):
+    """A first user's drag: press on the peg, pull it to where it sits in the hole over 3 s
+    with a sideways wobble, let go. The scene's insertion axis holds the drag, and the fit
+    seats the peg.
+    """
+    win = make_window(PEG, engine_kwargs={"process": True})  # as `skelasm gui` runs it
+    wait_until(lambda: win.guidance_ready, 600000, "the peg's descriptors")
+    vp = win.viewport
+    assert vp.constraint == "insertion"
+    grab = vp.moving_part_screen_position()
+    # where the peg's centre is on the screen when seated: the user drags it there
+    seated = win.session.world(win.session.handle.assembled_pose)
+    x, y, _ = vp._world_to_display(posemath.pose_to_matrix(seated)[:3]
+                                   @ np.append(vp._centroid, 1.0))
+    dpr = vp.widget.devicePixelRatioF()
+    goal = QtCore.QPoint(int(x / dpr), int(vp.widget.height() - 1 - y / dpr))
+    left = QtCore.Qt.LeftButton
+    _mouse(vp.widget, QtCore.QEvent.MouseButtonPress, grab, left, button=left)
+    for k in range(1, 61):
+        p = grab + (goal - grab) * (k / 60) + QtCore.QPoint(int(8 * np.sin(k / 5)), 0)
+        _mouse(vp.widget, QtCore.QEvent.MouseMove, p, left)
+        qtbot.wait(50)
+    _mouse(vp.widget, QtCore.QEvent.MouseButtonRelease, p, QtCore.Qt.NoButton, button=left)
+    wait_until(lambda: win.seat is not None and win.seat.seated, 30000, "the peg seated")
+    assert win.seat_label.text() == "SEATED"
