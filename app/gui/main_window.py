@@ -44,8 +44,8 @@ in the toolbar (I: the insertion axis, X, Y, Z; F: free) the ghost moves along t
 only, drawn through the part; free, it moves in the view plane.</li>
 <li><b>Shift + drag</b> up/down, or the <b>wheel</b> while dragging: move along the view
 direction (along the chosen axis, when one is chosen).</li>
-<li><b>Ctrl + drag</b>: rotate the proxy about the part's centre of mass (arcball), or about
-the chosen axis.</li>
+<li><b>Ctrl + drag</b>: rotate the proxy about the part's centre (the scene's pivot, else the
+centre of its bounding box) with an arcball, or about the chosen axis through it.</li>
 <li>Elsewhere the mouse turns (left), pans (middle) and zooms (wheel) the camera.</li>
 <li>The readout at the top right says how far the part is from its seat, and
 <b>SEATED</b> when it is within the scene's tolerance.</li>
@@ -417,6 +417,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def open_path(self, path: str | Path, *, wait: bool = False) -> None:
         """Open a scene (or a part as the moving part); ``wait`` loads in this thread."""
         self.statusBar().showMessage(f"opening {path} …")
+        self.tasks.start("open", f"opening {Path(path).name}", reports_fraction=False)
         if wait:
             self.session.open_sync(path)
         else:
@@ -492,7 +493,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.guidance_error = None
         self._force_scale = self._torque_scale = 0.0
         self.chart.clear()
-        self.tasks.clear()
+        self.tasks.clear()  # the opening among them
         self.seat = None
         self._requested_modes = None
         self._coupling = None
@@ -536,6 +537,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self._remember(str(handle.path))
 
     def _open_failed(self, path: str, message: str) -> None:
+        self.tasks.finish("open")
+        self._show_tasks()
         self.show_error(f"Could not open {Path(path).name}:\n\n{message}")
 
     def show_error(self, message: str) -> None:
@@ -641,7 +644,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self.show_error("Open a scene with two parts to place the moving part.")
             return
         if self.pose_dialog is None:
-            dialog = PoseDialog(self, unit=self.units.length)
+            dialog = PoseDialog(self, unit=self.units.length,
+                                pivot=self.session.moving.pivot)
             dialog.add_preset("Current", lambda: np.asarray(
                 self.latest_frame.part_pose if self.latest_frame is not None
                 else self.session.handle.start_pose, float))
@@ -711,6 +715,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.status_fps.setText(f"{self.fps:.0f} fps" if self.fps > 0 else "view idle")
             if lat:
                 self.status_latency.setText(f"event loop late ≤ {max(lat):.0f} ms")
+            self._show_tasks()  # the time spent counts on while no event comes
 
     def _show_frame(self, frame: runtime.Frame) -> None:
         self.latest_frame = frame
@@ -752,9 +757,10 @@ class MainWindow(QtWidgets.QMainWindow):
         if handle is not None and part is not None and len(handle.parts) > 1:
             pose = np.asarray(f.part_pose, float)
             self.seat = quantities.seat_of(handle, part, pose)
-            r.set("pose", quantities.pose_text(pose, u.length),
-                  "Part 2's origin in part 1's frame, and its rotation (axis, angle), as a "
-                  "scene file writes it")
+            r.set("pose", quantities.pose_text(pose, u.length, part.pivot),
+                  "Part 2's pose in part 1's frame about its pivot (its bounding-box centre "
+                  "unless the scene sets pivot):\nhow far the pivot moved, and the rotation "
+                  "about it (the scene file's pose when not turned)")
             head, detail = quantities.seat_text(self.seat, u.length)
             r.set("seat", f"{self.seat.distance:.3g} {u.length}, {self.seat.angle_deg:.2f}°",
                   "Distance of part 2's centre of mass from where it sits when assembled, and "

@@ -1,15 +1,20 @@
 """Typing the proxy's pose: a small dialog with six fields.
 
-The pose is part 2's, relative to part 1 and in part 1's frame, as a scene file writes it:
-the translation of part 2's origin in the scene's unit and a rotation vector in degrees
-(axis times angle). "Move the ghost" sends it as the proxy's pose (the part follows under the
-forces); "Place the part" puts part and proxy there at rest.
+The pose is part 2's, relative to part 1 and in part 1's frame, about its pivot (the scene's
+``pivot``, else the centre of its bounding box): the pivot's displacement in the scene's unit
+and the rotation vector about it in degrees (axis times angle), so a typed rotation turns the
+part in place, and an unturned pose reads as in the scene file
+(``engine.pose.pivot_to_origin`` and ``origin_to_pivot`` convert). "Move the ghost" sends it
+as the proxy's pose (the part follows under the forces); "Place the part" puts part and proxy
+there at rest.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from PySide6 import QtCore, QtWidgets
+
+from engine import pose as posemath
 
 
 class PoseDialog(QtWidgets.QDialog):
@@ -26,14 +31,16 @@ class PoseDialog(QtWidgets.QDialog):
     move_proxy = QtCore.Signal(object)
     place_part = QtCore.Signal(object)
 
-    def __init__(self, parent=None, *, unit: str = "mm"):
+    def __init__(self, parent=None, *, unit: str = "mm", pivot=(0.0, 0.0, 0.0)):
         super().__init__(parent)
+        self.pivot = np.asarray(pivot, float).reshape(3)
         self.setWindowTitle("Pose of the moving part")
         self.setModal(False)
         lay = QtWidgets.QVBoxLayout(self)
         note = QtWidgets.QLabel(
-            "Part 2 relative to part 1, in part 1's frame (as in the scene file): where its "
-            "origin is, and its rotation as axis × angle.")
+            "Part 2 relative to part 1, in part 1's frame: how far its centre (pivot) moved, "
+            "and its rotation as axis × angle about that centre (as in the scene file when "
+            "not turned).")
         note.setWordWrap(True)
         lay.addWidget(note)
         form = QtWidgets.QFormLayout()
@@ -62,19 +69,19 @@ class PoseDialog(QtWidgets.QDialog):
         lay.addWidget(buttons)
 
     def add_preset(self, text: str, pose_source) -> None:
-        """A button that fills the fields from ``pose_source()`` ((6,) pose in radians)."""
+        """A button that fills the fields from ``pose_source()`` ((6,) origin pose)."""
         button = QtWidgets.QPushButton(text)
         button.clicked.connect(lambda: self.set_pose(pose_source()))
         self.presets.addWidget(button)
 
     def set_pose(self, pose: np.ndarray) -> None:
-        """Show ``pose`` (6,) (translation, rotation vector in radians)."""
-        p = np.asarray(pose, float).reshape(6)
+        """Show an origin pose (6,) (translation, rotation vector in radians) as a pivot pose."""
+        p = posemath.origin_to_pivot(np.asarray(pose, float).reshape(6), self.pivot)
         shown = np.concatenate([p[:3], np.degrees(p[3:])])
         for box, value in zip(self.fields, shown, strict=True):
             box.setValue(float(value))
 
     def pose(self) -> np.ndarray:
-        """(6,) float64 pose typed (rotation vector in radians)."""
+        """(6,) float64 origin pose of what is typed (rotation vector in radians)."""
         v = np.array([box.value() for box in self.fields], float)
-        return np.concatenate([v[:3], np.radians(v[3:])])
+        return posemath.pivot_to_origin(np.concatenate([v[:3], np.radians(v[3:])]), self.pivot)

@@ -21,19 +21,22 @@ from engine.seat import SeatState, seat_state
 
 @dataclass(frozen=True)
 class MovingPart:
-    """What the readouts need of part 2: its centre of mass (own frame) and size.
+    """What the readouts and drags need of part 2, in its own frame and the scene's unit.
 
-    ``centre`` (3,) float64 is the centre of mass in part 2's own frame (the point drags turn
-    about, and whose distance to its seat the readout gives); ``size`` the diagonal of its
-    bounding box in the scene's unit.
+    ``centre`` (3,) float64 is its centre of mass (whose distance to its seat the readout
+    gives); ``pivot`` (3,) float64 the point drags and typed poses turn about (the scene's
+    ``pivot``, else the centre of its bounding box: ``engine.scene.part_pivot``); ``size`` the
+    diagonal of its bounding box.
     """
 
     centre: np.ndarray
+    pivot: np.ndarray
     size: float
 
 
 def moving_part(handle) -> MovingPart:
     """:class:`MovingPart` of a scene handle's part 2 (part 1 alone: its own centre)."""
+    from engine.scene import part_pivot
     from engine.sim.build import mass_properties
 
     index = 1 if len(handle.parts) > 1 else 0
@@ -41,7 +44,9 @@ def moving_part(handle) -> MovingPart:
     v = np.asarray(part.vertices, float)
     _, _, centre = mass_properties(v, np.asarray(part.faces), handle.config.mass_spec(index))
     size = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 1.0
-    return MovingPart(np.asarray(centre, float), size if size > 0 else 1.0)
+    pivot = part_pivot(handle.scene.parts[index], part)
+    return MovingPart(np.asarray(centre, float), np.asarray(pivot, float),
+                      size if size > 0 else 1.0)
 
 
 def physics_kappa(handle, *, coupling: CouplingParams | None = None,
@@ -83,9 +88,16 @@ def number(value: float, digits: int = 4) -> str:
     return text.replace("-", "−")
 
 
-def pose_text(pose: np.ndarray, unit: str) -> str:
-    """Part 2's pose relative to part 1 in words: its origin and its rotation (axis, angle)."""
+def pose_text(pose: np.ndarray, unit: str, pivot: np.ndarray | None = None) -> str:
+    """Part 2's pose relative to part 1 in words: where it is and its rotation (axis, angle).
+
+    With ``pivot`` (3,) (part 2's own frame) it is the pose about the pivot
+    (``engine.pose.origin_to_pivot``: the pivot's displacement, and the rotation about it;
+    the origin pose when not turned), else the origin pose.
+    """
     p = np.asarray(pose, float)
+    if pivot is not None:
+        p = posemath.origin_to_pivot(p, pivot)
     angle = float(np.degrees(np.linalg.norm(p[3:])))
     where = ", ".join(f"{v:.3f}" for v in p[:3])
     if angle < 1e-3:
@@ -182,9 +194,3 @@ class ProgressClock:
         if left is None:
             return f"{done}, estimating the time left"
         return f"{done}, about {duration_text(left)} left"
-
-
-def relative_direction(handle, direction_world: np.ndarray) -> np.ndarray:
-    """A world direction (3,) in part 1's frame."""
-    r1 = posemath.rotation_matrix(handle.part1_world_pose[3:])
-    return r1.T @ np.asarray(direction_world, float)

@@ -38,7 +38,7 @@ class PartView:
     faces: np.ndarray  # (m, 3) int64
     pose: np.ndarray  # (6,) float64 world pose
     moving: bool
-    centre: np.ndarray | None = None  # (3,) float64 centre of mass, own frame (moving part)
+    centre: np.ndarray | None = None  # (3,) float64 pivot drags turn about, own frame
 
 
 class Session(QtCore.QObject):
@@ -66,7 +66,7 @@ class Session(QtCore.QObject):
         self.realtime = realtime
         self.engine_kwargs = dict(engine_kwargs or {})
         self.handle: runtime.SceneHandle | None = None
-        #: part 2's centre of mass and size (for drags about its centre and the seat readout)
+        #: part 2's centre of mass, pivot and size (the seat readout, drags about its pivot)
         self.moving: MovingPart | None = None
         self.engine: runtime.EngineHandle | None = None
         self.loading: str | None = None
@@ -217,7 +217,7 @@ class Session(QtCore.QObject):
         for i, (part, spec) in enumerate(zip(self.handle.parts, specs, strict=True)):
             moving = i == 1 and n >= 2
             pose = self.handle.world_pose(self.handle.start_pose) if moving else spec.pose
-            centre = self.moving.centre if moving and self.moving is not None else None
+            centre = self.moving.pivot if moving and self.moving is not None else None
             views.append(PartView(part.name, np.asarray(part.vertices, float),
                                   np.asarray(part.faces, np.int64),
                                   np.asarray(pose, float), moving, centre))

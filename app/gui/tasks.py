@@ -34,6 +34,7 @@ class TaskBoard:
 
     #: What a task is called when the engine reports one the window did not start.
     LABELS = {
+        "open": "opening the scene",
         "correlator": "preparing descriptors and correlation tables",
         "descriptors": "recomputing descriptors",
         "field": "building the correlation tables",

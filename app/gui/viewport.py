@@ -10,8 +10,9 @@ Dragging (left button on the moving part or its ghost):
   the axis nearest the mouse ray); the axis is drawn through the part while it is on;
 - Shift + vertical drag, or the wheel while dragging: translate along the view direction
   (along the constraint axis when one is on);
-- Ctrl + drag: rotate the proxy about part 2's centre of mass, with an arcball, or about the
-  constraint axis (horizontal mouse travel sets the angle).
+- Ctrl + drag: rotate the proxy about part 2's pivot (the scene's ``pivot``, else the centre
+  of its bounding box), with an arcball, or about the constraint axis through it (horizontal
+  mouse travel sets the angle).
 Anywhere else the mouse drives the camera as usual. Standard views (:meth:`Viewport.set_view`)
 look along the axes of part 1's frame, isometrically, or along the insertion axis.
 """
@@ -539,7 +540,7 @@ class Viewport(QtCore.QObject):
         return False
 
     def _drag_centre(self) -> np.ndarray:
-        """(3,) world position of the proxy's centre of mass (what drags turn about)."""
+        """(3,) world position of the proxy's pivot (what drags turn about)."""
         return posemath.pose_to_matrix(self._proxy_pose)[:3] @ np.append(self._centroid, 1.0)
 
     def _begin_drag(self, pos: QtCore.QPointF, mods) -> None:

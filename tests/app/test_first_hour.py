@@ -44,7 +44,8 @@ def test_seated_at_the_assembled_pose_and_not_off_it(make_window, wait_until):
     assert win.seat_label.text() == "SEATED"
     assert "#2e8b3e" in win.seat_label.styleSheet()  # green
     # the readouts in words, part 1's frame, the scene's unit
-    assert win.readouts.text("pose").startswith("at (0.000, 0.000, -15.000) mm")
+    # the pose about part 2's pivot (the scene file's pose when not turned)
+    assert win.readouts.text("pose").startswith("at (0.000, 0.000, -15.000) mm, not turned")
     assert "turns about z" in win.readouts.text("free")  # the peg's free axis
     assert "within" in win.seat_detail.text() and "mm" in win.seat_detail.text()
     # 5 mm above and tilted 4 degrees about x: not seated, and the readout says how far
@@ -226,10 +227,10 @@ def test_keys_choose_the_axis_and_ctrl_drag_turns_about_it(make_window):
                                     @ posemath.rotation_matrix(before[3:]).T)
     assert np.linalg.norm(turn) > np.radians(5)
     assert np.allclose(turn / np.linalg.norm(turn), [0, 0, np.sign(turn[2])], atol=1e-9)
-    # about the part's centre of mass: that point stays where it was
+    # about the part's pivot (the scene's, else its bounding-box centre): it stays in place
     new_centre = posemath.pose_to_matrix(after)[:3] @ np.append(vp._centroid, 1.0)
     assert np.allclose(new_centre, centre, atol=1e-9)
-    assert np.allclose(vp._centroid, win.session.moving.centre)
+    assert np.allclose(vp._centroid, win.session.moving.pivot)
 
 
 def test_standard_views_reset_and_a_new_scene_fit_the_camera(make_window, small_scene,
@@ -271,8 +272,19 @@ def test_the_pose_dialog_moves_the_ghost_and_places_the_part(make_window, wait_u
     target = np.array([1.0, -2.0, 3.0, 0.0, 0.0, np.radians(10.0)])
     dialog.set_pose(target)
     assert dialog.fields[5].value() == pytest.approx(10.0)
+    # the fields give the pose about the pivot: a typed turn leaves the pivot in place
+    shown = np.array([f.value() for f in dialog.fields[:3]])
+    assert np.allclose(shown, posemath.origin_to_pivot(target, dialog.pivot)[:3], atol=1e-4)
+    before = posemath.pose_to_matrix(dialog.pose())[:3] @ np.append(dialog.pivot, 1.0)
+    dialog.fields[3].setValue(30.0)
+    turned = dialog.pose()
+    after = posemath.pose_to_matrix(turned)[:3] @ np.append(dialog.pivot, 1.0)
+    assert np.allclose(after, before, atol=1e-9)
+    assert not np.allclose(turned[:3], target[:3], atol=0.1)  # the origin swung round it
+    dialog.fields[3].setValue(0.0)
+    assert np.allclose(dialog.pose(), target, atol=1e-3)  # the fields keep 4 decimals
     dialog.move_button.click()
-    wait_until(lambda: np.allclose(win.latest_frame.proxy_pose, target, atol=1e-6), 5000,
+    wait_until(lambda: np.allclose(win.latest_frame.proxy_pose, target, atol=1e-3), 5000,
                "the proxy at the typed pose")
     # "Assembled" then "Place the part": part and proxy there at rest
     [b for b in dialog.findChildren(QtWidgets.QPushButton) if b.text() == "Assembled"][0].click()
@@ -454,3 +466,14 @@ def test_the_peg_seats_with_one_mouse_drag_along_the_insertion_axis(make_window,
     _mouse(vp.widget, QtCore.QEvent.MouseButtonRelease, p, QtCore.Qt.NoButton, button=left)
     wait_until(lambda: win.seat is not None and win.seat.seated, 30000, "the peg seated")
     assert win.seat_label.text() == "SEATED"
+
+
+def test_opening_a_scene_is_a_task_until_it_opens(make_window, small_scene, wait_until):
+    win = make_window(PEG)
+    win.open_path(small_scene)  # in the background, as from the menu
+    assert win.tasks.get("open").label == f"opening {small_scene.name}"
+    wait_until(lambda: "Small test scene" in win.windowTitle(), 20000, "the new scene")
+    assert win.tasks.get("open") is None
+    win.open_path(small_scene.with_name("missing.toml"))
+    wait_until(lambda: win.last_error is not None, 10000, "the error")
+    assert win.tasks.get("open") is None
