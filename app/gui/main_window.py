@@ -164,7 +164,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._coupling = None  # the coupling the panel last sent (None: the scene's)
         self._kappa_override: float | None = None
         self._effects = None  # the effects last sent to the engine
-        self._backend = "-"  # the per-pose evaluator the engine picked (ReadyEvent)
+        self.evaluator = "-"  # the per-pose evaluator the engine picked (ReadyEvent)
 
         self.seat_label = QtWidgets.QLabel("no scene")
         self.seat_label.setObjectName("seat_state")
@@ -771,7 +771,7 @@ class MainWindow(QtWidgets.QMainWindow):
         r.set("torque", f"{quantities.number(tn)} {u.torque}")
         r.set("eval", f"{f.eval_us:.1f} µs per step",
               f"Time the correlator took for this step's energy, force and torque\n"
-              f"evaluator: {self._backend}")
+              f"evaluator: {self.evaluator}")
         r.set("modes", f"{f.modes ** 3:,} modes (K = {f.modes})",
               "K Fourier modes per axis are kept, m' = K³ in all: more is more accurate "
               "and slower")
@@ -795,7 +795,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if f is not None:
             detail = (f"loop period median {f.period.median_us:.0f} µs, 99th percentile "
                       f"{f.period.p99_us:.0f} µs, longest {f.period.max_us:.0f} µs over the "
-                      f"last {f.period.window} steps\nevaluator: {self._backend}\n"
+                      f"last {f.period.window} steps\nevaluator: {self.evaluator}\n"
                       f"{self.engine_note}")
         self.rate_low = bool(
             f is not None and not paused and self.session.realtime and target > 0
@@ -884,7 +884,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.guidance_ready = bool(event.descriptors)
             self.tasks.finish("correlator")
             self.params.set_progress(None, "ready")
-            self._backend = event.backend or "-"
+            self.evaluator = event.backend or "-"
             self.slice_view.set_descriptors(event.descriptors)
             self.engine_note = event.message
             self.statusBar().showMessage(

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -53,17 +53,15 @@ def physics_kappa(handle, *, coupling: CouplingParams | None = None,
                   kappa: float | None = None, effects: Effects | None = None) -> float:
     """The kappa the engine uses for ``handle``'s scene (``E = -kappa Re f``).
 
-    Resolved as the engine resolves it (``engine.sim.build.resolve_physics``): the scene's or
-    the user's kappa, else the scale-free default from the coupling stiffness and the part's
-    size; so it changes with the coupling frequency unless a kappa is set.
+    Resolved by the engine's own scene model (``engine.sim.SceneModel.physics``, as the
+    engine and the command line's ``energy_scale`` do): the scene's or the user's kappa, else
+    the scale-free default from the coupling stiffness and the part's size; so it changes
+    with the coupling frequency unless a kappa is set.
     """
-    from engine.sim.build import resolve_physics
+    from engine.sim import SceneModel
 
-    config = handle.config if coupling is None else replace(handle.config, coupling=coupling)
-    part = handle.parts[1] if len(handle.parts) > 1 else handle.parts[0]
-    physics = resolve_physics(config, np.asarray(part.vertices, float), np.asarray(part.faces),
-                              effects=effects, kappa=kappa)
-    return float(physics.kappa)
+    model = SceneModel(handle)
+    return float(model.physics(effects or handle.config.effects, coupling, kappa).kappa)
 
 
 def units_of(handle) -> QuantityUnits:
