@@ -50,13 +50,17 @@ def run(args: argparse.Namespace) -> int:
     from app.commands.scale import energy_scale
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
+    from engine.runtime import open_scene
     from engine.scene import load_scene
+    from engine.sim import mass_properties
+    from engine.sim.joints import find_free_axes
 
     scene = load_scene(args.scene)
     if args.modes is not None and args.modes < 1:
         raise ValueError(f"--modes must be at least 1, got {args.modes}")
     pose = np.asarray(args.pose if args.pose is not None else scene.assembled_pose, dtype=float)
-    scale = energy_scale(scene)
+    handle = open_scene(scene.path)
+    scale = energy_scale(scene, handle)
     update, close = progress_bar("preparing", enabled=not args.json)
     try:
         corr = correlator_for_scene(scene, modes=args.modes, backend=args.backend,
@@ -68,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
     result = corr.evaluate(rot, t)
     times = [corr.evaluate(rot, t).microseconds for _ in range(max(1, args.repeat))]
     micro = float(np.median(times))
+    moving = handle.parts[-1]
+    spec = handle.config.mass_spec(len(handle.parts) - 1)
+    _, _, centre = mass_properties(moving.vertices, moving.faces, spec, scene.units)
+    joint = find_free_axes(lambda r, tr: corr.evaluate(r, tr).energy, pose, centre,
+                           float(np.linalg.norm(np.ptp(moving.vertices, axis=0))), corr.spacing)
     out = {
         "scene": str(scene.path),
         "pose": [float(x) for x in pose],
@@ -80,6 +89,11 @@ def run(args: argparse.Namespace) -> int:
         "backend_detail": corr.backend_name,
         "fft_size": corr.size,
         **scale.as_json(),
+        "free_axes": {"found": list(joint.free),
+                      "declared": (None if scene.seat.free_axes is None
+                                   else list(scene.seat.free_axes)),
+                      "rise": joint.rise, "step": joint.step,
+                      "angle_deg": float(np.degrees(joint.angle))},
     }
     if args.json:
         print(json.dumps(out))
@@ -94,6 +108,11 @@ def run(args: argparse.Namespace) -> int:
     if result.torque is not None:
         print(f"torque     {np.array2string(result.torque, precision=5)} {units.torque}")
     print(f"scale      {scale.describe()}")
+    declared = ("" if scene.seat.free_axes is None
+                else f" (the scene declares: {', '.join(scene.seat.free_axes) or 'none'})")
+    print(f"free axes  {', '.join(joint.free) or 'none'} at this pose{declared}: moving one "
+          f"cell ({joint.step:.3g} {units.length}) or {np.degrees(joint.angle):.2g} deg along "
+          "them costs under 5 % of the largest such rise")
     print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")

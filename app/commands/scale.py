@@ -11,9 +11,13 @@ one pose gives one number everywhere. Masses are in kg, so a millimetre scene's 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from engine.params import QuantityUnits
 from engine.scene import Scene
+
+if TYPE_CHECKING:
+    from engine.runtime import SceneHandle
 
 
 @dataclass(frozen=True)
@@ -38,8 +42,11 @@ class EnergyScale:
                           "torque": u.torque, "kappa": u.kappa}}
 
 
-def energy_scale(scene: Scene) -> EnergyScale:
-    """The scene's kappa as its simulation resolves it (loads the parts' meshes)."""
+def energy_scale(scene: Scene, handle: SceneHandle | None = None) -> EnergyScale:
+    """The scene's kappa as its simulation resolves it.
+
+    Loads the parts' meshes unless ``handle`` (the scene opened) is given.
+    """
     from engine.runtime import open_scene
     from engine.sim import SceneModel
 
@@ -47,6 +54,7 @@ def energy_scale(scene: Scene) -> EnergyScale:
     given = scene.config.simulation.kappa
     if given is not None:
         return EnergyScale(float(given), units, "scene")
-    handle = open_scene(scene.path)
+    if handle is None:
+        handle = open_scene(scene.path)
     kappa = SceneModel(handle).physics(handle.config.effects).kappa
     return EnergyScale(float(kappa), units, "default")

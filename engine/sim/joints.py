@@ -1,0 +1,106 @@
+"""Which axes a fit leaves free, measured from the energy around the seat.
+
+A peg in a through hole can slide along and turn about its axis: a cylindrical joint. The
+energy tells which degrees of freedom a fit constrains without being told: along a
+constrained axis, moving either way out of the seat costs energy (a wall, a floor, a key);
+along a free one it does not, or only by as much as the descriptor's faceting and the
+attraction that draws the part on along a through hole.
+
+:func:`find_free_axes` moves part 2 out of the pose by one step each way along each of the
+six axes of part 1's frame (translations by ``step``, rotations about part 2's centre by the
+angle that moves its farthest point by ``step``) and takes, per axis, the larger of the two
+energy rises ``max(E(+h), E(-h)) - E(0)`` (a one-sided stop, such as the floor of a blind
+bore, counts: one way is blocked). The rotation step is chosen so that translations and
+rotations move the part's surface alike, so all six rises compare: an axis whose rise is
+below ``threshold`` times the largest is free. When no rise is positive (no wall anywhere:
+the part is not in contact) every axis is free.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.params import AXES
+from engine.pose import compose, rotate_about, rotation_matrix
+
+#: An axis is free when moving along it raises the energy by less than this fraction of the
+#: largest rise among the six axes.
+FREE_THRESHOLD = 0.05
+
+Energy = Callable[[np.ndarray, np.ndarray], float]
+
+
+@dataclass(frozen=True)
+class FreeAxes:
+    """The measured freedom of a fit (see the module docstring).
+
+    Attributes
+    ----------
+    free : tuple of str
+        Names from :data:`engine.params.AXES` of the axes found free, part 1's frame.
+    rise : dict of str to float
+        Energy rise per axis for a step out of the pose (scaled as the energy function).
+    step, angle : float
+        The translation step (scene unit) and the rotation step (radians).
+    """
+
+    free: tuple[str, ...]
+    rise: dict[str, float]
+    step: float
+    angle: float
+
+
+def find_free_axes(energy: Energy, pose: np.ndarray, centre: np.ndarray, size: float,
+                   step: float, *, threshold: float = FREE_THRESHOLD) -> FreeAxes:
+    """Measure which axes leave the energy flat at ``pose``.
+
+    Parameters
+    ----------
+    energy : callable(rotation (3, 3), translation (3,)) -> float
+        The energy of part 2 at a pose relative to part 1 (e.g. a Correlator's
+        ``evaluate(...).energy``).
+    pose : (6,) array_like
+        Part 2 in part 1's frame (usually the assembled pose).
+    centre : (3,) array_like
+        Part 2's centre in its own frame; rotations turn about it.
+    size : float
+        Part 2's bounding-box diagonal: the rotation step moves a point at half of it by
+        ``step``.
+    step : float
+        Translation step (a descriptor cell is the natural choice: finer steps see only the
+        interpolation of the sampled field).
+    threshold : float
+        See :data:`FREE_THRESHOLD`.
+
+    Returns
+    -------
+    FreeAxes
+    """
+    p = np.asarray(pose, dtype=np.float64).reshape(6)
+    c = np.asarray(centre, dtype=np.float64).reshape(3)
+    angle = float(step) / max(0.5 * float(size), 1e-12)
+    centre_world = compose(p, np.r_[c, 0.0, 0.0, 0.0])[:3]
+
+    def at(q: np.ndarray) -> float:
+        return float(energy(rotation_matrix(q[3:]), q[:3]))
+
+    e0 = at(p)
+    rise: dict[str, float] = {}
+    for i, name in enumerate(AXES):
+        ups = []
+        for sign in (1.0, -1.0):
+            if i < 3:
+                q = p.copy()
+                q[i] += sign * step
+            else:
+                rotvec = np.zeros(3)
+                rotvec[i - 3] = sign * angle
+                q = rotate_about(p, rotvec, centre_world)
+            ups.append(at(q) - e0)
+        rise[name] = max(ups)
+    top = max(rise.values())
+    free = tuple(a for a in AXES if top <= 0 or rise[a] < threshold * top)
+    return FreeAxes(free=free, rise=rise, step=float(step), angle=angle)
