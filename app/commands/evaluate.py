@@ -7,6 +7,7 @@ import sys
 from collections.abc import Callable
 
 from app.commands.arguments import finite_float, modes
+from app.commands.poses import add_about_argument, typed_pose
 from engine.backend import CHOICES
 
 
@@ -24,9 +25,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("scene", help="scene file (TOML)")
     parser.add_argument(
         "--pose", nargs=6, type=finite_float, metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
-        help="translation (scene units) and rotation vector (radians); default: the "
-        "scene's assembled pose",
+        help="translation (scene units) and rotation vector (radians) of part 2 relative to "
+        "part 1, turning about its centre (see --about); default: the scene's assembled pose",
     )
+    add_about_argument(parser, "--pose")
     parser.add_argument("--modes", type=modes, help="modes per axis K (m' = K^3); default: the "
                         "scene's [correlation] modes")
     parser.add_argument("--backend", default="auto", choices=CHOICES,
@@ -58,8 +60,9 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     if args.modes is not None and args.modes < 1:
         raise ValueError(f"--modes must be at least 1, got {args.modes}")
-    pose = np.asarray(args.pose if args.pose is not None else scene.assembled_pose, dtype=float)
     handle = open_scene(scene.path)
+    pose = (typed_pose(handle, args.pose, args.about) if args.pose is not None
+            else np.asarray(scene.assembled_pose, dtype=float))
     scale = energy_scale(scene, handle)
     update, close = progress_bar("preparing", enabled=not args.json)
     try:

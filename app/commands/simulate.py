@@ -7,6 +7,7 @@ import json
 import sys
 
 from app.commands.arguments import finite_float, modes, positive_float
+from app.commands.poses import add_about_argument, typed_pose
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -40,7 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="per-pose evaluator of the correlator")
     p.add_argument("--start", type=finite_float, nargs=6,
                    metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
-                   help="start pose of part 2 relative to part 1 (default: the scene's)")
+                   help="start pose of part 2 relative to part 1, turning about its centre "
+                   "(see --about; default: the scene's start)")
+    add_about_argument(p, "--start")
     p.set_defaults(run=run)
 
 
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         effects = replace(handle.config.effects, guidance=args.guidance)
         handle = replace(handle, config=replace(handle.config, effects=effects))
     if args.start is not None:
-        handle = replace(handle, start_pose=np.asarray(args.start, float))
+        handle = replace(handle, start_pose=typed_pose(handle, args.start, args.about))
     # Before any work: the run's length, its step count and the trajectory's poses.
     trajectory = TrajectoryDevice(args.trajectory) if args.trajectory else None
     seconds, steps = _duration(args, trajectory, handle)

@@ -51,8 +51,8 @@ def scene(folder, *, units="mm", kappa=""):
 def evaluate(capsys, path):
     from app.cli import main
 
-    assert main(["evaluate", str(path), "--pose", *POSE, "--json", "--repeat", "1",
-                 "--backend", "numpy"]) == 0
+    assert main(["evaluate", str(path), "--pose", *POSE, "--about", "origin", "--json",
+                 "--repeat", "1", "--backend", "numpy"]) == 0
     return json.loads(capsys.readouterr().out)
 
 
