@@ -10,10 +10,12 @@ attraction that draws the part on along a through hole.
 six axes of part 1's frame (translations by ``step``, rotations about part 2's centre by the
 angle that moves its farthest point by ``step``) and takes, per axis, the larger of the two
 energy rises ``max(E(+h), E(-h)) - E(0)`` (a one-sided stop, such as the floor of a blind
-bore, counts: one way is blocked). The rotation step is chosen so that translations and
-rotations move the part's surface alike, so all six rises compare: an axis whose rise is
-below ``threshold`` times the largest is free. When no rise is positive (no wall anywhere:
-the part is not in contact) every axis is free.
+bore, counts: one way is blocked). Rises are compared within their kind (translations with
+translations, rotations with rotations; a floor makes the axial rise of a seated peg far
+larger than any tilt's, so one scale for both would call the tilts free): an axis whose rise
+is below ``threshold`` times the largest rise of its kind is free. A kind whose largest rise
+is not positive, or negligible (under :data:`NEGLIGIBLE` of the other kind's), is free as a
+whole: no wall anywhere, the part is not in contact.
 """
 
 from __future__ import annotations
@@ -27,8 +29,11 @@ from engine.params import AXES
 from engine.pose import compose, rotate_about, rotation_matrix
 
 #: An axis is free when moving along it raises the energy by less than this fraction of the
-#: largest rise among the six axes.
+#: largest rise among the axes of its kind.
 FREE_THRESHOLD = 0.05
+
+#: A kind of axes whose largest rise is under this fraction of the other kind's is free.
+NEGLIGIBLE = 1e-6
 
 Energy = Callable[[np.ndarray, np.ndarray], float]
 
@@ -101,6 +106,12 @@ def find_free_axes(energy: Energy, pose: np.ndarray, centre: np.ndarray, size: f
                 q = rotate_about(p, rotvec, centre_world)
             ups.append(at(q) - e0)
         rise[name] = max(ups)
-    top = max(rise.values())
-    free = tuple(a for a in AXES if top <= 0 or rise[a] < threshold * top)
-    return FreeAxes(free=free, rise=rise, step=float(step), angle=angle)
+    overall = max(rise.values())
+    free: list[str] = []
+    for kind in (AXES[:3], AXES[3:]):
+        top = max(rise[a] for a in kind)
+        if top <= NEGLIGIBLE * overall or top <= 0:
+            free += kind
+        else:
+            free += [a for a in kind if rise[a] < threshold * top]
+    return FreeAxes(free=tuple(free), rise=rise, step=float(step), angle=angle)

@@ -48,7 +48,7 @@ def test_rotations_turn_about_the_centre_not_the_origin():
     assert found.free == ("rx", "ry", "rz")
 
 
-def test_threshold_is_relative_to_the_largest_rise():
+def test_threshold_is_relative_within_each_kind():
     weak = FREE_THRESHOLD * 0.5
     found = find_free_axes(well([1, weak, 1], [25, 25, 25]), np.zeros(6), CENTRE, 10.0, 0.5)
     assert found.free == ("y",)
@@ -60,3 +60,11 @@ def test_threshold_is_relative_to_the_largest_rise():
 def test_no_contact_means_everything_is_free():
     found = find_free_axes(lambda r, t: 0.0, np.zeros(6), CENTRE, 10.0, 0.5)
     assert found.free == ("x", "y", "z", "rx", "ry", "rz")
+
+
+def test_a_stiff_floor_does_not_make_the_tilts_free():
+    # a seated peg: the floor's rise dwarfs the tilts', which must still count as locked
+    found = find_free_axes(well([5, 5, 0], [25, 25, 0], stop_z=1e5), np.zeros(6), CENTRE, 10.0,
+                           0.5)
+    assert found.rise["z"] > 1e3 * found.rise["rx"] > 0
+    assert found.free == ("rz",)
