@@ -131,6 +131,10 @@ MODE_SELECTIONS = ("cube", "largest")
 #: in 1 s), while the ridge gets narrower than any grid resolves; above 50 the Gaussian is
 #: flat over any part (rho only scales as 1/sigma) and the cost keeps growing.
 SIGMA_RANGE = (0.05, 50.0)
+#: The largest sigma for a descriptor on a grid: above it a sample near the surface costs
+#: 50 ms or more (0.8 s at 50), so a 32-sample grid takes 10 minutes at 50 and a 64-sample
+#: one hours. Point queries (``descriptor_at_points``) allow the whole SIGMA_RANGE.
+SIGMA_GRID_MAX = 10.0
 #: penalty = lambda_in / lambda_out: the descriptor is stored as complex64 and the energy
 #: sums products of two of them over up to 1e8 samples, so the weights stay within a few
 #: decades of 1 (the product of the extremes, squared, stays far below float32's 3e38).

@@ -144,15 +144,18 @@ def _progress(args: argparse.Namespace, label: str):
 def _params(args: argparse.Namespace, base=None):
     from dataclasses import replace
 
+    from engine.descriptor.compute import check_grid_sigma
     from engine.params import DescriptorParams
 
     base = base or DescriptorParams()
-    return replace(
+    params = replace(
         base,
         sigma=args.sigma if args.sigma is not None else base.sigma,
         penalty=args.penalty if args.penalty is not None else base.penalty,
         lambda_out=args.lambda_out if args.lambda_out is not None else base.lambda_out,
     )
+    check_grid_sigma(params.sigma)  # before the computation: a grid at this sigma takes hours
+    return params
 
 
 def _record(descriptor, part, output: Path, samples) -> dict:

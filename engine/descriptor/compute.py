@@ -88,7 +88,7 @@ from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
 from engine.descriptor.tree import TriangleTree, build_tree, pack_triangles, split_slivers
 from engine.errors import Cancelled, InputError
 from engine.grid import DESCRIPTOR_BYTES_PER_SAMPLE, Grid, check_memory
-from engine.params import DescriptorParams
+from engine.params import SIGMA_GRID_MAX, SIGMA_RANGE, DescriptorParams
 
 _log = logging.getLogger(__name__)
 
@@ -103,9 +103,9 @@ BackendLike = Backend | str | None
 #: chunk, and stay between MIN_CHUNK_POINTS and ``constants.CHUNK_POINTS``. (Kept here,
 #: not in ``constants``: those are part of the descriptor's cache key, and chunking does
 #: not change a single value.)
-CHUNK_SECONDS = 0.05
+CHUNK_SECONDS = 0.02
 FIRST_CHUNK_POINTS = 256
-MIN_CHUNK_POINTS = 16
+MIN_CHUNK_POINTS = 4
 
 
 # --------------------------------------------------------------------------------------
@@ -140,6 +140,16 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def _check_memory(n_points: int, what: str) -> None:
     check_memory(int(n_points) * DESCRIPTOR_BYTES_PER_SAMPLE, what,
                  "use a coarser grid (smaller --grid or larger --spacing)")
+
+
+def check_grid_sigma(sigma: float) -> None:
+    """Refuse a sigma above ``SIGMA_GRID_MAX`` for a grid (InputError): hours of work."""
+    if sigma > SIGMA_GRID_MAX:
+        raise InputError(
+            f"sigma = {sigma:g} is above {SIGMA_GRID_MAX:g}, the most a descriptor on a grid "
+            "allows: each sample near the surface then costs 50 ms or more (a 32-sample grid "
+            "took 10 minutes at 50) while the density only scales as 1/sigma; use sigma from "
+            f"{SIGMA_RANGE[0]:g} to {SIGMA_GRID_MAX:g}")
 
 
 def _numba_backend() -> Backend:
@@ -330,6 +340,7 @@ def compute_descriptor(
         ``cancel()`` returned True.
     """
     use_tree = _method(method)
+    check_grid_sigma(params.sigma)
     triangles = _triangles(vertices, faces)
     _check_memory(grid.size, f"a {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} grid")
     be = resolve_backend(backend)

@@ -27,6 +27,8 @@ from engine.params import (
     GUIDANCE,
     LENGTH_UNITS,
     MAX_GRAVITY_G,
+    SIGMA_GRID_MAX,
+    SIGMA_RANGE,
     STANDARD_GRAVITY,
     CorrelationParams,
     CouplingParams,
@@ -338,9 +340,15 @@ def _descriptor(d: _Table) -> DescriptorParams:
                      "give grid or spacing, not both")
     base = DescriptorParams()
     spacing = d.number("spacing", None, positive=True)
+    sigma = d.number("sigma", base.sigma, positive=True)
+    if sigma > SIGMA_GRID_MAX:
+        raise d.fail("sigma", f"sigma = {sigma:g} in [descriptor] is above {SIGMA_GRID_MAX:g}: "
+                              "each sample near the surface then costs 50 ms or more, hours "
+                              "for a grid, while the density only scales as 1/sigma",
+                     f"use sigma from {SIGMA_RANGE[0]:g} to {SIGMA_GRID_MAX:g} (default 0.5)")
     return d.build(
         DescriptorParams,
-        sigma=d.number("sigma", base.sigma, positive=True),
+        sigma=sigma,
         penalty=d.number("penalty", base.penalty, positive=True),
         lambda_out=d.number("lambda_out", base.lambda_out, positive=True),
         grid=d.integer("grid", None if spacing is not None else DEFAULT_GRID, minimum=4),

@@ -115,6 +115,7 @@ def no_work(monkeypatch):
 @pytest.mark.parametrize("key,value,match", [
     ("sigma", "1e-3", "sigma = 0.001 is outside its range 0.05 to 50: a smaller sigma"),
     ("sigma", "1e6", "sigma = 1e\\+06 is outside its range 0.05 to 50"),
+    ("sigma", "20", "sigma = 20 is above 10, the most a descriptor on a grid allows"),
     ("penalty", "1e6", "penalty = 1e\\+06 is outside its range 0.001 to 1000: .*single"),
     ("lambda-out", "1e9", "lambda_out = 1e\\+09 is outside its range 1e-06 to 1e"),
     ("padding", "1e308", "padding = 1e\\+308 cells is outside its range 0 to 64"),
@@ -133,7 +134,8 @@ def test_precompute_refuses_out_of_range_before_work(folder, capsys, no_work, ke
 
 @pytest.mark.parametrize("text,match", [
     ("sigma = 1e-3", "sigma = 0.001 is outside its range"),
-    ("sigma = 1e6", "sigma = 1e+06 is outside its range"),
+    ("sigma = 1e6", "sigma = 1e+06 in [descriptor] is above 10"),
+    ("sigma = 20", "sigma = 20 in [descriptor] is above 10"),
     ("penalty = 1e-9", "penalty = 1e-09 is outside its range"),
     ("grid = 100000000000000000000", "grid must be an integer from 4 to 2048"),
     ("padding = 1000", "padding = 1000 is outside its range 0 to 64"),
