@@ -8,7 +8,7 @@ import re
 import sys
 
 #: Subcommand name -> module in app.commands providing add_parser(subparsers) and run(args).
-COMMANDS = ("precompute", "evaluate", "landscape", "simulate", "bench", "report", "gui")
+COMMANDS = ("scene", "precompute", "evaluate", "landscape", "simulate", "bench", "report", "gui")
 
 
 class UserError(Exception):
