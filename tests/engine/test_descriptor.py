@@ -310,6 +310,11 @@ def test_progress_and_cancel(monkeypatch):
     import engine.descriptor.constants as c
 
     monkeypatch.setattr(c, "CHUNK_POINTS", 100)
+    # chunks are otherwise sized by time (tests/engine/test_limits.py): here every chunk
+    # is allowed all the time it needs, so each holds exactly CHUNK_POINTS points
+    import engine.descriptor.compute as compute
+
+    monkeypatch.setattr(compute, "CHUNK_SECONDS", math.inf)
     v, f = _box()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=6, padding=1)
     seen: list[float] = []
