@@ -30,7 +30,6 @@ import zipfile
 import zlib
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -273,7 +272,7 @@ def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
     return freed
 
 
-def content_key(kind: str, parts: Mapping[str, Any]) -> str:
+def content_key(kind: str, parts: Mapping[str, object]) -> str:
     """Hex SHA-256 of ``kind`` and ``parts``: arrays by dtype, shape and bytes, the rest as JSON."""
     h = hashlib.sha256(kind.encode())
     for name in sorted(parts):
@@ -380,7 +379,7 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path | None:
 
 def load_or_compute(
     kind: str,
-    parts: Mapping[str, Any],
+    parts: Mapping[str, object],
     compute: Callable[[], Mapping[str, np.ndarray]],
     *,
     use_cache: bool = True,

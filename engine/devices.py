@@ -29,11 +29,13 @@ import math
 import socket
 import struct
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from engine.errors import InputError
 from engine.params import UDP_MAX_ROTATION, UdpBridgeParams
@@ -108,7 +110,7 @@ class Device:
     def write_force(self, force: np.ndarray, torque: np.ndarray) -> None:
         """Render a force (3,) and torque (3,) (no-op for devices without feedback)."""
 
-    def stats(self) -> dict[str, Any]:
+    def stats(self) -> dict[str, object]:
         """Counters worth reporting after a run (packets, drops); empty for most devices."""
         return {}
 
@@ -116,7 +118,7 @@ class Device:
         self.connect()
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.disconnect()
 
 
@@ -142,7 +144,7 @@ class MouseDevice(Device):
         return np.array(pose)
 
 
-def _pose_tuple(pose: Any) -> tuple[float, ...]:
+def _pose_tuple(pose: ArrayLike) -> tuple[float, ...]:
     p = tuple(float(v) for v in np.asarray(pose, dtype=float).reshape(6))
     if not all(math.isfinite(v) for v in p):
         raise ValueError(f"pose must be six finite numbers, got {pose!r}")
@@ -177,7 +179,8 @@ def read_trajectory(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     try:
-        fh = open(path, newline="", encoding="utf-8")
+        # utf-8-sig: a byte-order mark (spreadsheets write one) is not part of a column name
+        fh = open(path, newline="", encoding="utf-8-sig")
     except OSError as exc:
         raise InputError(f"{path}: cannot open the trajectory file ({exc.strerror})") from exc
     with fh:
@@ -499,7 +502,8 @@ MAX_PACKETS_PER_READ = 64
 _log = logging.getLogger(__name__)
 
 
-def _clamped(vector: Any, limit: float) -> tuple[tuple[float, float, float], bool]:
+def _clamped(vector: Sequence[float] | np.ndarray,
+             limit: float) -> tuple[tuple[float, float, float], bool]:
     """A (3,) vector as three floats with its norm at most ``limit`` (and whether it was cut).
 
     Non-finite input becomes zero. Plain floats: a few microseconds less per step than numpy.
@@ -604,7 +608,7 @@ class UdpBridgeDevice(Device):
             if any(self.dropped.values()):
                 _log.info("udp: %s", self.drop_summary())
 
-    def stats(self) -> dict[str, Any]:
+    def stats(self) -> dict[str, object]:
         """Packets accepted, replies sent, packets dropped by reason, and the peer."""
         peer = None if self._source is None else f"{self._source[0]}:{self._source[1]}"
         return {"peer": peer, "packets_in": self.packets_in, "replies": self.packets_out,

@@ -24,7 +24,6 @@ import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -230,7 +229,7 @@ def descriptor_code_digest() -> str:
 
 
 def cache_key_parts(part: Part, grid: Grid, params: DescriptorParams,
-                    method: str) -> dict[str, Any]:  # fmt: skip
+                    method: str) -> dict[str, object]:  # fmt: skip
     """Everything the cached descriptor of ``part`` depends on (for ``engine.cache``)."""
     return {
         "vertices": np.ascontiguousarray(part.vertices, dtype=np.float64),

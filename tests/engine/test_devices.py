@@ -228,3 +228,14 @@ def test_engine_renders_coupling_force_to_openhaptics_and_falls_back_when_unplug
         loop.stop()
     lost = [e for e in loop.poll_events() if isinstance(e, runtime.DeviceEvent)]
     assert lost and lost[-1].fallback == "mouse" and "openhaptics" in lost[-1].message
+
+
+def test_a_trajectory_with_a_byte_order_mark_reads(tmp_path):
+    # spreadsheet programs save CSV as UTF-8 with a BOM; it used to read as part of the
+    # first column's name ("header lacks column t")
+    from engine.devices import read_trajectory
+
+    path = tmp_path / "bom.csv"
+    path.write_bytes("\ufefft,tx,ty,tz,rx,ry,rz\n0,1,2,3,0,0,0\n1,1,2,4,0,0,0\n".encode())
+    rows = read_trajectory(path)
+    assert rows.shape == (2, 7) and rows[1, 3] == 4.0
