@@ -699,7 +699,7 @@ class MainWindow(QtWidgets.QMainWindow):
             newest = frames[-1].time
             for f in frames:
                 self.chart.add(now - (newest - f.time), f.energy,
-                               float(np.linalg.norm(f.force)))
+                               float(np.linalg.norm(f.force)), float(np.linalg.norm(f.torque)))
             self._show_frame(frames[-1])
         self.viewport.render_if_dirty()
         self._count_fps()
@@ -855,7 +855,7 @@ class MainWindow(QtWidgets.QMainWindow):
         r.set_title("energy", f"energy E ({units.energy})")
         r.set_title("force", f"|force F| ({units.force})")
         r.set_title("torque", f"|torque T| ({units.torque})")
-        self.chart.set_units(units.energy, units.force)
+        self.chart.set_units(units.energy, units.force, units.torque)
 
     def _update_kappa(self) -> None:
         """Resolve the kappa the engine uses now and show it everywhere E is shown."""

@@ -1,4 +1,4 @@
-"""A cheap strip chart: energy and force magnitude over the last seconds, drawn with QPainter.
+"""A cheap strip chart: energy, force and torque magnitudes over the last seconds (QPainter).
 
 Samples go into fixed-size numpy ring buffers; painting draws at most one point per pixel
 column, so the cost does not grow with the engine rate.
@@ -25,7 +25,7 @@ def value_range(values: np.ndarray) -> tuple[float, float]:
 
 
 class StripChart(QtWidgets.QWidget):
-    """Two traces (energy, |force|) against time, each with its own vertical scale.
+    """Three traces (energy, |force|, |torque|) against time, each with its own vertical scale.
 
     Parameters
     ----------
@@ -35,31 +35,32 @@ class StripChart(QtWidgets.QWidget):
         Samples kept; older ones are overwritten.
     """
 
-    TRACES = (("E", QtGui.QColor(31, 119, 180)), ("|F|", QtGui.QColor(214, 39, 40)))
+    TRACES = (("E", QtGui.QColor(31, 119, 180)), ("|F|", QtGui.QColor(214, 39, 40)),
+              ("|T|", QtGui.QColor(148, 103, 189)))
 
     def __init__(self, parent=None, *, seconds: float = 10.0, capacity: int = 4000):
         super().__init__(parent)
         self.seconds = float(seconds)
         self._t = np.full(capacity, np.nan)  # (capacity,) float64 seconds
-        self._v = np.full((capacity, 2), np.nan)  # (capacity, 2) energy, |force|
+        self._v = np.full((capacity, 3), np.nan)  # (capacity, 3) energy, |force|, |torque|
         self._next = 0
-        self.units = ("", "")  # of energy and force
-        self.setMinimumHeight(110)
+        self.units = ("", "", "")  # of energy, force and torque
+        self.setMinimumHeight(130)
         self.setSizePolicy(QtWidgets.QSizePolicy.Expanding, QtWidgets.QSizePolicy.Preferred)
 
-    def add(self, t: float, energy: float, force: float) -> None:
-        """Append one sample (time in seconds, energy, force magnitude)."""
+    def add(self, t: float, energy: float, force: float, torque: float = float("nan")) -> None:
+        """Append one sample (time in seconds, energy, force and torque magnitudes)."""
         i = self._next % len(self._t)
         self._t[i] = t
-        self._v[i] = (energy, force)
+        self._v[i] = (energy, force, torque)
         self._next += 1
 
-    def set_units(self, energy: str, force: str) -> None:
+    def set_units(self, energy: str, force: str, torque: str = "") -> None:
         """The units the traces' labels name."""
-        self.units = (energy, force)
+        self.units = (energy, force, torque)
         self.update()
 
-    def labels(self) -> tuple[str, str]:
+    def labels(self) -> tuple[str, ...]:
         """The names of the two traces, with their units."""
         return tuple(f"{name} ({unit})" if unit else name
                      for (name, _colour), unit in zip(self.TRACES, self.units, strict=True))
@@ -71,27 +72,32 @@ class StripChart(QtWidgets.QWidget):
         self._next = 0
 
     def samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """(k,) times and (k, 2) values inside the window, oldest first."""
+        """(k,) times and (k, 3) values inside the window, oldest first."""
         n = min(self._next, len(self._t))
         if n == 0:
-            return np.zeros(0), np.zeros((0, 2))
+            return np.zeros(0), np.zeros((0, 3))
         order = (np.arange(n) + (self._next - n)) % len(self._t)
         t, v = self._t[order], self._v[order]
         keep = t >= t[-1] - self.seconds
         return t[keep], v[keep]
 
     def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt API)
-        """Paint both traces over the last :attr:`seconds`, each with its own range and label."""
+        """Paint the traces over the last :attr:`seconds`, each with its own range and label.
+
+        The labels stand one per line above the plot, so that units and ranges fit a narrow
+        dock.
+        """
         p = QtGui.QPainter(self)
         p.fillRect(self.rect(), self.palette().base())
         w, h = self.width(), self.height()
-        margin_top, margin_bottom = 16, 4
-        plot_h = max(h - margin_top - margin_bottom, 1)
         t, v = self.samples()
         p.setPen(self.palette().text().color())
         font = p.font()
         font.setPointSizeF(max(font.pointSizeF() * 0.85, 6))
         p.setFont(font)
+        line = p.fontMetrics().height()
+        margin_top, margin_bottom = line * len(self.TRACES) + 4, 4
+        plot_h = max(h - margin_top - margin_bottom, 1)
         if len(t) < 2:
             p.drawText(QtCore.QRectF(0, 0, w, h), QtCore.Qt.AlignCenter, "no samples yet")
             p.end()
@@ -102,7 +108,6 @@ class StripChart(QtWidgets.QWidget):
         col = np.clip(x.astype(np.intp), 0, w - 1)
         _, first = np.unique(col[::-1], return_index=True)
         pick = np.sort(len(col) - 1 - first)
-        label_x = 4
         names = self.labels()
         for k, (_name, colour) in enumerate(self.TRACES):
             name = names[k]
@@ -119,8 +124,7 @@ class StripChart(QtWidgets.QWidget):
             p.setPen(QtGui.QPen(colour, 1.5))
             p.drawPolyline(poly)
             text = f"{name} {y[ok][-1]:.4g}  [{lo:.3g}, {hi:.3g}]"
-            p.drawText(label_x, 12, text)
-            label_x += p.fontMetrics().horizontalAdvance(text) + 12
+            p.drawText(4, line * (k + 1), text)
         p.setPen(self.palette().mid().color())
         p.drawText(w - 60, h - 6, f"last {self.seconds:.0f} s")
         p.end()

@@ -145,7 +145,7 @@ def test_readouts_and_chart_have_units_and_kappa_is_the_engines(make_window, wai
     assert r.title("energy") == "energy E (µJ)"
     assert r.title("force") == "|force F| (mN)"
     assert r.title("torque") == "|torque T| (mN·mm)"
-    assert win.chart.labels() == ("E (µJ)", "|F| (mN)")
+    assert win.chart.labels() == ("E (µJ)", "|F| (mN)", "|T| (mN·mm)")
     # kappa as the engine resolves it (not a greyed 1.0000), in all three places
     sim, _model = build_simulation(win.session.handle, prepare=False)
     kappa = sim.physics.kappa

@@ -96,11 +96,12 @@ def test_strip_chart_keeps_the_last_seconds(qtbot):
     chart = StripChart(seconds=2.0, capacity=50)
     qtbot.addWidget(chart)
     for i in range(100):
-        chart.add(0.1 * i, -i, 2 * i)
+        chart.add(0.1 * i, -i, 2 * i, 3 * i)
     t, v = chart.samples()
     assert t[-1] == pytest.approx(9.9) and t[0] >= 9.9 - 2.0
     i = np.round(t * 10)
     assert np.array_equal(v[:, 0], -i) and np.array_equal(v[:, 1], 2 * i)
+    assert np.array_equal(v[:, 2], 3 * i)
     chart.resize(300, 120)
     chart.show()
     img = chart.grab().toImage()
