@@ -154,6 +154,20 @@ MAX_PADDING = 64.0
 MAX_MODES = 128
 
 
+def check_modes(modes: Any, what: str = "modes") -> int:
+    """K as asked for by a user (scene, option): an integer from 1 to :data:`MAX_MODES`.
+
+    (``CorrelationParams`` itself takes any K from 1 up: the engine clamps K to the FFT
+    size, and asks for "all modes" with a large K.)
+    """
+    if isinstance(modes, bool) or not isinstance(modes, (int, np.integer)) or not (
+            1 <= modes <= MAX_MODES):
+        raise InputError(f"{what} K = {modes!r} must be an integer from 1 to {MAX_MODES}: "
+                         "each pose sums K^3 terms, so a larger K is far too slow to run "
+                         "(16 to 48 is usual)")
+    return int(modes)
+
+
 def check_steps(seconds: float, rate_hz: float, what: str) -> int:
     """Steps of a run of ``seconds`` at ``rate_hz``; an InputError above :data:`MAX_STEPS`."""
     steps = seconds * rate_hz
@@ -280,10 +294,6 @@ class CorrelationParams:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise InputError(f"correlation {name} must be a positive integer, got {value!r}")
             object.__setattr__(self, name, int(value))
-        if self.modes > MAX_MODES:
-            raise InputError(f"correlation modes K = {self.modes} is above {MAX_MODES}: each "
-                             f"pose sums K^3 terms ({self.modes**3:,} here), far too slow to "
-                             f"run; use K from 1 to {MAX_MODES} (16 to 48 is usual)")
         object.__setattr__(self, "oversample", _at_least("correlation", "oversample",
                                                          self.oversample, 1.0))
         if self.selection not in MODE_SELECTIONS:

@@ -28,17 +28,3 @@ def positive_float(text: str) -> float:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {text}")
     return value
-
-
-def modes(text: str) -> int:
-    """Retained modes per axis K, an integer from 1 to ``engine.params.MAX_MODES``."""
-    from engine.params import MAX_MODES
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 1 <= value <= MAX_MODES:
-        raise argparse.ArgumentTypeError(
-            f"K must be from 1 to {MAX_MODES} (each pose sums K^3 terms), got {value}")
-    return value

@@ -6,7 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from app.commands.arguments import finite_float, modes
+from app.commands.arguments import finite_float
 from app.commands.poses import add_about_argument, typed_pose
 from engine.backend import CHOICES
 
@@ -29,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "part 1, turning about its centre (see --about); default: the scene's assembled pose",
     )
     add_about_argument(parser, "--pose")
-    parser.add_argument("--modes", type=modes, help="modes per axis K (m' = K^3); default: the "
+    parser.add_argument("--modes", type=int, help="modes per axis K (m' = K^3); default: the "
                         "scene's [correlation] modes")
     parser.add_argument("--backend", default="auto", choices=CHOICES,
                         help="per-pose backend (auto measures the compiled ones and keeps the "
@@ -58,8 +58,10 @@ def run(args: argparse.Namespace) -> int:
     from engine.sim.joints import find_free_axes
 
     scene = load_scene(args.scene)
-    if args.modes is not None and args.modes < 1:
-        raise ValueError(f"--modes must be at least 1, got {args.modes}")
+    if args.modes is not None:
+        from engine.params import check_modes
+
+        check_modes(args.modes, "--modes")
     handle = open_scene(scene.path)
     pose = (typed_pose(handle, args.pose, args.about) if args.pose is not None
             else np.asarray(scene.assembled_pose, dtype=float))

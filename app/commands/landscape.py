@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from app.commands.arguments import finite_float, modes
+from app.commands.arguments import finite_float
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="translation along the plane's normal (default: the fitted pose's)")
     parser.add_argument("--rotation", nargs=3, type=finite_float, metavar=("RX", "RY", "RZ"),
                         help="rotation vector of part 2 (radians); default: the fitted pose's")
-    parser.add_argument("--modes", type=modes, help="modes per axis K (default: the scene's)")
+    parser.add_argument("--modes", type=int, help="modes per axis K (default: the scene's)")
     parser.add_argument("-o", "--output", required=True, help="image file to write (PNG)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing image (never an input file)")
@@ -43,6 +43,10 @@ def run(args: argparse.Namespace) -> int:
     from engine.scene import load_scene
 
     scene = load_scene(args.scene)
+    if args.modes is not None:
+        from engine.params import check_modes
+
+        check_modes(args.modes, "--modes")
     check_image_output(args.output, force=args.force,
                        inputs=[scene.path, *(spec.file for spec in scene.parts)])
     fitted = np.asarray(scene.assembled_pose, dtype=float)

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from app.commands.arguments import finite_float, modes, positive_float
+from app.commands.arguments import finite_float, positive_float
 from app.commands.poses import add_about_argument, typed_pose
 
 
@@ -36,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(realtime=False)
     p.add_argument("--guidance", choices=("skeletal", "collision", "none"),
                    help="override the scene's [effects] guidance")
-    p.add_argument("--modes", type=modes, help="override the scene's [correlation] modes")
+    p.add_argument("--modes", type=int, help="override the scene's [correlation] modes")
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba", "opencl"),
                    help="per-pose evaluator of the correlator")
     p.add_argument("--start", type=finite_float, nargs=6,
@@ -68,6 +68,10 @@ def run(args: argparse.Namespace) -> int:
     from engine.sim import build_simulation
 
     handle = open_scene(args.scene)
+    if args.modes is not None:  # 0 would be taken for "the scene's"
+        from engine.params import check_modes
+
+        check_modes(args.modes, "--modes")
     inputs = [handle.path, *(spec.file for spec in handle.scene.parts)]
     if args.log:  # before any work: a bad path costs nothing, an input is never replaced
         check_output(args.log, force=args.force, what="log",

@@ -27,6 +27,7 @@ from engine.params import (
     GUIDANCE,
     LENGTH_UNITS,
     MAX_GRAVITY_G,
+    MAX_MODES,
     SIGMA_GRID_MAX,
     SIGMA_RANGE,
     STANDARD_GRAVITY,
@@ -360,7 +361,11 @@ def _descriptor(d: _Table) -> DescriptorParams:
 def _correlation(c: _Table) -> CorrelationParams:
     c.reject_unknown(CORRELATION_KEYS)
     base = CorrelationParams()
-    return c.build(CorrelationParams, modes=c.integer("modes", base.modes, minimum=1))
+    modes = c.integer("modes", base.modes, minimum=1)
+    if modes > MAX_MODES:
+        raise c._bad("modes", f"an integer from 1 to {MAX_MODES} (each pose sums K^3 terms)",
+                     base.modes)
+    return c.build(CorrelationParams, modes=modes)
 
 
 def _simulation(s: _Table) -> SimulationParams:

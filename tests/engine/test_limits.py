@@ -30,6 +30,7 @@ from engine.params import (
     MassSpec,
     Physics,
     SimulationParams,
+    check_modes,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -139,11 +140,13 @@ def test_precompute_refuses_out_of_range_before_work(folder, capsys, no_work, ke
     ("penalty = 1e-9", "penalty = 1e-09 is outside its range"),
     ("grid = 100000000000000000000", "grid must be an integer from 4 to 2048"),
     ("padding = 1000", "padding = 1000 is outside its range 0 to 64"),
+    ("modes = 1000", "modes in [correlation] must be an integer from 1 to 128"),
 ])
 def test_scene_descriptor_ranges_name_file_and_line(folder, capsys, no_work, text, match):
-    path = scene(folder, descriptor=text)
     key = text.split(" =")[0]
-    base = {"grid": "grid = 16\n", "padding": "padding = 6\n"}.get(key)
+    # K goes to [correlation] (the tables follow its `modes = 8`), the others to [descriptor]
+    path = scene(folder, tables=text) if key == "modes" else scene(folder, descriptor=text)
+    base = {"grid": "grid = 16\n", "padding": "padding = 6\n", "modes": "modes = 8\n"}.get(key)
     if base is not None:  # the scene's own line goes, so the key is not given twice
         path.write_text(path.read_text().replace(base, "", 1))
     err = refused(capsys, "precompute", path, "-o", folder)
@@ -158,8 +161,9 @@ def test_params_ranges_hold_in_the_python_api():
                 dict(lambda_out=1e-7), dict(grid=4096), dict(padding=65.0)):
         with pytest.raises(InputError, match="range|from 4 to"):
             DescriptorParams(**bad)
-    with pytest.raises(InputError, match=f"above {MAX_MODES}"):
-        CorrelationParams(modes=MAX_MODES + 1)
+    with pytest.raises(InputError, match=f"from 1 to {MAX_MODES}"):
+        check_modes(MAX_MODES + 1)
+    assert CorrelationParams(modes=10_000).modes == 10_000  # the engine's "all modes"
     with pytest.raises(InputError, match="rate_hz = 1e\\+12 is outside its range 1 to 100000"):
         SimulationParams(rate_hz=1e12)
     with pytest.raises(InputError, match="mass = 1e\\+300 is outside"):
@@ -301,8 +305,8 @@ def test_trajectories_are_checked_before_the_run(folder, capsys, no_work, rows, 
 
 
 @pytest.mark.parametrize("argv,match", [
-    (["--modes", "0"], "argument --modes: K must be from 1 to 128"),
-    (["--modes", "1000"], "argument --modes: K must be from 1 to 128"),
+    (["--modes", "0"], "--modes K = 0 must be an integer from 1 to 128"),
+    (["--modes", "1000"], "--modes K = 1000 must be an integer from 1 to 128"),
     (["--seconds", "-1"], "argument --seconds: must be positive"),
     (["--seconds", "inf"], "argument --seconds: must be a finite number"),
     (["--seconds", "1e9"], "--seconds = 1e\\+09 s at 1000 Hz is 1e\\+12 steps"),
@@ -418,7 +422,7 @@ def test_proxy_poses_out_of_reach_are_refused():
 
 
 def test_argument_types_read_python_floats():
-    from app.commands.arguments import finite_float, modes, positive_float
+    from app.commands.arguments import finite_float, positive_float
 
     assert finite_float("-4.2e-18") == -4.2e-18 and finite_float("1_000.5") == 1000.5
     for bad in ("nan", "inf", "-inf", "x"):
@@ -426,4 +430,3 @@ def test_argument_types_read_python_floats():
             finite_float(bad)
     with pytest.raises(argparse.ArgumentTypeError, match="positive"):
         positive_float("0")
-    assert modes("8") == 8
