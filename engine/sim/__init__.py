@@ -8,8 +8,9 @@ Modules: :mod:`~engine.sim.body` (rigid body, state, integrator pieces),
 :mod:`~engine.sim.fields` (Correlator, landscape and null fields),
 :mod:`~engine.sim.coupling` (coupling wrench, haptic reaction, clamping),
 :mod:`~engine.sim.simulation` (:class:`Simulation`), :mod:`~engine.sim.build` (mass
-properties, size-scaled physics, :func:`build_simulation`). The mathematics is in
-docs/simulation.md.
+properties, size-scaled physics, :func:`build_simulation`), :mod:`~engine.sim.guard`
+(proxy poses within reach, divergence detected and explained; docs/limits.md). The
+mathematics is in docs/simulation.md.
 """
 
 from engine.sim.body import BodyState, RigidBody, kinetic_energy
