@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         "free_axes": {"found": list(joint.free),
                       "declared": (None if scene.seat.free_axes is None
                                    else list(scene.seat.free_axes)),
-                      "rise": joint.rise, "step": joint.step,
+                      "curvature": joint.curvature, "step": joint.step,
                       "angle_deg": float(np.degrees(joint.angle))},
     }
     if args.json:
@@ -115,9 +115,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"scale      {scale.describe()}")
     declared = ("" if scene.seat.free_axes is None
                 else f" (the scene declares: {', '.join(scene.seat.free_axes) or 'none'})")
-    print(f"free axes  {', '.join(joint.free) or 'none'} at this pose{declared}: moving one "
-          f"cell ({joint.step:.3g} {units.length}) or {np.degrees(joint.angle):.2g} deg along "
-          "them costs under 5 % of the largest such rise")
+    print(f"free axes  {', '.join(joint.free) or 'none'} at this pose{declared}: along them "
+          f"the energy's curvature over one cell ({joint.step:.3g} {units.length}, or "
+          f"{np.degrees(joint.angle):.2g} deg) is under 5 % of the largest of their kind")
     print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")

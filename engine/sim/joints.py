@@ -8,14 +8,16 @@ attraction that draws the part on along a through hole.
 
 :func:`find_free_axes` moves part 2 out of the pose by one step each way along each of the
 six axes of part 1's frame (translations by ``step``, rotations about part 2's centre by the
-angle that moves its farthest point by ``step``) and takes, per axis, the larger of the two
-energy rises ``max(E(+h), E(-h)) - E(0)`` (a one-sided stop, such as the floor of a blind
-bore, counts: one way is blocked). Rises are compared within their kind (translations with
-translations, rotations with rotations; a floor makes the axial rise of a seated peg far
-larger than any tilt's, so one scale for both would call the tilts free): an axis whose rise
-is below ``threshold`` times the largest rise of its kind is free. A kind whose largest rise
-is not positive, or negligible (under :data:`NEGLIGIBLE` of the other kind's), is free as a
-whole: no wall anywhere, the part is not in contact.
+angle that moves its farthest point by ``step``) and takes, per axis, the second difference
+``E(+h) + E(-h) - 2 E(0)``: the energy's curvature, which a wall on either side raises (a
+one-sided stop, such as the floor of a blind bore, counts: one way is blocked) and a steady
+slope does not (along a through hole the energy keeps falling as the peg slides on: the
+larger one-sided rise there is the largest of all, the curvature about zero). Curvatures
+are compared within their kind (translations with translations, rotations with rotations; a
+floor makes the axial one of a seated peg far larger than any tilt's, so one scale for both
+would call the tilts free): an axis whose curvature is below ``threshold`` times the largest
+of its kind is free. A kind whose largest curvature is not positive, or negligible (under
+:data:`NEGLIGIBLE` of the other kind's), is free as a whole: no wall anywhere.
 """
 
 from __future__ import annotations
@@ -28,11 +30,11 @@ import numpy as np
 from engine.params import AXES
 from engine.pose import compose, rotate_about, rotation_matrix
 
-#: An axis is free when moving along it raises the energy by less than this fraction of the
-#: largest rise among the axes of its kind.
+#: An axis is free when the energy's curvature along it is under this fraction of the largest
+#: curvature among the axes of its kind.
 FREE_THRESHOLD = 0.05
 
-#: A kind of axes whose largest rise is under this fraction of the other kind's is free.
+#: A kind of axes whose largest curvature is under this fraction of the other kind's is free.
 NEGLIGIBLE = 1e-6
 
 Energy = Callable[[np.ndarray, np.ndarray], float]
@@ -46,14 +48,14 @@ class FreeAxes:
     ----------
     free : tuple of str
         Names from :data:`engine.params.AXES` of the axes found free, part 1's frame.
-    rise : dict of str to float
-        Energy rise per axis for a step out of the pose (scaled as the energy function).
+    curvature : dict of str to float
+        ``E(+h) + E(-h) - 2 E(0)`` per axis (scaled as the energy function).
     step, angle : float
         The translation step (scene unit) and the rotation step (radians).
     """
 
     free: tuple[str, ...]
-    rise: dict[str, float]
+    curvature: dict[str, float]
     step: float
     angle: float
 
@@ -93,7 +95,7 @@ def find_free_axes(energy: Energy, pose: np.ndarray, centre: np.ndarray, size: f
         return float(energy(rotation_matrix(q[3:]), q[:3]))
 
     e0 = at(p)
-    rise: dict[str, float] = {}
+    curvature: dict[str, float] = {}
     for i, name in enumerate(AXES):
         ups = []
         for sign in (1.0, -1.0):
@@ -105,13 +107,13 @@ def find_free_axes(energy: Energy, pose: np.ndarray, centre: np.ndarray, size: f
                 rotvec[i - 3] = sign * angle
                 q = rotate_about(p, rotvec, centre_world)
             ups.append(at(q) - e0)
-        rise[name] = max(ups)
-    overall = max(rise.values())
+        curvature[name] = ups[0] + ups[1]
+    overall = max(curvature.values())
     free: list[str] = []
     for kind in (AXES[:3], AXES[3:]):
-        top = max(rise[a] for a in kind)
+        top = max(curvature[a] for a in kind)
         if top <= NEGLIGIBLE * overall or top <= 0:
             free += kind
         else:
-            free += [a for a in kind if rise[a] < threshold * top]
-    return FreeAxes(free=tuple(free), rise=rise, step=float(step), angle=angle)
+            free += [a for a in kind if curvature[a] < threshold * top]
+    return FreeAxes(free=tuple(free), curvature=curvature, step=float(step), angle=angle)

@@ -12,7 +12,8 @@ CENTRE = np.array([0.0, 0.0, 5.0])
 def well(stiff_t, stiff_r, *, stop_z=None):
     """Energy of a part near the identity pose: quadratic in its centre's displacement and
     its rotation vector, plus an optional one-sided floor along z. Rotational stiffness 25
-    matches translational 1 for the steps used (0.1 rad against 0.5)."""
+    matches translational 1 for the steps used (0.1 rad against 0.5).
+    """
     kt, kr = np.asarray(stiff_t, float), np.asarray(stiff_r, float)
 
     def energy(rotation, translation):
@@ -30,8 +31,8 @@ def well(stiff_t, stiff_r, *, stop_z=None):
 def test_a_cylindrical_joint_leaves_its_axis_and_spin_free():
     found = find_free_axes(well([5, 5, 0], [100, 100, 0]), np.zeros(6), CENTRE, 10.0, 0.5)
     assert found.free == ("z", "rz")
-    assert found.rise["z"] == pytest.approx(0.0, abs=1e-12)
-    assert found.rise["x"] == pytest.approx(5 * 0.25, rel=1e-9)
+    assert found.curvature["z"] == pytest.approx(0.0, abs=1e-12)
+    assert found.curvature["x"] == pytest.approx(2 * 5 * 0.25, rel=1e-9)
     assert found.angle == pytest.approx(0.5 / 5.0)
 
 
@@ -57,6 +58,17 @@ def test_threshold_is_relative_within_each_kind():
                           0.5).free == ()
 
 
+def test_a_steady_slope_along_a_free_axis_stays_free():
+    # through a through hole the energy keeps falling as the peg slides on: a slope, no wall
+    base = well([5, 5, 0], [25, 25, 0])
+
+    def sloped(rotation, translation):
+        return base(rotation, translation) + 40.0 * translation[2]
+
+    found = find_free_axes(sloped, np.zeros(6), CENTRE, 10.0, 0.5)
+    assert found.free == ("z", "rz")
+
+
 def test_no_contact_means_everything_is_free():
     found = find_free_axes(lambda r, t: 0.0, np.zeros(6), CENTRE, 10.0, 0.5)
     assert found.free == ("x", "y", "z", "rx", "ry", "rz")
@@ -66,5 +78,5 @@ def test_a_stiff_floor_does_not_make_the_tilts_free():
     # a seated peg: the floor's rise dwarfs the tilts', which must still count as locked
     found = find_free_axes(well([5, 5, 0], [0.5, 0.5, 0], stop_z=20), np.zeros(6), CENTRE, 10.0,
                            0.5)
-    assert found.rise["z"] > 500 * found.rise["rx"] > 0
+    assert found.curvature["z"] > 400 * found.curvature["rx"] > 0
     assert found.free == ("rz",)
