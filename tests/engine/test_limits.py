@@ -430,3 +430,20 @@ def test_argument_types_read_python_floats():
             finite_float(bad)
     with pytest.raises(argparse.ArgumentTypeError, match="positive"):
         positive_float("0")
+
+
+def test_scene_fft_is_refused_before_its_descriptors(folder, monkeypatch, no_work):
+    """A grid of 300 passes the descriptor check; its 588^3 FFT is refused before work."""
+    from engine.pose import rotation_matrix
+    from engine.runtime import open_scene
+    from engine.sim.build import SceneModel
+
+    path = scene(folder, name="grid300.toml")
+    path.write_text(path.read_text().replace("grid = 16", "grid = 300"))
+    model = SceneModel(open_scene(path))
+    monkeypatch.setattr(engine.grid, "physical_memory", lambda: 16 * 2**30)
+    monkeypatch.setattr(engine.grid, "available_memory", lambda: None)
+    effects = model.config.effects
+    with pytest.raises(ResourceError, match=r"the correlation's 588\^3 FFT \(6 arrays of "
+                                            r"588\^3 complex64\) needs about 9.1 GiB"):
+        model.field(effects, 1.0, rotation_matrix(np.zeros(3)))
