@@ -44,8 +44,8 @@ in the toolbar (I: the insertion axis, X, Y, Z; F: free) the ghost moves along t
 only, drawn through the part; free, it moves in the view plane.</li>
 <li><b>Shift + drag</b> up/down, or the <b>wheel</b> while dragging: move along the view
 direction (along the chosen axis, when one is chosen).</li>
-<li><b>Ctrl + drag</b>: rotate the proxy about the part's centre (the scene's pivot, else the
-centre of its bounding box) with an arcball, or about the chosen axis through it.</li>
+<li><b>Ctrl + drag</b>: rotate the proxy about the part's centre (the scene's pivot, else its
+centre of mass) with an arcball, or about the chosen axis through it.</li>
 <li>Elsewhere the mouse turns (left), pans (middle) and zooms (wheel) the camera.</li>
 <li>The readout at the top right says how far the part is from its seat, and
 <b>SEATED</b> when it is within the scene's tolerance.</li>
@@ -758,7 +758,7 @@ class MainWindow(QtWidgets.QMainWindow):
             pose = np.asarray(f.part_pose, float)
             self.seat = quantities.seat_of(handle, part, pose)
             r.set("pose", quantities.pose_text(pose, u.length, part.pivot),
-                  "Part 2's pose in part 1's frame about its pivot (its bounding-box centre "
+                  "Part 2's pose in part 1's frame about its pivot (its centre of mass "
                   "unless the scene sets pivot):\nhow far the pivot moved, and the rotation "
                   "about it (the scene file's pose when not turned)")
             head, detail = quantities.seat_text(self.seat, u.length)

@@ -1,12 +1,12 @@
 """Typing the proxy's pose: a small dialog with six fields.
 
 The pose is part 2's, relative to part 1 and in part 1's frame, about its pivot (the scene's
-``pivot``, else the centre of its bounding box): the pivot's displacement in the scene's unit
-and the rotation vector about it in degrees (axis times angle), so a typed rotation turns the
-part in place, and an unturned pose reads as in the scene file
-(``engine.pose.pivot_to_origin`` and ``origin_to_pivot`` convert). "Move the ghost" sends it
-as the proxy's pose (the part follows under the forces); "Place the part" puts part and proxy
-there at rest.
+``pivot``, else its centre of mass, as ``evaluate --pose`` reads a typed pose): the pivot's
+displacement in the scene's unit and the rotation vector about it in degrees (axis times
+angle), so a typed rotation turns the part in place, and an unturned pose reads as in the
+scene file (``engine.pose.pivot_to_origin`` and ``origin_to_pivot`` convert). "Move the
+ghost" sends it as the proxy's pose (the part follows under the forces); "Place the part"
+puts part and proxy there at rest.
 """
 
 from __future__ import annotations

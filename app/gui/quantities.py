@@ -24,9 +24,9 @@ class MovingPart:
     """What the readouts and drags need of part 2, in its own frame and the scene's unit.
 
     ``centre`` (3,) float64 is its centre of mass (whose distance to its seat the readout
-    gives); ``pivot`` (3,) float64 the point drags and typed poses turn about (the scene's
-    ``pivot``, else the centre of its bounding box: ``engine.scene.part_pivot``); ``size`` the
-    diagonal of its bounding box.
+    gives); ``pivot`` (3,) float64 the point drags and typed poses turn about: the scene's
+    ``pivot`` for the part, else its centre of mass, as the command line's typed poses
+    (``evaluate --pose``, ``simulate --start``); ``size`` the diagonal of its bounding box.
     """
 
     centre: np.ndarray
@@ -36,15 +36,16 @@ class MovingPart:
 
 def moving_part(handle) -> MovingPart:
     """:class:`MovingPart` of a scene handle's part 2 (part 1 alone: its own centre)."""
-    from engine.scene import part_pivot
-    from engine.sim.build import mass_properties
+    from engine.sim import mass_properties
 
     index = 1 if len(handle.parts) > 1 else 0
     part = handle.parts[index]
     v = np.asarray(part.vertices, float)
-    _, _, centre = mass_properties(v, np.asarray(part.faces), handle.config.mass_spec(index))
+    _, _, centre = mass_properties(v, np.asarray(part.faces), handle.config.mass_spec(index),
+                                   handle.scene.units)
     size = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 1.0
-    pivot = part_pivot(handle.scene.parts[index], part)
+    spec = handle.scene.parts[index]
+    pivot = spec.pivot if spec.pivot is not None else centre
     return MovingPart(np.asarray(centre, float), np.asarray(pivot, float),
                       size if size > 0 else 1.0)
 

@@ -10,8 +10,8 @@ Dragging (left button on the moving part or its ghost):
   the axis nearest the mouse ray); the axis is drawn through the part while it is on;
 - Shift + vertical drag, or the wheel while dragging: translate along the view direction
   (along the constraint axis when one is on);
-- Ctrl + drag: rotate the proxy about part 2's pivot (the scene's ``pivot``, else the centre
-  of its bounding box), with an arcball, or about the constraint axis through it (horizontal
+- Ctrl + drag: rotate the proxy about part 2's pivot (the scene's ``pivot``, else its centre
+  of mass), with an arcball, or about the constraint axis through it (horizontal
   mouse travel sets the angle).
 Anywhere else the mouse drives the camera as usual. Standard views (:meth:`Viewport.set_view`)
 look along the axes of part 1's frame, isometrically, or along the insertion axis.

@@ -227,10 +227,11 @@ def test_keys_choose_the_axis_and_ctrl_drag_turns_about_it(make_window):
                                     @ posemath.rotation_matrix(before[3:]).T)
     assert np.linalg.norm(turn) > np.radians(5)
     assert np.allclose(turn / np.linalg.norm(turn), [0, 0, np.sign(turn[2])], atol=1e-9)
-    # about the part's pivot (the scene's, else its bounding-box centre): it stays in place
+    # about the part's pivot (the scene's, else its centre of mass): it stays in place
     new_centre = posemath.pose_to_matrix(after)[:3] @ np.append(vp._centroid, 1.0)
     assert np.allclose(new_centre, centre, atol=1e-9)
     assert np.allclose(vp._centroid, win.session.moving.pivot)
+    assert np.allclose(win.session.moving.pivot, win.session.moving.centre)  # no scene pivot
 
 
 def test_standard_views_reset_and_a_new_scene_fit_the_camera(make_window, small_scene,
