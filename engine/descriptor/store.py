@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 import engine.descriptor.constants as _c
-from engine.cache import code_digest, load_or_compute
+from engine.cache import code_digest, content_key, entry_path, load_or_compute
 from engine.descriptor.compute import BackendLike, compute_descriptor, resolve_backend
 from engine.errors import InputError
 from engine.files import atomic_write
@@ -318,6 +318,18 @@ def descriptor_for_part(
         seconds=time.perf_counter() - t0, from_cache=hit, name=str(getattr(part, "name", "")),
         method=method, compute_seconds=float(arrays.get("compute_seconds", np.nan)),
     )
+
+
+def descriptors_cached(scene: Scene, parts: Sequence[Part], *,
+                       method: str = "adaptive") -> bool:
+    """Whether every descriptor of the scene is in the cache (nothing to compute)."""
+    spacing = scene_spacing(scene, parts)
+    for part in parts:
+        grid = grid_for_part(part, spacing=spacing, padding=scene.descriptor.padding)
+        key = content_key(CACHE_KIND, cache_key_parts(part, grid, scene.descriptor, method))
+        if not entry_path(CACHE_KIND, key).is_file():
+            return False
+    return True
 
 
 def descriptors_for_scene(

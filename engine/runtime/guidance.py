@@ -96,12 +96,18 @@ class Guidance:
         # the last physics resolved and what it was resolved from: resolving reads the
         # mesh's mass properties (milliseconds), so a K change must not do it on the loop
         self._resolved: tuple[tuple[object, ...], Physics] | None = None
+        self._deferred = False  # a field change waits for the descriptors being computed
 
     # -- requests -------------------------------------------------------------------------------
     def prepare(self, modes: int) -> None:
-        """Build the first field in the background (ReadyEvent when done)."""
+        """Build the first field in the background (ReadyEvent when done).
+
+        A scene whose descriptors are not cached gets a first field on a coarse grid
+        (seconds); the scene's own are then computed like a sigma change (progress, then
+        DescriptorsSwapped), while the part can already be dragged.
+        """
         self.modes = int(modes)
-        self._request("correlator")
+        self._request("correlator", coarse_first=True)
 
     def set_modes(self, modes: int) -> None:
         """New K: a new field is built in the background; the old one steps meanwhile."""
@@ -146,6 +152,9 @@ class Guidance:
         self._field_id = 0
         self.recompute = None
         _, self.sigma, self.penalty = self._in_use
+        if self._deferred:  # a K or rotation change waited for the cancelled job
+            self._deferred = False
+            self._request("field")
 
     def request_landscape(self, rotvec: tuple[float, ...] | None) -> None:
         """Landscape at ``rotvec`` (default: the part's rotation), computed by the worker."""
@@ -164,12 +173,19 @@ class Guidance:
         self.worker.submit("landscape", lambda cancelled: compute_landscape(
             request, progress=progress, cancel=cancelled))
 
-    def _request(self, task: str) -> None:
+    def _request(self, task: str, *, coarse_first: bool = False) -> None:
         model = self.model
         if model is None:
             raise RuntimeError("this engine has no scene model to rebuild its field from")
+        if task == "field" and self.recompute is not None:
+            # descriptors are being computed: a new K or rotation lock must not cancel them;
+            # it is applied to the field they make (see _field)
+            self._deferred = True
+            return
         key = (self.effects.guidance, self.sigma, self.penalty)
-        reuse = self.descriptors if key == self._in_use and task != "correlator" else ()
+        # only a new K or rotation lock reuses the descriptors in use; "descriptors" computes
+        # them (a new sigma, or the scene's own after a coarse first field)
+        reuse = self.descriptors if key == self._in_use and task == "field" else ()
         if not reuse and task == "field" and self.effects.guidance != "none":
             task = "descriptors"  # no descriptors to reuse: they are computed (or loaded)
         fld = self.sim.field
@@ -179,7 +195,7 @@ class Guidance:
         request = FieldRequest(
             next_id(), task, self.effects, self._physics().kappa, rot, self.modes,
             self.sigma, self.penalty, reuse, current.backend if current is not None else "",
-            correlator=current if reuse else None,
+            correlator=current if reuse else None, coarse_first=coarse_first,
         )
         self._field_id, self._field_task = request.id, task
         report = task != "field"
@@ -240,8 +256,13 @@ class Guidance:
         self.descriptors = r.descriptors
         self._in_use = (req.effects.guidance, req.sigma, req.penalty)
         if req.task == "correlator":
-            self.events.append(ReadyEvent(r.descriptors, backend_name(r.field),
-                                          self.ready_message))
+            message = self.ready_message
+            if r.coarse_grid is not None:
+                message += (f"; a coarse first field (grid {r.coarse_grid}) while the scene's "
+                            "own descriptors are computed")
+            self.events.append(ReadyEvent(r.descriptors, backend_name(r.field), message))
+            if r.coarse_grid is not None:
+                self._request("descriptors")
         elif req.task == "field":  # built without progress reports: say that it is done
             self.events.append(ProgressEvent("field", 1.0, "done"))
         elif req.task == "descriptors":
@@ -250,6 +271,9 @@ class Guidance:
                 sigma, penalty = r.descriptors[0].params.sigma, r.descriptors[0].params.penalty
             self.events.append(DescriptorsSwapped(r.descriptors, float(sigma), float(penalty),
                                                   r.seconds))
+            if self._deferred or req.modes != self.modes or req.effects != self.effects:
+                self._deferred = False
+                self._request("field")
 
     def _physics(self) -> Physics:
         if self.model is None:

@@ -85,10 +85,16 @@ class FieldModel(Protocol):
         sigma: float | None = None,
         penalty: float | None = None,
         modes: int | None = None,
+        grid: int | None = None,
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
     ) -> tuple[GeometricField, tuple[Descriptor, ...]]:
         """(field, descriptors) for ``effects``."""
+        ...
+
+    def first_grid(self, effects: Effects, *, sigma: float | None = None,
+                   penalty: float | None = None) -> int | None:
+        """The coarse grid of a first field, or None when the scene's own is quick."""
         ...
 
 
@@ -118,6 +124,10 @@ class FieldRequest:
         The field in use's correlator, built from ``descriptors``: only K changed, so its
         spectra and compiled kernels are shared (:meth:`Correlator.with_modes`) and only the
         mode table is cut again; nothing is read from disk or transformed.
+    coarse_first : bool
+        The first field of a scene: when its descriptors are not cached, build it on the
+        model's coarse grid (:meth:`FieldModel.first_grid`), seconds instead of minutes, and
+        say so in the response; the caller then asks for the scene's own.
     """
 
     id: int
@@ -131,6 +141,7 @@ class FieldRequest:
     descriptors: tuple[Descriptor, ...] = ()
     backend: str = ""
     correlator: Correlator | None = None
+    coarse_first: bool = False
 
 
 @dataclass(frozen=True)
@@ -147,6 +158,7 @@ class FieldResponse:
     seconds: float = 0.0
     error: BaseException | None = None
     cancelled: bool = False
+    coarse_grid: int | None = None  # the coarse grid the field was built on, if any
 
 
 @dataclass(frozen=True)
@@ -191,6 +203,7 @@ def build_field(
     """Run a :class:`FieldRequest` (in the worker): the field, warmed up, and its descriptors."""
     t0 = time.perf_counter()
     r = request
+    coarse: int | None = None
     if r.descriptors and r.effects.guidance != "none":
         d1, d2 = r.descriptors[0], r.descriptors[1]
         backend = r.backend or model.backend
@@ -205,15 +218,19 @@ def build_field(
                                 locked_rotation=r.locked_rotation)
         descs: tuple[Descriptor, ...] = (d1, d2)
     else:
+        coarse = (model.first_grid(r.effects, sigma=r.sigma, penalty=r.penalty)
+                  if r.coarse_first else None)
         fld, descs = model.field(
             r.effects, r.kappa, r.locked_rotation, sigma=r.sigma, penalty=r.penalty,
             modes=r.modes, progress=progress, cancel=cancel,
+            **({} if coarse is None else {"grid": coarse}),
         )
     if cancel is not None and cancel():
         raise Cancelled("superseded")
     if not isinstance(fld, NullField):
         _warm(fld, r.locked_rotation)
-    return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0)
+    return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0,
+                         coarse_grid=coarse)
 
 
 def compute_landscape(

@@ -55,6 +55,13 @@ from engine.sim.simulation import Simulation
 
 if TYPE_CHECKING:
     from engine.correlation import Correlator
+    from engine.scene import Scene
+
+
+#: Samples along the largest part's longest side of a scene's first field when its own
+#: descriptors are not cached: about a twentieth of the work of grid 64, seconds instead of
+#: minutes, so the part can be dragged while the scene's own are computed and swapped in.
+COARSE_GRID = 24
 
 
 class LoadedScene(Protocol):
@@ -381,19 +388,20 @@ class SceneModel:
         *,
         sigma: float | None = None,
         penalty: float | None = None,
+        grid: int | None = None,
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
     ) -> tuple[Any, Any]:
-        """The two descriptors for ``effects.guidance`` (skeletal or collision-only)."""
+        """The two descriptors for ``effects.guidance`` (skeletal or collision-only).
+
+        ``grid`` replaces the scene's sampling (samples along the largest part's longest
+        side) for a coarse first field.
+        """
         from engine.descriptor.collision import collision_descriptor
         from engine.descriptor.store import descriptors_for_scene
         from engine.errors import InputError
 
-        scene = self.scene
-        if sigma is not None or penalty is not None:
-            changes = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
-                       if v is not None}
-            scene = replace(scene, descriptor=replace(scene.descriptor, **changes))
+        scene = self._scene_with(sigma, penalty, grid)
         parts = list(self.parts)
         try:
             descs = descriptors_for_scene(
@@ -412,6 +420,35 @@ class SceneModel:
             d1 = collision_descriptor(d1, self.parts[0])
             d2 = collision_descriptor(d2, self.parts[1])
         return d1, d2
+
+    def _scene_with(self, sigma: float | None, penalty: float | None,
+                    grid: int | None) -> Scene:
+        changes: dict[str, object] = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
+                                      if v is not None}
+        if grid is not None:
+            changes.update(grid=int(grid), spacing=None)
+        if not changes:
+            return self.scene
+        return replace(self.scene, descriptor=replace(self.scene.descriptor, **changes))
+
+    def descriptors_cached(self, *, sigma: float | None = None,
+                           penalty: float | None = None) -> bool:
+        """Whether the scene's descriptors (at its own grid) are in the cache already."""
+        from engine.descriptor.store import descriptors_cached
+
+        return descriptors_cached(self._scene_with(sigma, penalty, None), list(self.parts))
+
+    def first_grid(self, effects: Effects, *, sigma: float | None = None,
+                   penalty: float | None = None) -> int | None:
+        """The grid of a scene's first field (None: the scene's own, at once).
+
+        :data:`COARSE_GRID` while the scene's own descriptors are finer and not cached.
+        """
+        d = self.scene.descriptor
+        finer = d.spacing is not None or d.grid is None or d.grid > COARSE_GRID
+        if effects.guidance == "none" or not self.has_pair or not finer:
+            return None
+        return None if self.descriptors_cached(sigma=sigma, penalty=penalty) else COARSE_GRID
 
     def check_memory(self) -> None:
         """Refuse a scene whose correlation FFT would not fit (ResourceError), before work.
@@ -438,6 +475,7 @@ class SceneModel:
         sigma: float | None = None,
         penalty: float | None = None,
         modes: int | None = None,
+        grid: int | None = None,
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
     ) -> tuple[GeometricField, tuple[Any, ...]]:
@@ -456,6 +494,9 @@ class SceneModel:
             Descriptor parameters replacing the scene's.
         modes : int, optional
             K (default: this model's).
+        grid : int, optional
+            Samples along the largest part's longest side, replacing the scene's (a coarse
+            first field while the scene's own is computed).
         progress, cancel : callable, optional
             Fraction done 0..1; True to stop (raises ``engine.errors.Cancelled``).
         """
@@ -471,7 +512,8 @@ class SceneModel:
 
         self.check_memory()  # before minutes of descriptors, not at the FFT after them
         d1, d2 = self.descriptors(
-            effects, sigma=sigma, penalty=penalty, progress=stage(0.0, 0.9), cancel=cancel
+            effects, sigma=sigma, penalty=penalty, grid=grid, progress=stage(0.0, 0.9),
+            cancel=cancel
         )
         if cancel is not None and cancel():
             raise Cancelled("recompute cancelled")

@@ -94,7 +94,12 @@ class FakeModel:
         v, f = tetra()
         return resolve_physics(self.config, v, f, effects=effects, kappa=kappa)
 
-    def field(self, effects, kappa, rot, *, sigma=None, penalty=None, modes=None,
+    coarse = None  # the grid first_grid answers (None: the scene's descriptors are cached)
+
+    def first_grid(self, effects, *, sigma=None, penalty=None):
+        return self.coarse
+
+    def field(self, effects, kappa, rot, *, sigma=None, penalty=None, modes=None, grid=None,
               progress=None, cancel=None):
         for i in range(10):
             if cancel is not None and cancel():
@@ -104,6 +109,7 @@ class FakeModel:
                 progress((i + 1) / 10)
         c = logged_well(modes=modes or 16, rotation=effects.rotation)
         c.sigma = sigma
+        c.grid = grid
         self.built.append(c)
         fld = (CorrelatorField(c, kappa) if effects.rotation else LandscapeField(c, rot, kappa))
         return fld, (tiny_descriptor(sigma or 0.5, penalty or 3.0), tiny_descriptor())
@@ -497,3 +503,36 @@ def test_a_failing_landscape_is_reported_not_lost():
     loop.stop()
     failed = [e for e in loop.poll_events() if isinstance(e, rt.LandscapeFailed)]
     assert "too large for memory" in failed[0].message and failed[0].kind == "ValueError"
+
+
+def test_an_uncached_scene_is_draggable_on_a_coarse_field_first():
+    # issue 12: the first start computed the scene's descriptors before anything moved
+    # (minutes); now a coarse field comes first and the scene's own are swapped in after
+    loop, _, model = make_loop(realtime=True)
+    model.coarse = 8
+    loop.prepare = True
+    loop.start()
+    assert wait_for(lambda: any(isinstance(e, rt.DescriptorsSwapped) for e in list(loop.events)),
+                    10.0)
+    loop.stop()
+    events = loop.poll_events()
+    ready = [e for e in events if isinstance(e, rt.ReadyEvent)]
+    swapped = [e for e in events if isinstance(e, rt.DescriptorsSwapped)]
+    assert len(ready) == 1 and "coarse first field (grid 8)" in ready[0].message
+    assert events.index(ready[0]) < events.index(swapped[0])
+    # coarse first, then the scene's own (fields built from descriptors, not new K cuts)
+    assert [c.grid for c in model.built if hasattr(c, "grid")] == [8, None]
+    assert loop.sim.field.correlator is [c for c in model.built if hasattr(c, "grid")][-1]
+
+
+def test_a_k_change_does_not_cancel_descriptors_being_computed():
+    loop, _, model = make_loop(realtime=True)
+    loop.start()
+    loop.send(rt.SetDescriptorParams(sigma=0.8))
+    assert wait_for(lambda: loop.guidance.recompute is not None, 2.0)
+    loop.send(rt.SetModes(20))
+    assert wait_for(lambda: loop.sim.field.modes == 20, 10.0)
+    loop.stop()
+    events = loop.poll_events()
+    assert any(isinstance(e, rt.DescriptorsSwapped) and e.sigma == 0.8 for e in events)
+    assert model.built[0].sigma == 0.8  # the recompute ran to the end, then K was applied
