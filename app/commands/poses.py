@@ -31,23 +31,12 @@ def add_about_argument(parser: argparse.ArgumentParser, option: str) -> None:
         "scene file's convention)")
 
 
-def moving_centre(handle: SceneHandle) -> np.ndarray:
-    """Part 2's pivot in its own frame: the scene's ``pivot``, else its centre of mass."""
-    from engine.sim import mass_properties
-
-    spec = handle.scene.parts[-1]
-    if spec.pivot is not None:
-        return np.asarray(spec.pivot, dtype=np.float64)
-    part = handle.parts[-1]
-    mass = handle.config.mass_spec(len(handle.parts) - 1)
-    return np.asarray(mass_properties(part.vertices, part.faces, mass, handle.scene.units)[2])
-
-
 def typed_pose(handle: SceneHandle, values: list[float], about: str) -> np.ndarray:
     """The scene-convention (origin) pose of six typed numbers read ``about`` a point."""
     from engine.pose import pivot_to_origin
+    from engine.sim import part_pivot
 
     pose = np.asarray(values, dtype=np.float64).reshape(6)
     if about == "origin":
         return pose
-    return pivot_to_origin(pose, moving_centre(handle))
+    return pivot_to_origin(pose, part_pivot(handle))

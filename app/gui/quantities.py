@@ -36,7 +36,7 @@ class MovingPart:
 
 def moving_part(handle) -> MovingPart:
     """:class:`MovingPart` of a scene handle's part 2 (part 1 alone: its own centre)."""
-    from engine.sim import mass_properties
+    from engine.sim import mass_properties, part_pivot
 
     index = 1 if len(handle.parts) > 1 else 0
     part = handle.parts[index]
@@ -44,8 +44,7 @@ def moving_part(handle) -> MovingPart:
     _, _, centre = mass_properties(v, np.asarray(part.faces), handle.config.mass_spec(index),
                                    handle.scene.units)
     size = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 1.0
-    spec = handle.scene.parts[index]
-    pivot = spec.pivot if spec.pivot is not None else centre
+    pivot = part_pivot(handle, index)
     return MovingPart(np.asarray(centre, float), np.asarray(pivot, float),
                       size if size > 0 else 1.0)
 

@@ -23,7 +23,7 @@ A scene is a TOML file (the full format is in docs/scenes.md)::
 """
 
 from engine.scene.model import PartSpec, Scene, SceneError, relative_start_pose
-from engine.scene.parts import load_scene_parts, part_pivot, unit_mismatch
+from engine.scene.parts import load_scene_parts, unit_mismatch
 from engine.scene.reader import key_line, load_scene, parse_scene
 from engine.scene.writer import save_scene, scene_to_toml
 
@@ -35,7 +35,6 @@ __all__ = [
     "load_scene",
     "load_scene_parts",
     "parse_scene",
-    "part_pivot",
     "relative_start_pose",
     "save_scene",
     "scene_to_toml",

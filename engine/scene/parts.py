@@ -24,7 +24,7 @@ import numpy as np
 
 from engine.loading import Part, load_part
 from engine.params import LENGTH_UNITS
-from engine.scene.model import PartSpec, Scene
+from engine.scene.model import Scene
 
 #: Size ratios that betray a unit mix-up (a part read in a unit this many times too large).
 UNIT_FACTORS = (25.4, 1000.0, 100.0, 10.0)
@@ -180,14 +180,3 @@ def unit_mismatch(sizes: list[float], names: list[str], units: list[str], kinds:
 
 def _warn(part: Part, line: str) -> Part:
     return replace(part, warnings=(*part.warnings, line))
-
-
-def part_pivot(spec: PartSpec, part: Part) -> np.ndarray:
-    """(3,) float64 pivot of a part, in its own frame and the scene's unit.
-
-    The ``pivot`` of its ``[[part]]`` if given, else the centre of the loaded part's
-    bounding box. Typed and dragged poses turn about it (``engine.pose.pivot_to_origin``).
-    """
-    if spec.pivot is not None:
-        return np.array(spec.pivot, dtype=np.float64)
-    return part.bounds.mean(axis=0)

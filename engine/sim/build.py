@@ -204,6 +204,21 @@ MIN_ROTATION_FRACTION = 0.25
 STIFFNESS_STEP_RAD = math.radians(0.5)
 
 
+def part_pivot(handle: LoadedScene, index: int = -1) -> np.ndarray:
+    """(3,) point, in a part's own frame, that its typed and dragged rotations turn about.
+
+    The scene's ``pivot`` for the part if it names one, else the part's centre of mass
+    (where the coupling acts). ``index`` -1 is the moving part.
+    """
+    i = index % len(handle.parts)
+    spec = handle.scene.parts[i]
+    if spec.pivot is not None:
+        return np.array(spec.pivot, dtype=np.float64)
+    part = handle.parts[i]
+    return np.asarray(mass_properties(part.vertices, part.faces, handle.config.mass_spec(i),
+                                      handle.scene.units)[2], dtype=np.float64)
+
+
 def rotational_stiffness(field: GeometricField, pose: np.ndarray) -> float | None:
     """Geometric rotational stiffness of a field at a pose, per unit kappa.
 

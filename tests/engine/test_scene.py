@@ -519,7 +519,8 @@ def test_part_pivot_is_the_centre_or_the_scene_named_point(tmp_path):
     import trimesh
 
     from engine.pose import pivot_to_origin, pose_to_matrix
-    from engine.scene import part_pivot
+    from engine.runtime import open_scene
+    from engine.sim import part_pivot
 
     # a body drawn far from its file's origin, as bodies of an assembly file are
     trimesh.creation.box(extents=(4, 4, 10)).apply_translation([75, 0, 5]).export(
@@ -527,8 +528,7 @@ def test_part_pivot_is_the_centre_or_the_scene_named_point(tmp_path):
     box_stl(tmp_path, "base.stl", (20, 20, 5))
     scene = load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl",
                                       extra="pose = [0, 0, 3, 0, 0, 0]\n"))
-    base, pin = load_scene_parts(scene)
-    centre = part_pivot(scene.parts[1], pin)
+    centre = part_pivot(open_scene(scene.path))
     np.testing.assert_allclose(centre, [75, 0, 5], atol=1e-5)
     # a 2 degree tilt typed for the pin turns it in place; the scene's own poses stay
     # origin poses of part 2 relative to part 1
@@ -537,8 +537,7 @@ def test_part_pivot_is_the_centre_or_the_scene_named_point(tmp_path):
     np.testing.assert_allclose(pose_to_matrix(placed)[:3] @ np.append(centre, 1.0),
                                centre + [0, 0, 3], atol=1e-9)
     np.testing.assert_allclose(relative_start_pose(scene), [0, 0, 3, 0, 0, 0])
-    named = load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl",
-                                      extra="pivot = [75, 0, 0]\n"))
-    np.testing.assert_array_equal(part_pivot(named.parts[1], pin), [75, 0, 0])
+    named = two_part_scene(tmp_path, "base.stl", "pin.stl", extra="pivot = [75, 0, 0]\n")
+    np.testing.assert_array_equal(part_pivot(open_scene(named)), [75, 0, 0])
     with pytest.raises(SceneError, match="pivot in \\[\\[part\\]\\] #2 must be 3 numbers"):
         load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl", extra="pivot = [1, 2]\n"))
