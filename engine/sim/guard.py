@@ -16,14 +16,30 @@ gains at that step.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
 from engine.errors import Diverged, InputError
+from engine.params import Physics
+from engine.sim.body import BodyState, RigidBody
 
-if TYPE_CHECKING:
-    from engine.sim.simulation import Simulation
+
+class Simulation(Protocol):
+    """What the guard reads of an :class:`engine.sim.Simulation` (no import of it here)."""
+
+    state: BodyState
+    physics: Physics
+    body: RigidBody
+    time: float
+    steps: int
+    sample: Any
+    coupling_force: np.ndarray
+    proxy_pose: np.ndarray
+
+    @property
+    def dt(self) -> float:
+        """Fixed time step in seconds."""
 
 #: Most part lengths the body may travel in one step.
 MAX_STEP_LENGTHS = 1.0
