@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -55,6 +55,7 @@ from engine.sim.simulation import Simulation
 
 if TYPE_CHECKING:
     from engine.correlation import Correlator
+    from engine.descriptor import Descriptor
     from engine.scene import Scene
 
 
@@ -68,8 +69,8 @@ class LoadedScene(Protocol):
     """What building a simulation reads of a loaded scene (the runtime's scene handle)."""
 
     @property
-    def scene(self) -> Any:
-        """The scene file as read (an ``engine.scene.Scene``)."""
+    def scene(self) -> Scene:
+        """The scene file as read."""
 
     @property
     def config(self) -> SimConfig:
@@ -406,7 +407,7 @@ class SceneModel:
         grid: int | None = None,
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
-    ) -> tuple[Any, Any]:
+    ) -> tuple[Descriptor, Descriptor]:
         """The two descriptors for ``effects.guidance`` (skeletal or collision-only).
 
         ``grid`` replaces the scene's sampling (samples along the largest part's longest
@@ -438,13 +439,14 @@ class SceneModel:
 
     def _scene_with(self, sigma: float | None, penalty: float | None,
                     grid: int | None) -> Scene:
-        changes: dict[str, object] = {k: v for k, v in (("sigma", sigma), ("penalty", penalty))
-                                      if v is not None}
+        d = self.scene.descriptor
+        if sigma is not None:
+            d = replace(d, sigma=float(sigma))
+        if penalty is not None:
+            d = replace(d, penalty=float(penalty))
         if grid is not None:
-            changes.update(grid=int(grid), spacing=None)
-        if not changes:
-            return self.scene
-        return replace(self.scene, descriptor=replace(self.scene.descriptor, **changes))
+            d = replace(d, grid=int(grid), spacing=None)
+        return self.scene if d is self.scene.descriptor else replace(self.scene, descriptor=d)
 
     def descriptors_cached(self, *, sigma: float | None = None,
                            penalty: float | None = None) -> bool:
@@ -493,7 +495,7 @@ class SceneModel:
         grid: int | None = None,
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
-    ) -> tuple[GeometricField, tuple[Any, ...]]:
+    ) -> tuple[GeometricField, tuple[Descriptor, ...]]:
         """(field, descriptors) for ``effects``; nothing is built that effects switch off.
 
         Also measures the field's rotational stiffness at the assembled pose
