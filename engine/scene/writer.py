@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from engine.files import write_text
 from engine.params import (
     CouplingParams,
     DeviceConfig,
@@ -145,10 +146,8 @@ def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
         raise SceneError(f"{out}: cannot create its folder ({exc}); choose a folder you may "
                          "write to", path=str(out)) from exc
     parse_scene(text, out)  # raises SceneError naming the line of what does not read back
-    tmp = out.with_name(out.name + ".part")
     try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, out)  # never leave a half-written scene behind
+        write_text(out, text, what="scene")  # temporary file, fsync, rename: never half-written
     except OSError as exc:
         raise SceneError(f"{out}: cannot write the scene ({exc}); choose a folder you may "
                          "write to", path=str(out)) from exc
