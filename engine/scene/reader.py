@@ -12,8 +12,9 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 
@@ -48,6 +49,9 @@ try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
+
+D = TypeVar("D")  # a default, returned as given when the key is absent
+T = TypeVar("T")
 
 #: Top-level keys of a scene file.
 TOP_KEYS = ("name", "units", "assembled_pose", "insertion_axis", "free_axes",
@@ -147,8 +151,16 @@ class _Table:
                if default is not None else "correct the value")
         return self.fail(key, f"{key} in {self.label} must be {what}, got {value!r}", fix)
 
-    def number(self, key: str, default: Any, *, positive: bool = False,
-               minimum: float | None = None, auto: bool = False) -> Any:
+    @overload
+    def number(self, key: str, default: D, *, positive: bool = False,
+               minimum: float | None = None, auto: Literal[False] = False) -> float | D: ...
+
+    @overload
+    def number(self, key: str, default: None, *, positive: bool = False,
+               minimum: float | None = None, auto: Literal[True]) -> float | None: ...
+
+    def number(self, key: str, default: D | None, *, positive: bool = False,
+               minimum: float | None = None, auto: bool = False) -> float | D | None:
         """A finite number; ``auto``: the word "auto" reads as None (a derived default)."""
         if key not in self.values:
             return default
@@ -167,7 +179,7 @@ class _Table:
             raise self._bad(key, what, default)
         return float(value)
 
-    def integer(self, key: str, default: Any, *, minimum: int) -> Any:
+    def integer(self, key: str, default: D, *, minimum: int) -> int | D:
         """An integer of at least ``minimum``."""
         if key not in self.values:
             return default
@@ -176,7 +188,13 @@ class _Table:
             raise self._bad(key, f"an integer of at least {minimum}", default)
         return int(value)
 
-    def vector(self, key: str, n: int, default: Any = None) -> Any:
+    @overload
+    def vector(self, key: str, n: int) -> np.ndarray | None: ...
+
+    @overload
+    def vector(self, key: str, n: int, default: D) -> np.ndarray | D: ...
+
+    def vector(self, key: str, n: int, default: D | None = None) -> np.ndarray | D | None:
         """``n`` finite numbers as a (n,) float64 array."""
         if key not in self.values:
             return default
@@ -191,7 +209,7 @@ class _Table:
             raise self._bad(key, what, None)
         return np.array(value, dtype=np.float64)
 
-    def string(self, key: str, default: Any) -> Any:
+    def string(self, key: str, default: D) -> str | D:
         """A non-empty string."""
         if key not in self.values:
             return default
@@ -225,7 +243,7 @@ class _Table:
         """The sub-table ``key`` (empty when absent)."""
         return _Table(self.path, self.text, (*self.where, key), self.values.get(key, {}), label)
 
-    def build(self, cls: Any, *, key: str | None = None, **values: Any) -> Any:
+    def build(self, cls: Callable[..., T], *, key: str | None = None, **values: Any) -> T:
         """``cls(**values)``, its InputError turned into a SceneError at ``key``'s line."""
         try:
             return cls(**values)
@@ -289,7 +307,7 @@ def parse_scene(text: str, path: Path) -> Scene:
         raise top.fail(None, "assembled_pose is missing",
                        "add `assembled_pose = [tx, ty, tz, rx, ry, rz]` (part 2 in part 1's "
                        "frame when assembled)")
-    assembled = top.vector("assembled_pose", 6)
+    assembled = top.vector("assembled_pose", 6, np.zeros(6))  # present: checked above
     axis = top.vector("insertion_axis", 3)
     if axis is not None:
         norm = float(np.linalg.norm(axis))
@@ -425,7 +443,7 @@ def _effects(e: _Table, units: str) -> Effects:
     elif raw_gravity is True:
         gravity = gravity_vector(units, tuple(direction))
     else:
-        g = e.vector("gravity", 3)
+        g = e.vector("gravity", 3, np.zeros(3))  # present: a list here
         gravity = (float(g[0]), float(g[1]), float(g[2]))
         top = MAX_GRAVITY_G * STANDARD_GRAVITY / LENGTH_UNITS[units]
         size = math.hypot(*gravity)
