@@ -889,6 +889,9 @@ class MainWindow(QtWidgets.QMainWindow):
             self.engine_note = event.message
             self.statusBar().showMessage(
                 "ready: drag the orange part (or its blue ghost) towards its seat", 6000)
+            if event.coarse_grid is not None:  # the scene's own descriptors follow
+                self.tasks.start("descriptors", "computing the scene's descriptors (the part "
+                                 f"moves on a coarse grid of {event.coarse_grid} meanwhile)")
         elif isinstance(event, runtime.DescriptorsSwapped):
             self.guidance_ready = bool(event.descriptors)
             self.tasks.finish("descriptors")

@@ -260,7 +260,8 @@ class Guidance:
             if r.coarse_grid is not None:
                 message += (f"; a coarse first field (grid {r.coarse_grid}) while the scene's "
                             "own descriptors are computed")
-            self.events.append(ReadyEvent(r.descriptors, backend_name(r.field), message))
+            self.events.append(ReadyEvent(r.descriptors, backend_name(r.field), message,
+                                          coarse_grid=r.coarse_grid))
             if r.coarse_grid is not None:
                 self._request("descriptors")
         elif req.task == "field":  # built without progress reports: say that it is done

@@ -293,12 +293,15 @@ class ReadyEvent:
 
     ``descriptors`` for slice views (read-only descriptors of part 1 and part 2, empty when
     guidance is off), ``backend`` names the per-pose evaluator picked, ``message`` the loop
-    thread's scheduling.
+    thread's scheduling. ``coarse_grid``: the field is a coarse first one on this grid while
+    the scene's own descriptors are computed (progress task "descriptors", then
+    DescriptorsSwapped); None when it is the scene's own.
     """
 
     descriptors: tuple[Descriptor, ...] = ()
     backend: str = ""
     message: str = ""
+    coarse_grid: int | None = None
 
 
 @dataclass(frozen=True)

@@ -478,3 +478,16 @@ def test_opening_a_scene_is_a_task_until_it_opens(make_window, small_scene, wait
     win.open_path(small_scene.with_name("missing.toml"))
     wait_until(lambda: win.last_error is not None, 10000, "the error")
     assert win.tasks.get("open") is None
+
+
+def test_a_coarse_first_field_shows_the_scenes_descriptors_as_a_task(make_window, small_scene,
+                                                                    wait_until):
+    # an uncached scene moves on a coarse field first; the window says what follows
+    win = make_window(small_scene)
+    wait_until(lambda: win.guidance_ready, 120000, "the engine to be ready")
+    descriptors = win.slice_view.descriptors if hasattr(win.slice_view, "descriptors") else ()
+    win._handle_event(runtime.ReadyEvent(tuple(descriptors), "numba", "ready", coarse_grid=24))
+    task = win.tasks.get("descriptors")
+    assert task is not None and "coarse grid of 24" in task.label
+    win._handle_event(runtime.DescriptorsSwapped(tuple(descriptors), 0.5, 3.0, 1.0))
+    assert win.tasks.get("descriptors") is None

@@ -519,6 +519,7 @@ def test_an_uncached_scene_is_draggable_on_a_coarse_field_first():
     ready = [e for e in events if isinstance(e, rt.ReadyEvent)]
     swapped = [e for e in events if isinstance(e, rt.DescriptorsSwapped)]
     assert len(ready) == 1 and "coarse first field (grid 8)" in ready[0].message
+    assert ready[0].coarse_grid == 8
     assert events.index(ready[0]) < events.index(swapped[0])
     # coarse first, then the scene's own (fields built from descriptors, not new K cuts)
     assert [c.grid for c in model.built if hasattr(c, "grid")] == [8, None]
