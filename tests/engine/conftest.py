@@ -43,3 +43,24 @@ def opencl_backend():
     if problem:
         pytest.skip(problem)
     return get_backend("opencl")
+
+
+@pytest.fixture(scope="session")
+def small_peg_scene(tmp_path_factory):
+    """The bundled peg in hole with a 16-sample grid and K = 8 (descriptors in about a second)."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole"
+    lines = []
+    for line in (src / "scene.toml").read_text().splitlines():
+        key = line.split("=")[0].strip()
+        if key == "grid":
+            line = "grid = 16"
+        elif key == "modes":
+            line = "modes = 8"
+        elif key == "file":
+            line = f'file = "{(src / line.split(chr(34))[1]).as_posix()}"'
+        lines.append(line)
+    path = tmp_path_factory.mktemp("small_peg") / "scene.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -1,7 +1,6 @@
 """The job worker's field builds: a K change reuses the spectra in use (issue 10, bug 3)."""
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,25 +11,10 @@ from engine.runtime.jobs import FieldRequest, build_field
 from engine.sim.build import SceneModel
 from engine.sim.fields import CorrelatorField, LandscapeField
 
-ROOT = Path(__file__).resolve().parents[2]
-
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    src = ROOT / "assets" / "peg_in_hole"
-    lines = []
-    for line in (src / "scene.toml").read_text().splitlines():
-        key = line.split("=")[0].strip()
-        if key == "grid":
-            line = "grid = 16"
-        elif key == "modes":
-            line = "modes = 8"
-        elif key == "file":
-            line = f'file = "{(src / line.split(chr(34))[1]).as_posix()}"'
-        lines.append(line)
-    path = tmp_path_factory.mktemp("jobs") / "scene.toml"
-    path.write_text("\n".join(lines) + "\n")
-    return SceneModel(rt.open_scene(path), backend="numba")
+def model(small_peg_scene):
+    return SceneModel(rt.open_scene(small_peg_scene), backend="numba")
 
 
 @pytest.mark.parametrize("rotation", [True, False])

@@ -22,29 +22,13 @@ import pytest
 from engine import runtime as rt
 from engine.descriptor import Descriptor
 
-ROOT = Path(__file__).resolve().parents[2]
 TRANSPORTS = ["thread", "process"]
 
 
 @pytest.fixture(scope="module")
-def small_scene(tmp_path_factory) -> Path:
-    """The peg in hole with a 16-sample grid and K = 8 (descriptors in about a second)."""
-    src = ROOT / "assets" / "peg_in_hole"
-    text = (src / "scene.toml").read_text()
-    lines = []
-    for line in text.splitlines():
-        key = line.split("=")[0].strip()
-        if key == "grid":
-            line = "grid = 16"
-        elif key == "modes":
-            line = "modes = 8"
-        elif key == "file":
-            name = line.split('"')[1]
-            line = f'file = "{(src / name).as_posix()}"'
-        lines.append(line)
-    path = tmp_path_factory.mktemp("contract") / "scene.toml"
-    path.write_text("\n".join(lines) + "\n")
-    return path
+def small_scene(small_peg_scene) -> Path:
+    """The peg in hole with a 16-sample grid and K = 8 (conftest's small_peg_scene)."""
+    return small_peg_scene
 
 
 def start(scene: Path, transport: str, **kw) -> rt.EngineHandle:
