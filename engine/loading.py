@@ -33,12 +33,21 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from engine.errors import InputError
 from engine.params import LENGTH_UNITS
+
+if TYPE_CHECKING:
+    import manifold3d
+    import trimesh
+
+    #: What a tessellated STEP file or a mesh file reads as.
+    Loaded: TypeAlias = trimesh.Scene | trimesh.Trimesh
+    #: One body of a tessellation: its name, 4x4 placement, and mesh.
+    Body: TypeAlias = tuple[str, np.ndarray, trimesh.Trimesh]
 
 #: File suffixes the loader reads, and what reads them.
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off")
@@ -518,8 +527,8 @@ def union_shells(v: np.ndarray, f: np.ndarray, *, source: str
     except ImportError as exc:  # pragma: no cover - a dependency
         raise PartError(f"{source}: {count} shells overlap and joining them needs the "
                         "manifold3d package (`pip install manifold3d`)") from exc
-    solids: list[Any] = []
-    cavities: list[Any] = []
+    solids: list[manifold3d.Manifold] = []
+    cavities: list[manifold3d.Manifold] = []
     volumes = np.zeros(count)
     for k in range(count):
         fk = f[labels == k]
@@ -729,7 +738,7 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
     # OpenCASCADE tessellates in its session unit, millimetres, whatever the file's unit
     mm_per_unit = metres * 1e3
 
-    def tessellate(tol_mm: float, angular: float) -> Any:
+    def tessellate(tol_mm: float, angular: float) -> Loaded:
         with _native_output() as captured:
             glb = cascadio.load(
                 data, file_type="step", tol_linear=tol_mm, tol_angular=angular,
@@ -746,6 +755,9 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
             scene = trimesh.load(io.BytesIO(glb), file_type="glb", process=False)
         except Exception as exc:  # noqa: BLE001 - any parser failure is a bad file here
             raise PartError(f"{path}: the STEP file's tessellation is unreadable ({exc})") from exc
+        if not isinstance(scene, (trimesh.Scene, trimesh.Trimesh)):
+            raise PartError(f"{path}: the STEP file's tessellation holds no surfaces "
+                            f"(a {type(scene).__name__}); re-export it as solids")
         return scene
 
     coarse = tessellate(1e30, 1.0)
@@ -772,15 +784,16 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
 
     parts: list[Part] = []
     seen: dict[str, int] = {}
-    nodes = list(scene.graph.nodes_geometry) if hasattr(scene, "graph") else []
-    items: list[tuple[str, Any, Any]] = []
-    if not nodes and hasattr(scene, "vertices"):
+    items: list[Body] = []
+    if isinstance(scene, trimesh.Trimesh):
         items = [(path.stem, np.eye(4), scene)]
     else:
-        for node in nodes:
+        for node in scene.graph.nodes_geometry:
             transform, geometry_name = scene.graph[node]
-            items.append((str(geometry_name), transform, scene.geometry[geometry_name]))
-    items = [it for it in items if hasattr(it[2], "faces") and len(it[2].faces)]
+            geometry = scene.geometry[geometry_name]
+            if isinstance(geometry, trimesh.Trimesh):
+                items.append((str(geometry_name), transform, geometry))
+    items = [it for it in items if len(it[2].faces)]
     items = _name_and_order(items, step_products(text))
     if not items:
         raise PartError(_no_solid_message(path))
@@ -804,14 +817,14 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
     return parts
 
 
-def _triangles(scene: Any) -> int:
+def _triangles(scene: Loaded) -> int:
     """Triangles of a tessellation (a trimesh Scene or mesh)."""
     if hasattr(scene, "geometry"):
         return int(sum(len(getattr(g, "faces", ())) for g in scene.geometry.values()))
     return int(len(getattr(scene, "faces", ())))
 
 
-def _check_triangle_budget(path: Path, coarse: Any, reference: Any, reference_mm: float,
+def _check_triangle_budget(path: Path, coarse: Loaded, reference: Loaded, reference_mm: float,
                            tol_mm: float, mm_per_unit: float, unit: str) -> None:  # fmt: skip
     """Refuse a tolerance whose tessellation would exceed MAX_STEP_TRIANGLES, before making it.
 
@@ -888,8 +901,7 @@ def step_products(text: str) -> list[tuple[str, str]]:
     return [(pid, name) for ref, pid, name in products if ref not in assemblies]
 
 
-def _name_and_order(items: list[tuple[str, Any, Any]], products: list[tuple[str, str]]
-                    ) -> list[tuple[str, Any, Any]]:
+def _name_and_order(items: list[Body], products: list[tuple[str, str]]) -> list[Body]:
     """Bodies in the STEP file's order, each named after its product where the file says.
 
     OpenCASCADE names a body after its product's name; a product named like ``SOLID``
@@ -898,7 +910,7 @@ def _name_and_order(items: list[tuple[str, Any, Any]], products: list[tuple[str,
     GLB scene graphs are unordered; the STEP's PRODUCT entities are not.
     """
     names = [n for _, n in products]
-    renamed: list[tuple[int, str, Any, Any]] = []
+    renamed: list[tuple[int, str, np.ndarray, trimesh.Trimesh]] = []
     for raw, transform, mesh in items:
         order, name = len(products), raw
         if raw in names:
@@ -979,7 +991,7 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
     if path.suffix.lower() == ".stl":
         _check_stl(path)
     try:
-        loaded: Any = trimesh.load(str(path), process=False)
+        loaded = trimesh.load(str(path), process=False)
     except ImportError as exc:  # trimesh guesses a text encoding with an optional module
         raise PartError(
             f"{path}: cannot read this {path.suffix} file: it is not valid {path.suffix} text "
@@ -990,12 +1002,12 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
             f"{path}: cannot read this {path.suffix} file ({type(exc).__name__}: {exc}); "
             "check that it is a valid mesh, or re-export it"
         ) from exc
-    if hasattr(loaded, "geometry"):  # a Scene: several objects in one file
+    if isinstance(loaded, trimesh.Scene):  # several objects in one file
         meshes = []
         for node in loaded.graph.nodes_geometry:
             transform, name = loaded.graph[node]
             g = loaded.geometry[name]
-            if hasattr(g, "faces") and len(g.faces):
+            if isinstance(g, trimesh.Trimesh) and len(g.faces):
                 v = np.asarray(g.vertices, dtype=np.float64)
                 t = np.asarray(transform)
                 meshes.append((v @ t[:3, :3].T + t[:3, 3], np.asarray(g.faces)))
@@ -1005,7 +1017,7 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
             offsets = np.cumsum([0] + [len(m[0]) for m in meshes[:-1]])
             vertices = np.concatenate([m[0] for m in meshes])
             faces = np.concatenate([m[1] + o for m, o in zip(meshes, offsets, strict=True)])
-    elif hasattr(loaded, "faces"):
+    elif isinstance(loaded, trimesh.Trimesh):
         vertices, faces = np.asarray(loaded.vertices), np.asarray(loaded.faces)
     else:
         raise PartError(

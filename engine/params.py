@@ -27,11 +27,16 @@ from __future__ import annotations
 import ipaddress
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import SupportsFloat, TypeAlias
 
 import numpy as np
+import numpy.typing as npt
 
 from engine.errors import InputError
+
+#: A value as a user gave it (a scene's TOML, an option, a JSON field) before it is checked:
+#: the validators below take anything and return the checked type or raise InputError.
+UserValue: TypeAlias = object
 
 # ---------------------------------------------------------------------------------------------
 # units
@@ -85,27 +90,29 @@ def gravity_vector(
     return (x, y, z)
 
 
-def _positive(owner: str, name: str, value: Any) -> float:
+def _number(value: UserValue) -> float | None:
+    """``value`` as a float if it reads as a number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, (SupportsFloat, str)):
+        return None
     try:
-        ok = math.isfinite(float(value)) and float(value) > 0 and not isinstance(value, bool)
+        return float(value)
     except (TypeError, ValueError):
-        ok = False
-    if not ok:
+        return None
+
+
+def _positive(owner: str, name: str, value: UserValue) -> float:
+    x = _number(value)
+    if x is None or not (math.isfinite(x) and x > 0):
         raise InputError(f"{owner} {name} must be a positive finite number, got {value!r}")
-    return float(value)
+    return x
 
 
-def _at_least(owner: str, name: str, value: Any, minimum: float) -> float:
-    try:
-        ok = math.isfinite(float(value)) and float(value) >= minimum and not isinstance(
-            value, bool
-        )
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
+def _at_least(owner: str, name: str, value: UserValue, minimum: float) -> float:
+    x = _number(value)
+    if x is None or not (math.isfinite(x) and x >= minimum):
         raise InputError(f"{owner} {name} must be a finite number of at least {minimum:g}, "
                          f"got {value!r}")
-    return float(value)
+    return x
 
 
 # ---------------------------------------------------------------------------------------------
@@ -154,7 +161,7 @@ MAX_PADDING = 64.0
 MAX_MODES = 128
 
 
-def check_modes(modes: Any, what: str = "modes") -> int:
+def check_modes(modes: UserValue, what: str = "modes") -> int:
     """K as asked for by a user (scene, option): an integer from 1 to :data:`MAX_MODES`.
 
     (``CorrelationParams`` itself takes any K from 1 up: the engine clamps K to the FFT
@@ -179,20 +186,18 @@ def check_steps(seconds: float, rate_hz: float, what: str) -> int:
     return max(1, int(round(steps)))
 
 
-def check_range(what: str, value: Any, bounds: tuple[float, float], why: str) -> float:
+def check_range(what: str, value: UserValue, bounds: tuple[float, float], why: str
+                ) -> float:
     """``value`` as a float when within ``bounds`` (inclusive), else an InputError.
 
     The message gives the value, the range and ``why`` (what goes wrong outside it).
     """
     lo, hi = bounds
-    try:
-        ok = (not isinstance(value, bool)) and lo <= float(value) <= hi
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
+    x = _number(value)
+    if x is None or not lo <= x <= hi:
         shown = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
         raise InputError(f"{what} = {shown} is outside its range {lo:g} to {hi:g}: {why}")
-    return float(value)
+    return x
 
 
 @dataclass(frozen=True)
@@ -580,7 +585,7 @@ UDP_WORKSPACE = 1000.0
 UDP_MAX_ROTATION = 1000.0
 
 
-def _port(name: str, value: Any, *, zero: bool) -> int:
+def _port(name: str, value: UserValue, *, zero: bool) -> int:
     low = 0 if zero else 1
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (
             low <= int(value) <= 65535):
@@ -590,7 +595,7 @@ def _port(name: str, value: Any, *, zero: bool) -> int:
     return int(value)
 
 
-def _ipv4(name: str, value: Any) -> str:
+def _ipv4(name: str, value: UserValue) -> str:
     if value == "localhost":
         return "127.0.0.1"
     try:
@@ -692,13 +697,14 @@ class UdpBridgeParams:
         return host, int(port) if port else None
 
     @classmethod
-    def from_options(cls, options: dict[str, Any]) -> UdpBridgeParams:
+    def from_options(cls, options: dict[str, UserValue]) -> UdpBridgeParams:
         """From a ``[device]`` table's udp options; ``"auto"`` or None: the default."""
         keys = DEVICE_OPTIONS["udp"]
         unknown = [k for k in options if k not in keys]
         if unknown:
             raise InputError(f"udp options {unknown} are unknown; valid: {', '.join(keys)}")
-        return cls(**{k: v for k, v in options.items() if v is not None and v != "auto"})
+        given = {k: v for k, v in options.items() if v is not None and v != "auto"}
+        return cls(**given)  # type: ignore[arg-type]  # user values: __post_init__ checks each
 
 
 @dataclass(frozen=True)
@@ -720,7 +726,7 @@ class DeviceConfig:
     kind: str = "mouse"
     max_force: float | None = None
     force_scale: float = 1.0
-    options: tuple[tuple[str, Any], ...] = ()
+    options: tuple[tuple[str, UserValue], ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in DEVICES:
@@ -756,7 +762,7 @@ class DeviceConfig:
         object.__setattr__(self, "options", tuple(
             (k, options[k]) for k in DEVICE_OPTIONS["udp"] if k in options))
 
-    def option(self, key: str, default: Any = None) -> Any:
+    def option(self, key: str, default: UserValue = None) -> UserValue:
         """A device-specific option."""
         return dict(self.options).get(key, default)
 
@@ -834,7 +840,7 @@ class SimConfig:
 # resolved constants
 
 
-def _readonly(value: Any, shape: tuple[int, ...]) -> np.ndarray:
+def _readonly(value: npt.ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
     a = np.array(value, dtype=np.float64).reshape(shape)
     a.setflags(write=False)
     return a

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from engine.errors import InputError
 from engine.params import (
@@ -41,7 +41,7 @@ class SceneError(InputError):
         self.line = line
 
 
-def _readonly(values: Any, n: int) -> np.ndarray:
+def _readonly(values: npt.ArrayLike, n: int) -> np.ndarray:
     a = np.array(values, dtype=np.float64).reshape(n)
     a.setflags(write=False)
     return a

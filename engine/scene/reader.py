@@ -14,7 +14,7 @@ import os
 import re
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal, TypeVar, overload
+from typing import Literal, TypeAlias, TypeVar, overload
 
 import numpy as np
 
@@ -80,16 +80,19 @@ PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance", "unit", "pivo
 AXES_WORDS = {"all": AXES, "translation": AXES[:3], "rotation": AXES[3:]}
 
 _HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+#: Where a table sits in a TOML file: ``()`` the top level, ``("descriptor",)`` a table,
+#: ``("part", 1)`` the second ``[[part]]`` (names, and indices into arrays of tables).
+TablePath: TypeAlias = tuple[str | int, ...]
 _KEY = re.compile(r"""^\s*(?:"([^"]+)"|'([^']+)'|([A-Za-z0-9_\-]+))\s*(?:\.|=)""")
 
 
-def key_line(text: str, table: tuple[Any, ...], key: str | None = None) -> int | None:
+def key_line(text: str, table: TablePath, key: str | None = None) -> int | None:
     """1-based line of ``key`` in ``table`` of a TOML text, or of the table's header.
 
     ``table`` is ``()`` for the top level, ``("descriptor",)`` for a table and
     ``("part", 1)`` for the second ``[[part]]``. Returns None when not found.
     """
-    current: tuple[Any, ...] = ()
+    current: TablePath = ()
     counts: dict[str, int] = {}
     header_line = None
     for lineno, line in enumerate(text.splitlines(), 1):
@@ -113,7 +116,7 @@ def key_line(text: str, table: tuple[Any, ...], key: str | None = None) -> int |
     return header_line
 
 
-def _toml(value: Any) -> str:
+def _toml(value: object) -> str:
     """A default as the scene file would write it."""
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -125,12 +128,12 @@ def _toml(value: Any) -> str:
 class _Table:
     """Reads one table of a scene; each bad key raises a SceneError naming its line."""
 
-    def __init__(self, path: Path, text: str, where: tuple[Any, ...], values: Any, label: str):
+    def __init__(self, path: Path, text: str, where: TablePath, values: object, label: str):
         self.path, self.text, self.where, self.label = path, text, where, label
         if not isinstance(values, dict):
             raise self.fail(None, f"{label} must be a table of key = value lines, got "
                                   f"{values!r}", f"write it as {label} followed by its keys")
-        self.values: dict[str, Any] = values
+        self.values: dict[str, object] = values
 
     def fail(self, key: str | None, problem: str, fix: str) -> SceneError:
         """The error for ``key`` (None: the table itself): ``FILE:LINE: problem; fix``."""
@@ -145,7 +148,7 @@ class _Table:
                 raise self.fail(key, f"unknown key {key!r} in {self.label}",
                                 f"valid keys: {', '.join(allowed)}")
 
-    def _bad(self, key: str, what: str, default: Any) -> SceneError:
+    def _bad(self, key: str, what: str, default: object) -> SceneError:
         value = self.values[key]
         fix = (f"remove the line for the default ({_toml(default)})"
                if default is not None else "correct the value")
@@ -243,7 +246,7 @@ class _Table:
         """The sub-table ``key`` (empty when absent)."""
         return _Table(self.path, self.text, (*self.where, key), self.values.get(key, {}), label)
 
-    def build(self, cls: Callable[..., T], *, key: str | None = None, **values: Any) -> T:
+    def build(self, cls: Callable[..., T], *, key: str | None = None, **values: object) -> T:
         """``cls(**values)``, its InputError turned into a SceneError at ``key``'s line."""
         try:
             return cls(**values)
@@ -477,7 +480,7 @@ def _device(d: _Table, scene_path: Path) -> DeviceConfig:
     )
 
 
-def _parts(top: _Table, data: dict[str, Any], p: Path
+def _parts(top: _Table, data: dict[str, object], p: Path
            ) -> tuple[list[PartSpec], tuple[MassSpec, ...]]:
     raw_parts = data.get("part")
     if raw_parts is None:

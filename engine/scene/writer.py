@@ -10,9 +10,10 @@ from __future__ import annotations
 import os
 from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
+import numpy.typing as npt
 
 from engine.files import write_text
 from engine.params import (
@@ -27,8 +28,14 @@ from engine.params import (
 from engine.scene.model import Scene, SceneError
 from engine.scene.reader import AXES_WORDS, CORRELATION_KEYS, parse_scene
 
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
-def _floats(a: Any) -> list[float]:
+#: One TOML table as tomli_w writes it: keys to numbers, strings, booleans, lists, tables.
+TomlTable: TypeAlias = dict[str, object]
+
+
+def _floats(a: npt.ArrayLike) -> list[float]:
     return [float(x) for x in np.asarray(a, dtype=np.float64).ravel()]
 
 
@@ -39,18 +46,18 @@ def _relative(file: str | Path, folder: Path) -> str:
         return Path(file).as_posix()
 
 
-def _given(obj: Any) -> dict[str, Any]:
+def _given(obj: DataclassInstance) -> TomlTable:
     """The fields of a parameter dataclass that are not None."""
     return {f.name: getattr(obj, f.name) for f in fields(obj) if getattr(obj, f.name) is not None}
 
 
-def scene_to_toml(scene: Scene, folder: Path) -> dict[str, Any]:
+def scene_to_toml(scene: Scene, folder: Path) -> TomlTable:
     """The TOML tables of ``scene`` as a dict, files relative to ``folder``.
 
     ``[descriptor]`` and ``[correlation]`` are always written in full; the simulation tables
     only when they differ from their defaults.
     """
-    data: dict[str, Any] = {"name": scene.name}
+    data: TomlTable = {"name": scene.name}
     if scene.units_declared:
         data["units"] = scene.units
     data["assembled_pose"] = _floats(scene.assembled_pose)
@@ -73,15 +80,15 @@ def scene_to_toml(scene: Scene, folder: Path) -> dict[str, Any]:
         data["effects"] = _effects(config.effects, scene.units)
     if config.device != DeviceConfig():
         device = config.device
-        table: dict[str, Any] = {"kind": device.kind, "force_scale": device.force_scale}
+        table: TomlTable = {"kind": device.kind, "force_scale": device.force_scale}
         if device.max_force is not None:
             table["max_force"] = device.max_force
         for key, value in device.options:
-            table[key] = _relative(value, folder) if key == "file" else value
+            table[key] = _relative(str(value), folder) if key == "file" else value
         data["device"] = table
     parts = []
     for i, spec in enumerate(scene.parts):
-        part: dict[str, Any] = {"name": spec.name, "file": _relative(spec.file, folder),
+        part: TomlTable = {"name": spec.name, "file": _relative(spec.file, folder),
                                 "pose": _floats(spec.pose), "fixed": bool(spec.fixed)}
         if spec.body is not None:
             part["body"] = spec.body
@@ -93,17 +100,22 @@ def scene_to_toml(scene: Scene, folder: Path) -> dict[str, Any]:
             part["pivot"] = _floats(spec.pivot)
         mass = config.mass_spec(i)
         if mass != MassSpec():
-            for key, value in _given(mass).items():
-                part[key] = [list(r) for r in value] if key == "inertia" else (
-                    list(value) if key == "center_of_mass" else value)
+            if mass.mass is not None:
+                part["mass"] = mass.mass
+            if mass.density is not None:
+                part["density"] = mass.density
+            if mass.inertia is not None:
+                part["inertia"] = [list(r) for r in mass.inertia]
+            if mass.center_of_mass is not None:
+                part["center_of_mass"] = list(mass.center_of_mass)
         parts.append(part)
     data["part"] = parts
     return data
 
 
-def _effects(effects: Effects, units: str) -> dict[str, Any]:
+def _effects(effects: Effects, units: str) -> TomlTable:
     words = {v: k for k, v in AXES_WORDS.items()}
-    table: dict[str, Any] = {
+    table: TomlTable = {
         "guidance": effects.guidance,
         "axes": words.get(effects.axes, list(effects.axes)),
         "damping": effects.damping,

@@ -16,10 +16,11 @@ gains at that step.
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from engine.correlation import Evaluation
 from engine.errors import Diverged, InputError
 from engine.params import Physics
 from engine.sim.body import BodyState, RigidBody
@@ -33,7 +34,7 @@ class Simulation(Protocol):
     body: RigidBody
     time: float
     steps: int
-    sample: Any
+    sample: Evaluation
     coupling_force: np.ndarray
     proxy_pose: np.ndarray
 
