@@ -8,6 +8,7 @@ it replaces the destination, so a scene that could not be loaded is never writte
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
@@ -37,6 +38,27 @@ TomlTable: TypeAlias = dict[str, object]
 
 def _floats(a: npt.ArrayLike) -> list[float]:
     return [float(x) for x in np.asarray(a, dtype=np.float64).ravel()]
+
+
+#: One scalar of an array as tomli_w writes it (number, plain string, boolean), or an array of
+#: such scalars already written on one line.
+_ITEM = r'(?:[-+0-9.a-z][-+0-9.eE_a-z]*|"[^"\\\n]*"|\[[^\[\]\n"]*\])'
+_MULTILINE_ARRAY = re.compile(r"\[\n((?:[ ]+" + _ITEM + r",\n)+)[ ]*\]")
+
+
+def compact_arrays(text: str) -> str:
+    r"""``text`` with tomli_w's one-item-per-line arrays of scalars written on one line.
+
+    ``pose = [\n    0.0,\n    12.0,\n]`` becomes ``pose = [0.0, 12.0]``; arrays of such
+    arrays (a 3x3 inertia) go on one line too. Anything else is left as tomli_w wrote it.
+    """
+    def one_line(match: re.Match[str]) -> str:
+        items = [item.strip().rstrip(",") for item in match.group(1).splitlines()]
+        return "[" + ", ".join(items) + "]"
+
+    for _ in range(2):  # inner arrays first, then the arrays of them
+        text = _MULTILINE_ARRAY.sub(one_line, text)
+    return text
 
 
 def _relative(file: str | Path, folder: Path) -> str:
@@ -150,7 +172,7 @@ def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
     if out.suffix.lower() != ".toml":
         out = out.with_suffix(".toml")
     out = out.resolve()
-    text = tomli_w.dumps(scene_to_toml(scene, out.parent))
+    text = compact_arrays(tomli_w.dumps(scene_to_toml(scene, out.parent)))
     try:
         # first: the relative part paths are checked through it ("../" needs it to exist)
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -296,6 +296,25 @@ def test_save_and_reload_round_trip_keeps_every_field(scene_dir, tmp_path):
     assert not bare.units_declared and "units" not in (tmp_path / "b.toml").read_text()
 
 
+def test_saved_arrays_sit_on_one_line_and_read_back_the_same(scene_dir, tmp_path):
+    scene = load_scene(write(scene_dir, 'insertion_axis = [0, 0, -2]\n' + EVERY_TABLE))
+    text = save_scene(scene, tmp_path / "s.toml").read_text()
+    pose_lines = [line for line in text.splitlines() if line.startswith("pose = ")]
+    assert len(pose_lines) == 2 and all(line.endswith("]") for line in pose_lines)
+    assert any(line.startswith("inertia = [[") for line in text.splitlines())
+    # whatever it collapses, TOML reads back the same values as tomli_w's own layout
+    tricky = {"a": [[1.0, 2.0], [3.5e-3, -4.0]], "b": ["x, y", "z]", ""], "c": [True, 1],
+              "d": [{"k": 1}], "e": ["a\"b", 2], "f": [], "g": [[], [1]]}
+    import tomli_w
+
+    from engine.scene.reader import tomllib
+    from engine.scene.writer import compact_arrays
+
+    compact = compact_arrays(tomli_w.dumps(tricky))
+    assert tomllib.loads(compact) == tricky
+    assert 'a = [[1.0, 2.0], [0.0035, -4.0]]' in compact
+
+
 def test_the_gui_saves_through_the_scene_writer_and_it_loads_back(scene_dir, tmp_path):
     from app.gui.scene_file import write_scene
     from engine.params import CouplingParams, Effects
