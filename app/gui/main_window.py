@@ -432,17 +432,32 @@ class MainWindow(QtWidgets.QMainWindow):
         path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save scene", start,
                                                         "Scenes (*.toml)")
         if path:
-            self.save_scene(path)
+            try:
+                self.save_scene(path)
+            except (OSError, ValueError):
+                pass  # save_scene has shown what went wrong; the scene in use is untouched
 
     def save_scene(self, path: str | Path) -> Path:
-        """Write the current scene, with the part where it is now, to a TOML file."""
+        """Write the current scene, with the part where it is now, to a TOML file.
+
+        The file dialog has asked before replacing a file; a part file of the scene is never
+        replaced (``engine.files.check_output``). Errors are shown, then raised.
+        """
         from app.gui.scene_file import write_scene
+        from engine.files import check_output
 
         pose = None
         if self.latest_frame is not None:
             pose = np.asarray(self.latest_frame.part_pose, float)
+        target = Path(path)
+        if target.suffix.lower() != ".toml":
+            target = target.with_suffix(".toml")  # as the scene writer names it
+        handle = self.session.handle
+        inputs = [spec.file for spec in handle.scene.parts] if handle is not None else []
         try:
-            out = write_scene(self.session.handle, Path(path), moving_relative_pose=pose,
+            target.parent.mkdir(parents=True, exist_ok=True)
+            check_output(target, force=True, inputs=inputs, what="scene")
+            out = write_scene(handle, Path(path), moving_relative_pose=pose,
                               sigma=self.params.sigma.value(),
                               penalty=self.params.penalty.value(),
                               modes=int(self.params.modes.value()))
@@ -458,18 +473,37 @@ class MainWindow(QtWidgets.QMainWindow):
         path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save screenshot",
                                                         "skelasm.png", "PNG images (*.png)")
         if path:
-            self.save_screenshot(path)
+            try:
+                self.save_screenshot(path)
+            except (OSError, ValueError) as exc:
+                self.show_error(f"Could not save the screenshot: {exc}")
 
     def save_screenshot(self, path: str | Path, widget: QtWidgets.QWidget | None = None) -> Path:
-        """Render now and save a picture of the window (or of one widget) as PNG."""
+        """Render now and save a picture of the window (or of one widget) as PNG.
+
+        Written whole or not at all (a temporary file renamed into place); a part or scene
+        file is never replaced.
+        """
+        from engine.files import atomic_write, check_output
+
         self.viewport.request_render()
         self.viewport.render_if_dirty(force=True)
         QtWidgets.QApplication.processEvents()
         pixmap = (widget or self).grab()
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        if not pixmap.save(str(path)):
-            raise OSError(f"{path}: could not write the PNG")
+        handle = self.session.handle
+        inputs = ([handle.scene.path, *(spec.file for spec in handle.scene.parts)]
+                  if handle is not None else [])
+        check_output(path, force=True, inputs=[p for p in inputs if p], what="screenshot")
+        data = QtCore.QByteArray()
+        buffer = QtCore.QBuffer(data)
+        buffer.open(QtCore.QIODevice.OpenModeFlag.WriteOnly)
+        if not pixmap.save(buffer, "PNG"):
+            raise OSError(f"{path}: could not encode the window as PNG")
+        buffer.close()
+        with atomic_write(path, "wb", what="screenshot") as fh:
+            fh.write(bytes(data.data()))
         return path
 
     def dragEnterEvent(self, event) -> None:  # noqa: N802

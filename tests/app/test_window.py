@@ -183,6 +183,32 @@ def test_save_scene_writes_the_current_pose(make_window, tmp_path, wait_until):
     assert scene.parts[1].file.exists()  # paths rewritten relative to the new place
 
 
+def test_saving_never_replaces_a_part_file_and_a_dialog_never_raises(make_window, tmp_path,
+                                                                      monkeypatch):
+    win = make_window(EXAMPLE_SCENE)
+    part = win.session.handle.scene.parts[0].file
+    before = part.read_bytes()
+    # a screenshot aimed at a part file (the dialog already asked "replace?") is refused
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
+                        staticmethod(lambda *a, **k: (str(part), "")))
+    win.screenshot_dialog()  # a slot: shows the error, raises nothing
+    assert part.read_bytes() == before
+    assert "screenshot" in win.last_error and str(part.name) in win.last_error
+    # a scene saved into a folder that cannot be made: an error shown, nothing raised
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
+                        staticmethod(lambda *a, **k: (str(blocker / "sub" / "s.toml"), "")))
+    win.last_error = ""
+    win.save_dialog()
+    assert "Could not save the scene" in win.last_error
+    # a real screenshot is a whole PNG, written through a temporary file
+    out = win.save_screenshot(tmp_path / "shot.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert QtGui.QImage(str(out)).width() > 100
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
 def _drag_enter(pos: QtCore.QPointF, mime: QtCore.QMimeData) -> QtGui.QDragEnterEvent:
     """A drag-enter event at ``pos``: PySide6 6.12 takes a float point (its integer one is
     deprecated), 6.11 and earlier only an integer one.
