@@ -53,22 +53,22 @@ def run(args: argparse.Namespace) -> int:
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.runtime import open_scene
-    from engine.scene import load_scene
     from engine.sim import mass_properties
     from engine.sim.joints import find_free_axes
 
-    scene = load_scene(args.scene)
     if args.modes is not None:
         from engine.params import check_modes
 
         check_modes(args.modes, "--modes")
-    handle = open_scene(scene.path)
+    handle = open_scene(args.scene)  # the scene and its parts, read once
+    scene = handle.scene
     pose = (typed_pose(handle, args.pose, args.about) if args.pose is not None
             else np.asarray(scene.assembled_pose, dtype=float))
     scale = energy_scale(scene, handle)
     update, close = progress_bar("preparing", enabled=not args.json)
     try:
-        corr = correlator_for_scene(scene, modes=args.modes, backend=args.backend,
+        corr = correlator_for_scene(scene, parts=handle.parts, modes=args.modes,
+                                    backend=args.backend,
                                     kappa=scale.kappa, progress=update)
     finally:
         close()

@@ -6,18 +6,23 @@ its second moves; their descriptors come from the store (computed and cached on 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from engine.correlation.correlator import Correlator
 from engine.correlation.per_pose import warm_up
 from engine.descriptor import descriptors_for_scene
 from engine.scene import Scene, load_scene
 
+if TYPE_CHECKING:
+    from engine.loading import Part
+
 
 def correlator_for_scene(
     scene: Scene | str | Path,
     *,
+    parts: Sequence[Part] | None = None,
     modes: int | None = None,
     backend: str = "auto",
     rotation: bool = True,
@@ -31,6 +36,9 @@ def correlator_for_scene(
     ----------
     scene : Scene or path
         The scene (or its TOML file).
+    parts : sequence of engine.loading.Part, optional
+        The scene's parts, already loaded (as ``engine.runtime.open_scene`` does); default:
+        loaded here.
     modes : int, optional
         Modes per axis (default: the scene's ``[correlation] modes``).
     backend, rotation, kappa
@@ -50,7 +58,8 @@ def correlator_for_scene(
     def stage(lo: float, hi: float) -> Callable[[float], None] | None:
         return None if progress is None else (lambda f: progress(lo + (hi - lo) * f))
 
-    descriptors = descriptors_for_scene(scene, progress=stage(0.0, 0.6), cancel=cancel)
+    descriptors = descriptors_for_scene(scene, parts=parts, progress=stage(0.0, 0.6),
+                                        cancel=cancel)
     return Correlator(
         descriptors[0], descriptors[1],
         modes=int(modes if modes is not None else scene.modes),

@@ -78,6 +78,23 @@ def test_evaluate_json(scene_file, capsys):
                                atol=1e-5 * np.linalg.norm(ref["force"]) + 1e-12)
 
 
+def test_evaluate_reads_each_part_file_once(scene_file, capsys, monkeypatch):
+    import engine.scene.parts as scene_parts
+    from app.cli import main
+
+    read = []
+    real = scene_parts.load_part
+
+    def counting(path, *args, **kwargs):
+        read.append(str(path))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(scene_parts, "load_part", counting)
+    assert main(["evaluate", str(scene_file), "--modes", "6", "--json"]) == 0
+    json.loads(capsys.readouterr().out)
+    assert sorted(read) == sorted({str(scene_file.parent / n) for n in ("cup.stl", "box.stl")})
+
+
 def test_evaluate_text_defaults_to_scene(scene_file, capsys):
     from app.cli import main
 
