@@ -48,11 +48,18 @@ class RotationCache:
         The reference rotation ``R0``.
     products : (8, K, K, K) float32
         ``A`` real, ``A`` imaginary, then ``B`` along x, y, z (real, imaginary).
+    kz : (K,) float32
+        The kept frequency indices along one axis.
+    geometry : (15,) float64
+        ``c1, c2, half1, half2`` (3 each), ``h``, ``N h``, ``q``: what a pose reads of the
+        pair's geometry, in one array (one argument for the compiled kernel).
     """
 
     table: ModeTable
     rotation: np.ndarray
     products: np.ndarray
+    kz: np.ndarray
+    geometry: np.ndarray
 
 
 def _refresh(rot, fixed_kept, table, radius, kept, q, out):
@@ -87,100 +94,180 @@ def _refresh(rot, fixed_kept, table, radius, kept, q, out):
                 out[7, ix, iy, iz] = bz.imag
 
 
-def _pose(rot, t, products, kept, c1, c2, half1, half2, h, n_h, q, kappa):
-    """(7,) ``[E, F (3), T (3)]`` of the model at one pose (zeros where boxes are apart)."""
-    if not boxes_overlap(rot, t, c1, c2, half1, half2, h):
-        return np.zeros(7)
-    nk = kept.shape[0]
-    w = 2.0 * np.pi / n_h
-    s = np.empty(3)
+def _pose(rot, rot0, t, products, kz, geo, kappa):
+    """(8,) ``[E, F (3), T (3), angle]`` of the model at one pose.
+
+    ``geo`` packs ``c1, c2, half1, half2`` (3 each), ``h``, ``N h``, ``q`` (see
+    :func:`_geometry`); ``kz`` is the kept cube's index as float32. The last entry is the
+    angle of ``rot`` from the cache's rotation ``rot0`` (radians); E, F and T are zeros where
+    the boxes are apart.
+    """
+    # ||R - R0||_F = 2 sqrt(2) sin(angle / 2)
+    d2 = 0.0
     for a in range(3):
-        s[a] = t[a] + rot[a, 0] * c2[0] + rot[a, 1] * c2[1] + rot[a, 2] * c2[2] - c1[a]
-    px = np.exp(1j * w * kept * s[0])
-    py = np.exp(1j * w * kept * s[1])
-    pzr = np.cos(w * kept * s[2]).astype(np.float32)
-    pzi = np.sin(w * kept * s[2]).astype(np.float32)
-    kz1 = kept.astype(np.float32)
-    kz2 = kz1 * kz1
-    acc = np.zeros((3, 3, 2))  # per B axis: sums of pz B, pz B kz, pz B kz^2 (re, im)
-    sums = np.zeros(7)
+        for b in range(3):
+            d = rot[a, b] - rot0[a, b]
+            d2 += d * d
+    half = np.sqrt(d2) / (2.0 * np.sqrt(2.0))
+    angle = 2.0 * np.arcsin(min(half, 1.0))
+    c1 = geo[0:3]
+    c2 = geo[3:6]
+    n_h = geo[13]
+    q = geo[14]
+    if not boxes_overlap(rot, t, c1, c2, geo[6:9], geo[9:12], geo[12]):
+        out = np.zeros(8)
+        out[7] = angle
+        return out
+    nk = kz.shape[0]
+    w = 2.0 * np.pi / n_h
+    s0 = t[0] + rot[0, 0] * c2[0] + rot[0, 1] * c2[1] + rot[0, 2] * c2[2] - c1[0]
+    s1 = t[1] + rot[1, 0] * c2[0] + rot[1, 1] * c2[1] + rot[1, 2] * c2[2] - c1[1]
+    s2 = t[2] + rot[2, 0] * c2[0] + rot[2, 1] * c2[1] + rot[2, 2] * c2[2] - c1[2]
+    # phases along y and z (float64 angles, float32 z factors for the contraction)
+    pyr = np.empty(nk)
+    pyi = np.empty(nk)
+    pzr = np.empty(nk, dtype=np.float32)
+    pzi = np.empty(nk, dtype=np.float32)
+    kz2 = np.empty(nk, dtype=np.float32)
+    for i in range(nk):
+        k = np.float64(kz[i])
+        pyr[i] = np.cos(w * k * s1)
+        pyi[i] = np.sin(w * k * s1)
+        pzr[i] = np.cos(w * k * s2)
+        pzi[i] = np.sin(w * k * s2)
+        kz2[i] = kz[i] * kz[i]
+    r20 = rot[2, 0]
+    r21 = rot[2, 1]
+    r22 = rot[2, 2]
+    e_sum = 0.0
+    sk0 = 0.0
+    sk1 = 0.0
+    sk2 = 0.0
+    su0 = 0.0
+    su1 = 0.0
+    su2 = 0.0
     for ix in range(nk):
-        kx = kept[ix]
+        kx = np.float64(kz[ix])
+        pxr = np.cos(w * kx * s0)
+        pxi = np.sin(w * kx * s0)
         for iy in range(nk):
-            ky = kept[iy]
-            # the z contraction: eleven complex sums, contiguous float32
+            ky = np.float64(kz[iy])
             ar = products[0, ix, iy]
             ai = products[1, ix, iy]
-            za_r = np.float32(0.0)
-            za_i = np.float32(0.0)
-            za1_r = np.float32(0.0)
-            za1_i = np.float32(0.0)
+            bxr = products[2, ix, iy]
+            bxi = products[3, ix, iy]
+            byr = products[4, ix, iy]
+            byi = products[5, ix, iy]
+            bzr = products[6, ix, iy]
+            bzi = products[7, ix, iy]
+            # the z contraction, one pass over contiguous float32 rows: sums of pz A,
+            # pz A kz and, per B axis, of pz B, pz B kz, pz B kz^2 (re, im)
+            a0r = np.float32(0.0)
+            a0i = np.float32(0.0)
+            a1r = np.float32(0.0)
+            a1i = np.float32(0.0)
+            x0r = np.float32(0.0)
+            x0i = np.float32(0.0)
+            x1r = np.float32(0.0)
+            x1i = np.float32(0.0)
+            x2r = np.float32(0.0)
+            x2i = np.float32(0.0)
+            y0r = np.float32(0.0)
+            y0i = np.float32(0.0)
+            y1r = np.float32(0.0)
+            y1i = np.float32(0.0)
+            y2r = np.float32(0.0)
+            y2i = np.float32(0.0)
+            z0r = np.float32(0.0)
+            z0i = np.float32(0.0)
+            z1r = np.float32(0.0)
+            z1i = np.float32(0.0)
+            z2r = np.float32(0.0)
+            z2i = np.float32(0.0)
             for iz in range(nk):
-                cr = pzr[iz] * ar[iz] - pzi[iz] * ai[iz]
-                ci = pzr[iz] * ai[iz] + pzi[iz] * ar[iz]
-                za_r += cr
-                za_i += ci
-                za1_r += cr * kz1[iz]
-                za1_i += ci * kz1[iz]
-            for b in range(3):
-                br = products[2 + 2 * b, ix, iy]
-                bi = products[3 + 2 * b, ix, iy]
-                r0 = np.float32(0.0)
-                i0 = np.float32(0.0)
-                r1 = np.float32(0.0)
-                i1 = np.float32(0.0)
-                r2 = np.float32(0.0)
-                i2 = np.float32(0.0)
-                for iz in range(nk):
-                    cr = pzr[iz] * br[iz] - pzi[iz] * bi[iz]
-                    ci = pzr[iz] * bi[iz] + pzi[iz] * br[iz]
-                    r0 += cr
-                    i0 += ci
-                    r1 += cr * kz1[iz]
-                    i1 += ci * kz1[iz]
-                    r2 += cr * kz2[iz]
-                    i2 += ci * kz2[iz]
-                acc[b, 0, 0] = r0
-                acc[b, 0, 1] = i0
-                acc[b, 1, 0] = r1
-                acc[b, 1, 1] = i1
-                acc[b, 2, 0] = r2
-                acc[b, 2, 1] = i2
-            # R^T k = (a_c + kz R[2, c]); u = -q R^T k; sum_z pz (A + B.u) [kz]
-            z0 = za_r + 1j * za_i
-            z1 = za1_r + 1j * za1_i
-            pxy = px[ix] * py[iy]
-            t0 = 0.0
-            t1 = 0.0
-            t2 = 0.0
-            for c in range(3):
-                a_c = kx * rot[0, c] + ky * rot[1, c]
-                y0 = acc[c, 0, 0] + 1j * acc[c, 0, 1]
-                y1 = acc[c, 1, 0] + 1j * acc[c, 1, 1]
-                y2 = acc[c, 2, 0] + 1j * acc[c, 2, 1]
-                z0 -= q * (a_c * y0 + rot[2, c] * y1)
-                z1 -= q * (a_c * y1 + rot[2, c] * y2)
-            # torque sums: sum Re(phase B_b) (R^T k)_c = Re(pxy (y0_b a_c + y1_b R[2, c]))
-            p = np.empty((3, 3))
-            for b in range(3):
-                y0 = acc[b, 0, 0] + 1j * acc[b, 0, 1]
-                y1 = acc[b, 1, 0] + 1j * acc[b, 1, 1]
-                for c in range(3):
-                    a_c = kx * rot[0, c] + ky * rot[1, c]
-                    p[b, c] = (pxy * (y0 * a_c + y1 * rot[2, c])).real
-            t0 = p[1, 2] - p[2, 1]
-            t1 = p[2, 0] - p[0, 2]
-            t2 = p[0, 1] - p[1, 0]
-            f0 = pxy * z0
-            f1 = pxy * z1
-            sums[0] += f0.real
-            sums[1] += f0.imag * kx
-            sums[2] += f0.imag * ky
-            sums[3] += f1.imag
-            sums[4] += t0
-            sums[5] += t1
-            sums[6] += t2
-    return finish(sums, rot, c2, kappa, n_h, q, True)
+                pr = pzr[iz]
+                pi = pzi[iz]
+                k1 = kz[iz]
+                k2 = kz2[iz]
+                cr = pr * ar[iz] - pi * ai[iz]
+                ci = pr * ai[iz] + pi * ar[iz]
+                a0r += cr
+                a0i += ci
+                a1r += cr * k1
+                a1i += ci * k1
+                cr = pr * bxr[iz] - pi * bxi[iz]
+                ci = pr * bxi[iz] + pi * bxr[iz]
+                x0r += cr
+                x0i += ci
+                x1r += cr * k1
+                x1i += ci * k1
+                x2r += cr * k2
+                x2i += ci * k2
+                cr = pr * byr[iz] - pi * byi[iz]
+                ci = pr * byi[iz] + pi * byr[iz]
+                y0r += cr
+                y0i += ci
+                y1r += cr * k1
+                y1i += ci * k1
+                y2r += cr * k2
+                y2i += ci * k2
+                cr = pr * bzr[iz] - pi * bzi[iz]
+                ci = pr * bzi[iz] + pi * bzr[iz]
+                z0r += cr
+                z0i += ci
+                z1r += cr * k1
+                z1i += ci * k1
+                z2r += cr * k2
+                z2i += ci * k2
+            # R^T k = (a_c + kz R[2, c]) with a_c = kx R[0, c] + ky R[1, c]
+            ac0 = kx * rot[0, 0] + ky * rot[1, 0]
+            ac1 = kx * rot[0, 1] + ky * rot[1, 1]
+            ac2 = kx * rot[0, 2] + ky * rot[1, 2]
+            xb0 = np.float64(x0r) + 1j * np.float64(x0i)
+            xb1 = np.float64(x1r) + 1j * np.float64(x1i)
+            xb2 = np.float64(x2r) + 1j * np.float64(x2i)
+            yb0 = np.float64(y0r) + 1j * np.float64(y0i)
+            yb1 = np.float64(y1r) + 1j * np.float64(y1i)
+            yb2 = np.float64(y2r) + 1j * np.float64(y2i)
+            zb0 = np.float64(z0r) + 1j * np.float64(z0i)
+            zb1 = np.float64(z1r) + 1j * np.float64(z1i)
+            zb2 = np.float64(z2r) + 1j * np.float64(z2i)
+            # sum_z pz (A + B.u) [kz], u = -q R^T k
+            f0 = (np.float64(a0r) + 1j * np.float64(a0i)
+                  - q * (ac0 * xb0 + r20 * xb1 + ac1 * yb0 + r21 * yb1 + ac2 * zb0 + r22 * zb1))
+            f1 = (np.float64(a1r) + 1j * np.float64(a1i)
+                  - q * (ac0 * xb1 + r20 * xb2 + ac1 * yb1 + r21 * yb2 + ac2 * zb1 + r22 * zb2))
+            pxy = (pxr + 1j * pxi) * (pyr[iy] + 1j * pyi[iy])
+            # torque sums: p[b, c] = Re(pxy (y0_b a_c + y1_b R[2, c])); T = p[b, c] - p[c, b]
+            pxz = (pxy * (xb0 * ac2 + xb1 * r22)).real
+            pzx = (pxy * (zb0 * ac0 + zb1 * r20)).real
+            pyz = (pxy * (yb0 * ac2 + yb1 * r22)).real
+            pzy = (pxy * (zb0 * ac1 + zb1 * r21)).real
+            pxy_ = (pxy * (xb0 * ac1 + xb1 * r21)).real
+            pyx = (pxy * (yb0 * ac0 + yb1 * r20)).real
+            g0 = pxy * f0
+            g1 = pxy * f1
+            e_sum += g0.real
+            sk0 += g0.imag * kx
+            sk1 += g0.imag * ky
+            sk2 += g1.imag
+            su0 += pyz - pzy
+            su1 += pzx - pxz
+            su2 += pxy_ - pyx
+    sums = np.empty(7)
+    sums[0] = e_sum
+    sums[1] = sk0
+    sums[2] = sk1
+    sums[3] = sk2
+    sums[4] = su0
+    sums[5] = su1
+    sums[6] = su2
+    done = finish(sums, rot, c2, kappa, n_h, q, True)
+    out = np.empty(8)
+    for i in range(7):
+        out[i] = done[i]
+    out[7] = angle
+    return out
 
 
 _COMPILED: dict[str, Any] = {}
@@ -193,32 +280,58 @@ def _kernel(name: str) -> Any:
     return _COMPILED[name]
 
 
+def _geometry(table: ModeTable) -> np.ndarray:
+    g = table.geometry
+    out = np.concatenate([g.centre_fixed, g.centre_moving, g.half_fixed, g.half_moving,
+                          [g.spacing, g.n_h, float(table.scale)]]).astype(np.float64)
+    out.setflags(write=False)
+    return out
+
+
 def build_rotation_cache(table: ModeTable, rotation: np.ndarray) -> RotationCache:
     """The products of ``table``'s kept cube at ``rotation`` (reads only; any thread).
+
+    The compiled refresh releases the interpreter lock, so a worker thread building a cache
+    does not hold up a thread evaluating poses.
 
     Raises
     ------
     ValueError
         The table is not a cube with moment spectra and an interleaved table.
     """
-    if (table.kept is None or table.fixed_kept is None or table.moving is None
-            or not table.geometry.rotation):
+    if not serves(table):
         raise ValueError("a rotation cache needs the kept cube with rotation on and a "
                          "table the compiled kernels can read")
-    rot = np.ascontiguousarray(rotation, dtype=np.float64).reshape(3, 3)
+    assert table.kept is not None
+    rot = np.array(rotation, dtype=np.float64).reshape(3, 3)
+    rot.setflags(write=False)
     k = len(table.kept)
     products = np.empty((8, k, k, k), dtype=np.float32)
     _kernel("refresh")(rot, table.fixed_kept, table.moving, table.radius, table.kept,
                        float(table.scale), products)
     products.setflags(write=False)
-    return RotationCache(table=table, rotation=rot, products=products)
+    kz = np.asarray(table.kept, dtype=np.float32).copy()
+    kz.setflags(write=False)
+    return RotationCache(table=table, rotation=rot, products=products, kz=kz,
+                         geometry=_geometry(table))
 
 
-def cached_pose(cache: RotationCache, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(7,) float64 ``[E, F (3), T (3)]`` of the cached model at one pose."""
-    table = cache.table
-    g = table.geometry
-    assert table.kept is not None
-    return _kernel("pose")(rot, t, cache.products, table.kept, g.centre_fixed,
-                           g.centre_moving, g.half_fixed, g.half_moving, g.spacing, g.n_h,
-                           float(table.scale), g.kappa)
+def serves(table: ModeTable) -> bool:
+    """Whether a rotation cache can be built from ``table``.
+
+    The kept cube, rotation on (moment spectra), and part 2's interleaved table present.
+    """
+    return (table.kept is not None and table.fixed_kept is not None
+            and table.moving is not None and bool(table.geometry.rotation))
+
+
+def cached_pose(cache: RotationCache, rot: np.ndarray, t: np.ndarray,
+                kappa: float | None = None) -> np.ndarray:
+    """(8,) float64 ``[E, F (3), T (3), angle]`` of the cached model at one pose.
+
+    ``rot`` (3, 3) and ``t`` (3,) contiguous float64; ``kappa`` the energy scale (default:
+    the pair's); ``angle`` (radians) is how far ``rot`` is from the cache's rotation.
+    """
+    k = cache.table.geometry.kappa if kappa is None else kappa
+    return _kernel("pose")(rot, cache.rotation, t, cache.products, cache.kz, cache.geometry,
+                           float(k))

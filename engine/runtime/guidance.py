@@ -29,6 +29,7 @@ from engine.runtime.jobs import (
     JobWorker,
     LandscapeRequest,
     LandscapeResponse,
+    RefreshLane,
     Response,
     build_field,
     compute_landscape,
@@ -44,7 +45,13 @@ from engine.runtime.messages import (
     ReadyEvent,
     describe_error,
 )
-from engine.sim import CorrelatorField, GeometricField, LandscapeField, Simulation
+from engine.sim import (
+    CorrelatorField,
+    GeometricField,
+    LandscapeField,
+    RotationCacheField,
+    Simulation,
+)
 
 if TYPE_CHECKING:
     from engine.descriptor import Descriptor
@@ -54,7 +61,9 @@ __all__ = ["Guidance", "backend_name"]
 
 def backend_name(fld: GeometricField) -> str:
     """The per-pose evaluator behind a field, in words."""
-    if isinstance(fld, (CorrelatorField, LandscapeField)):
+    if isinstance(fld, RotationCacheField):
+        return fld.describe()
+    if isinstance(fld, (CorrelatorField, LandscapeField, RotationCacheField)):
         return str(fld.correlator.backend_name or type(fld).__name__)
     return type(fld).__name__
 
@@ -79,6 +88,10 @@ class Guidance:
         self.model = model
         self.events = events
         self.worker = JobWorker()
+        self.refresh_lane = RefreshLane()
+        #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
+        #: False: synchronously, in the step (reproducible, for unpaced runs).
+        self.background_refresh = False
         self.effects = sim.effects
         self.coupling: CouplingParams | None = None
         self.kappa: float | None = None  # None: the scale-invariant default
@@ -159,7 +172,7 @@ class Guidance:
     def request_landscape(self, rotvec: tuple[float, ...] | None) -> None:
         """Landscape at ``rotvec`` (default: the part's rotation), computed by the worker."""
         fld = self.sim.field
-        if not isinstance(fld, (CorrelatorField, LandscapeField)):
+        if not isinstance(fld, (CorrelatorField, LandscapeField, RotationCacheField)):
             self.events.append(LandscapeFailed("no landscape: guidance is off", "ValueError"))
             return
         rv = tuple(float(v) for v in (self.sim.part_pose()[3:] if rotvec is None else rotvec))
@@ -189,7 +202,8 @@ class Guidance:
         if not reuse and task == "field" and self.effects.guidance != "none":
             task = "descriptors"  # no descriptors to reuse: they are computed (or loaded)
         fld = self.sim.field
-        current = fld.correlator if isinstance(fld, (CorrelatorField, LandscapeField)) else None
+        current = (fld.correlator if isinstance(
+            fld, (CorrelatorField, LandscapeField, RotationCacheField)) else None)
         rot = self.sim.state.rotation.copy()
         rot.setflags(write=False)
         request = FieldRequest(
@@ -218,6 +232,12 @@ class Guidance:
 
         self.worker.submit("field", run)
 
+    def attach(self, fld: GeometricField) -> None:
+        """Let a rotation-cache field refresh in the lane when the loop is paced."""
+        if isinstance(fld, RotationCacheField):
+            fld.refresh_in_background(self.refresh_lane.submit if self.background_refresh
+                                      else None)
+
     # -- between two steps (loop thread) --------------------------------------------------------
     def apply_physics(self) -> None:
         """Resolve and apply the physics if a command changed it (once per batch)."""
@@ -226,7 +246,17 @@ class Guidance:
             self.sim.set_effects(self.effects, self._physics())
 
     def take_responses(self) -> None:
-        """Swap in finished fields, deliver landscapes; drop superseded answers."""
+        """Swap in finished fields and rotation caches, deliver landscapes.
+
+        Superseded answers are dropped.
+        """
+        fld = self.sim.field
+        for done in self.refresh_lane.responses():
+            if done.field is fld:
+                if done.cache is None:
+                    fld.refresh_failed(done.id)
+                else:
+                    fld.install(done.id, done.cache)
         for response in self.worker.responses():
             if isinstance(response, LandscapeResponse):
                 self._landscape(response)
@@ -252,6 +282,7 @@ class Guidance:
             return
         req = r.request
         self.sim.set_field(r.field)
+        self.attach(r.field)
         self._physics_dirty = True  # the fit's stiffness, measured with the new field
         self.descriptors = r.descriptors
         self._in_use = (req.effects.guidance, req.sigma, req.penalty)
@@ -286,5 +317,6 @@ class Guidance:
         return self._resolved[1]
 
     def close(self) -> None:
-        """Cancel the jobs and stop the worker."""
+        """Cancel the jobs and stop the worker and the refresh lane."""
         self.worker.shutdown()
+        self.refresh_lane.shutdown()

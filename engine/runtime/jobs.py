@@ -13,6 +13,12 @@ slicer uses): a newer request of the same kind supersedes the older one, which i
 (dropped if it has not started; told to stop through its ``cancel`` callback if it has), and
 the loop drops any response whose id is not the newest it asked for. Nothing here runs on
 the loop thread; the loop only collects finished responses between two steps.
+
+Rotation-cache refreshes (:class:`RefreshRequest`: a field and the part's rotation) have a
+lane of their own (:class:`RefreshLane`, one thread): they take milliseconds and are asked
+for every few milliradians of rotation, so they must not queue behind a descriptor job of
+minutes. A newer request supersedes one not started yet; the field installs only the
+response whose id it is waiting for.
 """
 
 from __future__ import annotations
@@ -31,10 +37,11 @@ import numpy as np
 from engine.correlation import Correlator
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics, SimConfig
-from engine.sim import GeometricField, NullField, field_for_effects
+from engine.sim import GeometricField, NullField, RotationCacheField, field_for_effects
 
 if TYPE_CHECKING:
     from engine.correlation import Landscape
+    from engine.correlation.rotation_cache import RotationCache
     from engine.descriptor import Descriptor
 
 __all__ = [
@@ -44,6 +51,9 @@ __all__ = [
     "JobWorker",
     "LandscapeRequest",
     "LandscapeResponse",
+    "RefreshLane",
+    "RefreshRequest",
+    "RefreshResponse",
     "Response",
     "build_field",
     "compute_landscape",
@@ -343,3 +353,99 @@ class JobWorker:
             self.cancel(kind)
         self._pool.shutdown(wait=False, cancel_futures=True)
         wait(running, timeout)
+
+
+@dataclass(frozen=True)
+class RefreshRequest:
+    """Rebuild ``field``'s rotation cache at ``rotation`` (3, 3) float64."""
+
+    id: int
+    field: RotationCacheField
+    rotation: np.ndarray
+
+
+@dataclass(frozen=True)
+class RefreshResponse:
+    """Answer to a :class:`RefreshRequest` with the same ``id``.
+
+    ``cache`` is None when the build failed (``error``); ``thread`` names the thread that
+    built it and ``seconds`` how long it took.
+    """
+
+    id: int
+    field: RotationCacheField
+    cache: RotationCache | None = None
+    seconds: float = 0.0
+    thread: str = ""
+    error: BaseException | None = None
+
+
+class RefreshLane:
+    """One thread of its own for rotation-cache refreshes (started on the first request).
+
+    :meth:`submit` is a :data:`engine.sim.fields.RefreshSubmitter`: it queues the request
+    (superseding one not started yet) and returns its id at once; the loop collects the
+    finished ones with :meth:`responses` between two steps and hands them to the field.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._next: RefreshRequest | None = None
+        self._done: queue.SimpleQueue[RefreshResponse] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._closed = False
+        self.superseded = 0  # requests replaced before they started
+
+    def submit(self, fld: RotationCacheField, rotation: np.ndarray) -> int:
+        """Queue a refresh of ``fld`` at ``rotation``; returns the request's id."""
+        request = RefreshRequest(next_id(), fld, np.array(rotation, np.float64).reshape(3, 3))
+        with self._cond:
+            if self._closed:
+                return request.id
+            if self._next is not None:
+                self.superseded += 1
+            self._next = request
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._main, name="skelasm-refresh",
+                                                 daemon=True)
+                self._thread.start()
+            self._cond.notify()
+        return request.id
+
+    def _main(self) -> None:
+        name = threading.current_thread().name
+        while True:
+            with self._cond:
+                while self._next is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                request, self._next = self._next, None
+            assert request is not None
+            start = time.perf_counter()
+            try:
+                cache = request.field.build_cache(request.rotation)
+            except Exception as exc:  # delivered to the loop, never raised in the lane
+                self._done.put(RefreshResponse(request.id, request.field, None,
+                                               time.perf_counter() - start, name, exc))
+                continue
+            self._done.put(RefreshResponse(request.id, request.field, cache,
+                                           time.perf_counter() - start, name))
+
+    def responses(self) -> list[RefreshResponse]:
+        """Refreshes finished since the last call, oldest first."""
+        out: list[RefreshResponse] = []
+        while True:
+            try:
+                out.append(self._done.get_nowait())
+            except queue.Empty:
+                return out
+
+    def shutdown(self, timeout: float = 2.0) -> None:
+        """Drop the request not started and stop the thread (waits for a running build)."""
+        with self._cond:
+            self._closed = True
+            self._next = None
+            self._cond.notify()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)

@@ -138,6 +138,9 @@ class EngineLoop:
         self.frames = frames if frames is not None else FrameRing(frame_queue)
         self.inputs = DeviceSlot(sim, device, self.events, base_dir)
         self.guidance = Guidance(sim, model, self.events)
+        # paced: rotation caches refresh in their own lane, never in the step
+        self.guidance.background_refresh = bool(realtime)
+        self.guidance.attach(sim.field)
         if model is not None:
             self.guidance.coupling = model.config.coupling
         self.publish_every = max(1, int(publish_every))

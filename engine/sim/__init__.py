@@ -29,6 +29,7 @@ from engine.sim.fields import (
     GeometricField,
     LandscapeField,
     NullField,
+    RotationCacheField,
     field_for_effects,
 )
 from engine.sim.simulation import Simulation
@@ -40,6 +41,7 @@ __all__ = [
     "LandscapeField",
     "NullField",
     "RigidBody",
+    "RotationCacheField",
     "SceneModel",
     "Simulation",
     "build_simulation",

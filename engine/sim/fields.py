@@ -9,17 +9,21 @@ the part's origin, zeros where no torque is computed).
 
 - :class:`CorrelatorField`: the per-pose modal sum of a Correlator (torque only if its
   rotation is on);
+- :class:`RotationCacheField`: rotation free, the same model evaluated from the products of
+  the two spectra kept at a reference rotation (no table gathers per pose), refreshed as the
+  part turns (synchronously, or by a background lane the runtime attaches);
 - :class:`LandscapeField`: rotation locked, the translational energy landscape at the locked
   rotation, computed once and looked up per step (no modal sum);
 - :class:`NullField`: guidance off, nothing computed.
 
-:func:`field_for_effects` picks the cheapest of the three that gives what the effects ask for.
+:func:`field_for_effects` picks the cheapest of them that gives what the effects ask for.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -27,6 +31,7 @@ from engine.correlation import Evaluation
 
 if TYPE_CHECKING:
     from engine.correlation import Correlator, Landscape
+    from engine.correlation.rotation_cache import RotationCache
     from engine.params import Effects
 
 _ZERO3 = np.zeros(3)
@@ -133,12 +138,200 @@ class LandscapeField:
         self.landscape = self.correlator.landscape(self.locked_rotation)
 
 
+#: Rotation (radians) from a rotation cache's reference beyond which it is refreshed.
+REFRESH_ANGLE = 1e-3
+#: While a background refresh is pending, the cache serves up to this rotation from its
+#: reference; beyond it the full per-pose path runs.
+LIMIT_ANGLE = 4e-3
+
+#: A synchronous refresh costs about two full per-pose evaluations (measured at K = 16 to
+#: 64): the cache is refreshed only if, at the rate the part turned since the last pose, the
+#: new cache would serve at least this many poses; otherwise the full path runs.
+MIN_POSES_PER_CACHE = 3
+
+#: Submits a background refresh: ``submit(field, rotation)`` returns the request's id.
+RefreshSubmitter = Callable[["RotationCacheField", np.ndarray], int]
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (radians) of the rotation from ``b`` to ``a``: ``|a - b|_F = 2 sqrt 2 sin(x/2)``."""
+    half = float(np.linalg.norm(a - b)) / (2.0 * np.sqrt(2.0))
+    return 2.0 * float(np.arcsin(min(half, 1.0)))
+
+
+class RotationCacheField:
+    """Rotation free: the correlator's model evaluated from a rotation cache, times ``kappa``.
+
+    The cache (:mod:`engine.correlation.rotation_cache`) keeps the products of the two
+    spectra at a reference rotation ``R0``; a pose costs the translation phases and three
+    contractions over the kept cube, no table gathers, and the force and torque are the exact
+    derivatives of the energy reported. The model is first order in the rotation since
+    ``R0``, so the cache is rebuilt at the part's rotation once that has moved more than
+    ``refresh_angle`` from ``R0``:
+
+    - synchronously, in :meth:`evaluate`, by default (headless and unpaced runs: the
+      trajectory does not depend on timing), unless the part turns so fast (by the angle
+      it moved since the last pose) that a new cache would serve fewer than ``min_poses``
+      poses: then the full path runs;
+    - in the background once :meth:`refresh_in_background` attached a submitter (the
+      runtime's refresh lane, when the loop is paced in real time): the request goes out,
+      :meth:`install` swaps the new cache in between two steps, and meanwhile the old cache
+      serves up to ``limit_angle``, beyond which the full per-pose path runs.
+
+    Built (its first cache included) wherever it is constructed: the runtime's worker.
+    ``last_path`` says which path served the last pose (``"cached"``, ``"refreshed"``,
+    ``"full"``); ``counts`` counts them and the refreshes.
+    """
+
+    rotation = True
+
+    def __init__(self, correlator: Correlator, kappa: float, rotation: np.ndarray, *,
+                 refresh_angle: float = REFRESH_ANGLE, limit_angle: float = LIMIT_ANGLE,
+                 min_poses: float = MIN_POSES_PER_CACHE):
+        from engine.correlation.rotation_cache import build_rotation_cache, cached_pose
+
+        if not (0.0 < refresh_angle <= limit_angle):
+            raise ValueError(f"refresh angle {refresh_angle!r} must be positive and at most "
+                             f"the limit angle {limit_angle!r}")
+        self._build: Callable[[Any, np.ndarray], RotationCache] = build_rotation_cache
+        self._pose: Callable[..., np.ndarray] = cached_pose
+        self.correlator = correlator
+        self.kappa = float(kappa)
+        self.modes = int(correlator.modes)
+        self.refresh_angle = float(refresh_angle)
+        self.limit_angle = float(limit_angle)
+        self.min_poses = float(min_poses)
+        self.cache: RotationCache = self._build(correlator.table, rotation)
+        self._submit: RefreshSubmitter | None = None
+        self._pending = 0  # id of the background refresh asked for; 0: none
+        self._last = self.cache.rotation  # the last pose's rotation
+        self.last_path = "cached"
+        self.counts = {"cached": 0, "refreshed": 0, "full": 0, "refreshes": 0,
+                       "background_refreshes": 0}
+
+    # -- the pose ---------------------------------------------------------------------------
+    def evaluate(self, rotation: np.ndarray, translation: np.ndarray) -> Evaluation:
+        """Energy, force and torque at one pose, times kappa (see the class docstring)."""
+        start = time.perf_counter()
+        rot = np.ascontiguousarray(rotation, dtype=np.float64).reshape(3, 3)
+        t = np.ascontiguousarray(translation, dtype=np.float64).reshape(3)
+        cache = self.cache
+        out = self._pose(cache, rot, t, self.kappa)
+        path = "cached"
+        if not out[7] <= self.refresh_angle:  # also NaN: a bad pose goes to the full path
+            if self._submit is None:
+                # a refresh costs about two full poses: not worth it while the part turns
+                # so fast (the angle it moved since the last pose, at least) that the new
+                # cache would serve fewer than min_poses poses
+                moved = _angle_between(rot, self._last)
+                self._last = rot.copy()
+                if not self.min_poses * moved <= self.refresh_angle:
+                    return self._full(rot, t, start)
+                cache = self.cache = self._build(cache.table, rot)
+                self.counts["refreshes"] += 1
+                out = self._pose(cache, rot, t, self.kappa)
+                path = "refreshed"
+            else:
+                if not self._pending:
+                    self._pending = self._submit(self, rot.copy())
+                if not out[7] <= self.limit_angle:
+                    return self._full(rot, t, start)
+        self.last_path = path
+        self.counts[path] += 1
+        self._last = rot.copy()
+        return Evaluation(float(out[0]), out[1:4], out[4:7],
+                          (time.perf_counter() - start) * 1e6, cache.table.modes)
+
+    def _full(self, rot: np.ndarray, t: np.ndarray, start: float) -> Evaluation:
+        self.last_path = "full"
+        self.counts["full"] += 1
+        return _scaled(self.correlator.evaluate(rot, t), self.kappa,
+                       (time.perf_counter() - start) * 1e6)
+
+    # -- refreshes --------------------------------------------------------------------------
+    @property
+    def reference_rotation(self) -> np.ndarray:
+        """(3, 3) the rotation the cache in use was built at."""
+        return self.cache.rotation
+
+    @property
+    def pending(self) -> int:
+        """Id of the background refresh asked for and not installed yet (0: none)."""
+        return self._pending
+
+    def refresh_in_background(self, submit: RefreshSubmitter | None) -> None:
+        """Refresh through ``submit`` from now on (None: synchronously, in :meth:`evaluate`)."""
+        self._submit = submit
+        self._pending = 0
+
+    def build_cache(self, rotation: np.ndarray) -> RotationCache:
+        """A cache of the current table at ``rotation`` (only reads; any thread)."""
+        return self._build(self.cache.table, rotation)
+
+    def install(self, request_id: int, cache: RotationCache) -> bool:
+        """Swap in ``cache``, built for request ``request_id`` (the thread that evaluates).
+
+        False (and nothing changes) when that request is no longer the one pending, or the
+        cache belongs to another table (the modes changed meanwhile).
+        """
+        if request_id != self._pending:
+            return False
+        self._pending = 0
+        if cache.table is not self.cache.table:
+            return False
+        self.cache = cache
+        self.counts["refreshes"] += 1
+        self.counts["background_refreshes"] += 1
+        return True
+
+    def refresh_failed(self, request_id: int) -> None:
+        """The background refresh ``request_id`` failed: the next pose asks again."""
+        if request_id == self._pending:
+            self._pending = 0
+
+    def set_modes(self, modes: int) -> None:
+        """Change the correlator's modes and rebuild the cache at its rotation (here, now).
+
+        The runtime does not call this on the loop thread: a K change builds a new field in
+        its worker.
+        """
+        self.correlator.set_modes(int(modes))
+        self.modes = int(modes)
+        self._pending = 0
+        self.cache = self._build(self.correlator.table, self.cache.rotation)
+
+    def describe(self) -> str:
+        """The evaluator in words: the cache, how it is refreshed, the full path beneath."""
+        how = ("in the background" if self._submit is not None else "synchronously")
+        return (f"rotation cache (refreshed {how} every {self.refresh_angle * 1e3:g} mrad; "
+                f"full path beyond {self.limit_angle * 1e3:g} mrad while one is pending: "
+                f"{self.correlator.backend_name})")
+
+
+def cache_serves(correlator: Correlator) -> bool:
+    """Whether a :class:`RotationCacheField` can serve ``correlator``.
+
+    Rotation on, the kept cube, part 2's table within the compiled kernels' reach, numba
+    present, and a compiled per-pose backend in use (one asked for the numpy reference gets
+    it).
+    """
+    from engine.backend import backend_problem
+
+    if (correlator.backend == "numpy" or correlator.selection != "cube"
+            or backend_problem("numba") is not None):
+        return False
+    from engine.correlation.rotation_cache import serves
+
+    return bool(correlator.rotation) and serves(correlator.table)
+
+
 def field_for_effects(
     effects: Effects,
     make_correlator: Callable[[bool], Correlator] | None,
     *,
     kappa: float,
     locked_rotation: np.ndarray,
+    rotation_cache: bool = True,
 ) -> GeometricField:
     """The cheapest field that provides what ``effects`` asks for.
 
@@ -151,14 +344,22 @@ def field_for_effects(
         moving part exists (None).
     kappa : float
     locked_rotation : (3, 3) float64
-        The part's rotation, used when rotation is locked.
+        The part's rotation: the locked one when rotation is locked, else where the rotation
+        cache is first built.
+    rotation_cache : bool
+        With rotation free, evaluate from a rotation cache where one can serve the
+        correlator (:func:`cache_serves`); False: always the full per-pose path.
 
     Returns
     -------
-    NullField, LandscapeField (rotation locked) or CorrelatorField.
+    NullField, LandscapeField (rotation locked), RotationCacheField (rotation free, the
+    cache serves) or CorrelatorField.
     """
     if effects.guidance == "none" or make_correlator is None:
         return NullField()
     if not effects.rotation:
         return LandscapeField(make_correlator(False), locked_rotation, kappa)
-    return CorrelatorField(make_correlator(True), kappa)
+    correlator = make_correlator(True)
+    if rotation_cache and cache_serves(correlator):
+        return RotationCacheField(correlator, kappa, locked_rotation)
+    return CorrelatorField(correlator, kappa)

@@ -9,7 +9,7 @@ import engine.correlation.correlator as correlator_module
 import engine.runtime as rt
 from engine.runtime.jobs import FieldRequest, build_field
 from engine.sim.build import SceneModel
-from engine.sim.fields import CorrelatorField, LandscapeField
+from engine.sim.fields import LandscapeField, RotationCacheField
 
 
 @pytest.fixture(scope="module")
@@ -35,12 +35,16 @@ def test_a_k_change_cuts_the_spectra_in_use_again(model, rotation, monkeypatch):
     response = build_field(model, request)
     assert response.error is None
     new = response.field
-    assert isinstance(new, CorrelatorField if rotation else LandscapeField)
+    # rotation free: the rotation cache serves the numba correlator (its first cache built
+    # here, in the worker's build)
+    assert isinstance(new, RotationCacheField if rotation else LandscapeField)
     assert new.correlator.spectra is old.spectra
     assert new.correlator.table.modes == 12 and old.table.modes == 8
     # the shared spectra give the same result as a correlator built from scratch at K = 12
     monkeypatch.undo()
     fresh, _ = model.field(effects, kappa, np.eye(3), modes=12)
+    if rotation:  # the same path: a cache at the same rotation (model.field has turned it)
+        fresh = RotationCacheField(fresh.correlator, kappa, np.eye(3))
     pose = (np.eye(3), np.array([0.3, -0.2, 4.0]))
     a, b = new.evaluate(*pose), fresh.evaluate(*pose)
     assert a.energy == pytest.approx(b.energy, rel=1e-12)
