@@ -13,6 +13,13 @@ backend), then a per-pose cost table (median and p99 microseconds per K, per bac
 K = 64) and a second PNG beside the first (``<output>_pose_cost.png``: cost against K).
 Rows where a compiled backend could not take the table and ran on the numpy reference are
 marked.
+
+Then the rotation cache (what the simulation runs with rotation free): per pair and K (16 to
+64 by default), the median microseconds of a cached pose beside the full numba path, the
+refresh time, and the cached model's relative error 1 mrad from its reference rotation
+against the full path; on the bundled pairs and on CAD-tessellated pairs from
+``assets/real`` (:data:`REAL_SCENES`, where their descriptors can be had); a third PNG
+(``<output>_rotation_cache.png``). ``--pose-cost-only`` measures only this.
 """
 
 from __future__ import annotations
@@ -27,6 +34,9 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_MODES = ("4", "8", "16", "24", "32", "48", "64", "full")
+CACHE_MODES = ("16", "24", "32", "48", "64")
+#: CAD-tessellated pairs (under assets/real) the rotation-cache table measures as well.
+REAL_SCENES = ("iso_pin_5_H7h6_through", "factory_round_peg_8mm_loose")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +58,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="largest K served by the refined table")
     parser.add_argument("-o", "--output", default="bench_correlation.png", help="plot (PNG)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cache-modes", nargs="*", default=list(CACHE_MODES),
+                        help="modes per axis of the rotation-cache table (none: skip it)")
+    parser.add_argument("--real-scenes", nargs="*", default=None,
+                        help="CAD-tessellated scenes for the rotation-cache table (default: "
+                             + ", ".join(f"assets/real/{n}" for n in REAL_SCENES) + ")")
+    parser.add_argument("--pose-cost-only", action="store_true",
+                        help="only the rotation-cache table (no accuracy sweep)")
 
 
 # ---------------------------------------------------------------------------- pairs
@@ -208,6 +225,8 @@ def run(args: argparse.Namespace) -> int:
     if note:
         print(note)
 
+    if args.pose_cost_only:
+        return _rotation_cache_section(args, pairs, rng)
     rows = []
     costs: list[tuple[str, str, int, float, float, bool]] = []
     curves: dict[tuple[str, str], list[tuple[float, float, str]]] = {}
@@ -290,7 +309,138 @@ def run(args: argparse.Namespace) -> int:
     _plot(curves, args.output)
     _plot_costs(costs, cost_path)
     print(f"\nwrote {args.output} and {cost_path}")
+    return _rotation_cache_section(args, pairs, rng)
+
+
+# ---------------------------------------------------------------------------- rotation cache
+def _real_pairs(args: argparse.Namespace) -> list[tuple[str, object, object, np.ndarray, float]]:
+    """The CAD-tessellated pairs whose descriptors are stored; the others are named, skipped.
+
+    Computing them takes minutes: ``skelasm precompute`` first.
+    """
+    from engine.runtime import open_scene
+    from engine.sim.build import SceneModel
+
+    real = Path(__file__).resolve().parents[1] / "assets" / "real"
+    paths = (args.real_scenes if args.real_scenes is not None
+             else [str(real / n / "scene.toml") for n in REAL_SCENES
+                   if (real / n / "scene.toml").is_file()])
+    usable = []
+    for path in paths:
+        if SceneModel(open_scene(path)).descriptors_cached():
+            usable.append(path)
+        else:
+            print(f"  ({path}: descriptors not stored; run skelasm precompute on it first)")
+    return _scene_pairs(usable) if usable else []
+
+
+def rotation_cache_costs(corr, fitted: np.ndarray, spread: float, modes: list[int],
+                         poses: int, rng) -> list[dict[str, float]]:
+    """Per K: cached and full-path median (p99) microseconds, refresh ms, cached error at 1 mrad.
+
+    ``corr`` a numba Correlator with rotation on; poses scattered around ``fitted`` (within
+    ``spread``), rotations within 1 mrad of a cache built 0.05 rad from the fitted rotation.
+    """
+    from engine.pose import rotation_matrix
+
+    base = rotation_matrix(fitted[3:])
+    out = []
+    for k in modes:
+        corr.set_modes(k)
+        r0 = rotation_matrix(rng.normal(scale=0.05, size=3)) @ base
+        sample = [(rotation_matrix(rng.normal(size=3) * 3e-4) @ r0,
+                   fitted[:3] + rng.normal(scale=spread, size=3)) for _ in range(poses)]
+        refresh = []
+        for _ in range(3 if k >= 48 else 10):
+            start = time.perf_counter()
+            cache = corr.rotation_cache(r0)
+            refresh.append(time.perf_counter() - start)
+        for rot, t in sample[:5]:
+            corr.evaluate_cached(cache, rot, t)
+            corr.evaluate(rot, t)
+        cached = [corr.evaluate_cached(cache, rot, t).microseconds for rot, t in sample]
+        full = [corr.evaluate(rot, t).microseconds
+                for rot, t in sample[: max(20, poses // max(1, (k // 16) ** 2))]]
+        err = np.zeros(3)
+        for rot_t in sample[:4]:
+            axis = rng.normal(size=3)
+            rot = rotation_matrix(1e-3 * axis / np.linalg.norm(axis)) @ r0
+            a, b = corr.evaluate_cached(cache, rot, rot_t[1]), corr.evaluate(rot, rot_t[1])
+            assert a.torque is not None and b.torque is not None
+            for i, (x, y) in enumerate(((a.energy, b.energy), (a.force, b.force),
+                                        (a.torque, b.torque))):
+                err[i] = max(err[i], float(np.linalg.norm(np.subtract(x, y))
+                                           / max(float(np.linalg.norm(y)), 1e-300)))
+        out.append({"K": k, "cached_us": float(np.median(cached)),
+                    "cached_p99": float(np.percentile(cached, 99)),
+                    "full_us": float(np.median(full)), "full_p99": float(np.percentile(full, 99)),
+                    "refresh_ms": 1e3 * float(np.median(refresh)), "err_E": float(err[0]),
+                    "err_F": float(err[1]), "err_T": float(err[2])})
+    return out
+
+
+def _rotation_cache_section(args: argparse.Namespace, pairs, rng) -> int:
+    """The rotation-cache table and plot (bundled or given pairs, then the CAD pairs)."""
+    from engine.backend import backend_problem
+    from engine.correlation import Correlator
+
+    modes = [int(m) for m in args.cache_modes]
+    if not modes:
+        return 0
+    problem = backend_problem("numba")
+    if problem is not None:
+        print(f"\n(rotation cache not measured: numba is not usable here: {problem})")
+        return 0
+    rows = []
+    for name, d1, d2, fitted, spread in list(pairs) + _real_pairs(args):
+        corr = Correlator(d1, d2, modes=modes[0], backend="numba", refine=args.refine,
+                          fine_modes=args.fine_modes)
+        for row in rotation_cache_costs(corr, fitted, spread, modes, args.poses, rng):
+            rows.append((name, row))
+            print(f"  {name} K={row['K']}: cached {row['cached_us']:.0f} us, full "
+                  f"{row['full_us']:.0f} us, refresh {row['refresh_ms']:.2f} ms", flush=True)
+    print("\nRotation cache (the simulation's path with rotation free), median (p99) "
+          "microseconds per 6-DOF pose, numba, one thread; refresh = building the cache; "
+          "error = cached model against the full path 1 mrad from the cache's rotation:\n")
+    print("| pair | K | cached us | full path us | refresh ms | rel. error E / F / T at 1 mrad |")
+    print("|---|---:|---:|---:|---:|---|")
+    for name, r in rows:
+        print(f"| {name} | {r['K']} | {r['cached_us']:.0f} ({r['cached_p99']:.0f}) | "
+              f"{r['full_us']:.0f} ({r['full_p99']:.0f}) | {r['refresh_ms']:.2f} | "
+              f"{r['err_E']:.1e} / {r['err_F']:.1e} / {r['err_T']:.1e} |")
+    path = f"{os.path.splitext(args.output)[0]}_rotation_cache.png"
+    _plot_cache(rows, path)
+    print(f"\nwrote {path}")
     return 0
+
+
+def _plot_cache(rows, path: str) -> None:
+    """Cached and full-path median microseconds against K, per pair; the goals marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5), dpi=110)
+    names = sorted({name for name, _ in rows})
+    for i, name in enumerate(names):
+        pts = sorted((r["K"], r["cached_us"], r["full_us"]) for n, r in rows if n == name)
+        colour = f"C{i % 10}"
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=colour,
+                label=f"{name} cached")
+        ax.plot([p[0] for p in pts], [p[2] for p in pts], "s:", color=colour, alpha=0.6,
+                label=f"{name} full path")
+    ax.plot([16, 32, 64], [20, 100, 1000], "k*", ms=10, label="goal (20 / 100 / 1000 us)")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("modes per axis K")
+    ax.set_ylabel("median time per 6-DOF evaluation (us)")
+    ax.set_title("Per pose: the rotation cache against the full path (numba, one thread)",
+                 fontsize=10)
+    ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def _check_output(path: str) -> None:

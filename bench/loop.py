@@ -69,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="thread engine: ask for real-time scheduling of the loop thread "
                              "(the process engine always asks)")
     parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
+    parser.add_argument("--full-path", action="store_true",
+                        help="thread engine, rotation free: the full per-pose path every step "
+                             "instead of the rotation cache")
 
 
 def _python_load(stop: threading.Event, counter: list[int]) -> None:
@@ -171,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
              if sweep_modes(args) else ""))
     if info.get("scheduling"):
         print(f"loop thread scheduling: {info['scheduling']}")
+    if info.get("paths"):
+        print(f"rotation cache, poses per path and refreshes: {info['paths']}")
     print()
     print("| steps | seconds | rate (Hz) | median (us) | p1 (us) | p99 (us) | max (us) "
           "| > 1.2 periods | eval median (us) |")
@@ -209,13 +214,15 @@ def _run_thread(args, load):
     from engine.devices import TrajectoryDevice
     from engine.runtime import AnalyticWell, EngineLoop, bench_trajectory
     from engine.runtime.guidance import backend_name
-    from engine.sim import build_simulation
+    from engine.sim import CorrelatorField, RotationCacheField, build_simulation
 
     handle = _handle(args)
     sim, model = build_simulation(handle, modes=args.modes, backend=args.backend,
                                   rate_hz=args.rate, prepare=not args.fake)
     if args.fake:
         sim.set_field(AnalyticWell(sim.physics.kappa))
+    elif args.full_path and isinstance(sim.field, RotationCacheField):
+        sim.set_field(CorrelatorField(sim.field.correlator, sim.physics.kappa))
     traj = TrajectoryDevice(bench_trajectory(sim, args.seconds + 2.0))
     loop = EngineLoop(sim, model=model, device=traj, realtime=True, keep_periods=True,
                       switch_interval=args.switch_interval,
@@ -233,9 +240,11 @@ def _run_thread(args, load):
         loop.guidance.close()
     frames = loop.poll_frames()
     eval_us = float(np.median([f.eval_us for f in frames])) if frames else float("nan")
+    counts = getattr(sim.field, "counts", None)
     return np.asarray(loop.periods)[warm:], {
         "what": f"{handle.scene.name} ({Path(args.scene).name})",
         "field": backend_name(sim.field),
+        "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
         "eval_us": eval_us,
         "scheduling": loop.scheduling,
     }
