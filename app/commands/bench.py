@@ -15,6 +15,8 @@ BENCHMARKS = {
     "loop": "achieved engine rate and period distribution, headless or with the GUI",
     "soak": "the window with its engine and a dragged proxy for minutes (default 15)",
     "seating": "real CAD pairs pushed misaimed: final errors, guided and collision-only",
+    "accuracy": "error against time for every accuracy dial (K, grid, sigma, quadrature, "
+                "interpolation, backend)",
 }
 
 

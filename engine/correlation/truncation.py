@@ -1,0 +1,69 @@
+"""How much of a pair's correlation spectrum a mode count leaves out: a truncation indicator.
+
+Works on two descriptors (``rho (nx, ny, nz) complex64`` on grids of one spacing ``h``) and
+the padded FFT size ``N`` of their correlation. The score is a sum over the frequency
+lattice ``w = k / (N h)`` of ``rho1^(w)`` times part 2's spectrum at the rotated frequency
+and a unit phase; keeping the cube of ``K`` modes per axis drops the rest, so at part 2's
+scene orientation (``R = I``) the dropped part of the score is at most
+
+    sum over k outside the cube of |rho1^(k)| |rho2^(k)|
+
+at every translation, and the whole score at most the same sum over every ``k``. Their
+ratio, the *share of the weight outside the cube*, bounds the truncation error of the
+score relative to its largest possible value. It is a bound, not the error (phases cancel
+at most poses), it holds exactly at the unrotated orientation only (a rotation moves
+part 2's spectrum around the cube, but its radial fall-off, which decides the share, is
+the same), and it says nothing of the interpolation or the descriptor's sampling. It costs
+two FFTs once per pair; every K is then read from one array.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+
+#: FFT workers (the target machine has two cores).
+WORKERS = 2
+
+
+def smallest_cube(size: int) -> np.ndarray:
+    """(size,) int64: for each FFT-ordered index, the smallest K whose kept cube holds it.
+
+    The cube of ``K`` keeps ``-(K // 2) ... K - K // 2 - 1``
+    (:func:`engine.correlation.spectrum.kept_indices`), so ``k >= 0`` needs ``K >= 2k + 1``
+    and ``k < 0`` needs ``K >= 2|k|``.
+    """
+    k = np.fft.fftfreq(size, 1.0 / size).round().astype(np.int64)  # signed indices
+    return np.where(k >= 0, 2 * k + 1, -2 * k)
+
+
+def truncation_profile(fixed, moving, size: int) -> np.ndarray:
+    """Share of the correlation spectrum's weight outside the kept cube, for every K.
+
+    Parameters
+    ----------
+    fixed, moving : descriptor
+        Objects with ``.rho`` ((nx, ny, nz) complex64) and ``.grid``, both grids of one
+        spacing and no larger than ``size`` along any axis.
+    size : int
+        The padded FFT size ``N`` of the pair (``Correlator.size``).
+
+    Returns
+    -------
+    outside : (size + 1,) float64
+        ``outside[K]`` for ``K = 0 .. size``: 1 at K = 0, 0 at K = size, never increasing.
+    """
+    shapes = (fixed.rho.shape, moving.rho.shape)
+    if any(len(s) != 3 or max(s) > size for s in shapes):
+        raise ValueError(f"grids {shapes[0]} and {shapes[1]} must be 3-D and fit the FFT "
+                         f"size {size}; pass the pair's Correlator.size")
+    a = np.abs(scipy.fft.fftn(fixed.rho, s=(size,) * 3, workers=WORKERS))  # (N, N, N)
+    b = np.abs(scipy.fft.fftn(moving.rho, s=(size,) * 3, workers=WORKERS))
+    weight = (a * b).astype(np.float64)
+    need = smallest_cube(size)
+    cube = np.maximum(np.maximum(need[:, None, None], need[None, :, None]), need[None, None, :])
+    inside = np.cumsum(np.bincount(cube.ravel(), weights=weight.ravel(), minlength=size + 1))
+    total = float(inside[-1])
+    if not total > 0:
+        return np.zeros(size + 1)
+    return np.clip(1.0 - inside[: size + 1] / total, 0.0, 1.0)
