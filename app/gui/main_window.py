@@ -18,6 +18,7 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.gui import quantities
+from app.gui.accuracy import AccuracyIndicator
 from app.gui.landscape_view import LandscapeView
 from app.gui.params_panel import ParamsPanel
 from app.gui.pose_dialog import PoseDialog
@@ -198,6 +199,8 @@ class MainWindow(QtWidgets.QMainWindow):
 
         self.params = ParamsPanel()
         self.params.command.connect(self._command)
+        self.accuracy = AccuracyIndicator(self)  # the truncation estimate beside K
+        self.accuracy.profile_ready.connect(self.params.set_truncation_profile)
         self.view_panel = ViewPanel()
         self.view_panel.opacity_changed.connect(self.viewport.set_fixed_opacity)
         self.view_panel.clip_changed.connect(self.viewport.set_clip)
@@ -806,6 +809,7 @@ class MainWindow(QtWidgets.QMainWindow):
         r.set("eval", f"{f.eval_us:.1f} µs per step",
               f"Time the correlator took for this step's energy, force and torque\n"
               f"evaluator: {self.evaluator}")
+        self.params.show_pose_cost(f.eval_us, f.modes)
         r.set("modes", f"{f.modes ** 3:,} modes (K = {f.modes})",
               "K Fourier modes per axis are kept, m' = K³ in all: more is more accurate "
               "and slower")
@@ -920,6 +924,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.params.set_progress(None, "ready")
             self.evaluator = event.backend or "-"
             self.slice_view.set_descriptors(event.descriptors)
+            self.accuracy.submit(event.descriptors)
             self.engine_note = event.message
             self.statusBar().showMessage(
                 "ready: drag the orange part (or its blue ghost) towards its seat", 6000)
@@ -931,6 +936,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self.tasks.finish("descriptors")
             self.tasks.finish("field")  # a field request that had to recompute descriptors
             self.slice_view.set_descriptors(event.descriptors)
+            self.accuracy.submit(event.descriptors)
+            self.params.show_descriptor_cost(event.seconds)
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")
             self.landscape_view.set_landscape(None)
@@ -996,6 +1003,7 @@ class MainWindow(QtWidgets.QMainWindow):
         """Save the layout, stop the engine and the 3D view, then close."""
         self.save_layout()
         self._tick_timer.stop()
+        self.accuracy.shutdown()
         self.session.close()
         self.viewport.close()
         super().closeEvent(event)

@@ -1,5 +1,11 @@
 """The parameter panel: accuracy (m'), descriptor parameters, kappa, coupling and effects.
 
+Beside the accuracy settings it shows what they cost now: the measured microseconds per
+pose (the frames' ``eval_us``, a running median) and, for K, an estimate of the truncation
+error (the share of the correlation spectrum's weight outside the kept cube, from
+:class:`app.gui.accuracy.AccuracyIndicator`); beside sigma and penalty, the last recompute's
+seconds. docs/accuracy.md says how to read them.
+
 It only emits engine commands (``engine.runtime`` dataclasses) through :attr:`command`; the
 window forwards them. The expensive parameters (K, sigma, penalty) apply when their slider is
 let go or a typed value is entered, never while a slider moves: each starts a background
@@ -8,8 +14,10 @@ build, which the engine runs while the old field stays in use.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import replace
 
+import numpy as np
 from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import SliderField
@@ -30,6 +38,7 @@ class ParamsPanel(QtWidgets.QWidget):
 
     def __init__(self, parent=None):
         super().__init__(parent)
+        self._cost_modes = 0
         self._effects = Effects()
         self._coupling = CouplingParams()
         # gravity in scene units per s^2 (mm until a scene says otherwise)
@@ -47,7 +56,26 @@ class ParamsPanel(QtWidgets.QWidget):
         self.modes_label = QtWidgets.QLabel()
         form.addRow("K (modes/axis)", self.modes)
         form.addRow("m' = K³", self.modes_label)
+        self.pose_cost = QtWidgets.QLabel("-")
+        self.pose_cost.setObjectName("pose_cost")
+        self.pose_cost.setToolTip(
+            "Measured time of the correlator per step (energy, force, torque) at the K in\n"
+            "use: the median of the last frames. It grows about like K³.")
+        self.truncation = QtWidgets.QLabel("-")
+        self.truncation.setObjectName("truncation")
+        self.truncation.setWordWrap(True)
+        self.truncation.setToolTip(
+            "Share of the correlation spectrum's weight |ρ1^|·|ρ2^| outside the K³ cube:\n"
+            "a bound on the score's truncation error relative to its largest value\n"
+            "(at the scene's orientation; phases cancel, so the error is usually smaller).\n"
+            "It says nothing of the grid or sigma. While the K slider is held it shows the\n"
+            "value at the K it would apply. See docs/accuracy.md.")
+        form.addRow("cost now", self.pose_cost)
+        form.addRow("error bound", self.truncation)
+        self._pose_us: deque[float] = deque(maxlen=50)
+        self._profile: np.ndarray | None = None
         self.modes.valueChanged.connect(self._modes_changed)
+        self.modes.previewed.connect(lambda k: self._show_truncation(int(k)))
         self._show_modes(16)
         lay.addWidget(acc)
 
@@ -73,6 +101,13 @@ class ParamsPanel(QtWidgets.QWidget):
         row.addWidget(self.progress, 1)
         row.addWidget(self.cancel)
         form.addRow(row)
+        self.recompute_cost = QtWidgets.QLabel("a change recomputes both descriptors")
+        self.recompute_cost.setObjectName("recompute_cost")
+        self.recompute_cost.setWordWrap(True)
+        self.recompute_cost.setToolTip(
+            "sigma and penalty cost once, when the descriptors are recomputed (seconds on\n"
+            "a coarse grid, minutes on a fine one); the cost per pose does not change.")
+        form.addRow("cost", self.recompute_cost)
         self.sigma.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.penalty.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.cancel.clicked.connect(self._cancel)
@@ -140,6 +175,10 @@ class ParamsPanel(QtWidgets.QWidget):
     def load_config(self, config, modes: int, sigma: float, penalty: float) -> None:
         """Show a scene's settings without sending anything."""
         self.modes.setValueSilently(modes)
+        self._pose_us.clear()
+        self.pose_cost.setText("-")
+        self.set_truncation_profile(None)
+        self.recompute_cost.setText("a change recomputes both descriptors")
         self._show_modes(modes)
         self.sigma.setValueSilently(sigma)
         self.penalty.setValueSilently(penalty)
@@ -187,6 +226,45 @@ class ParamsPanel(QtWidgets.QWidget):
         if default:
             self.kappa.setValueSilently(value)  # a custom kappa starts from the one in use
 
+    # ------------------------------------------------------------------ what accuracy costs
+    def show_pose_cost(self, eval_us: float, modes: int) -> None:
+        """Add one frame's correlator microseconds at ``modes``; show the running median."""
+        if not (np.isfinite(eval_us) and eval_us >= 0):
+            return
+        if modes != self._cost_modes:
+            self._pose_us.clear()  # a new K: the old figures no longer say anything
+            self._cost_modes = modes
+        self._pose_us.append(float(eval_us))
+        median = float(np.median(self._pose_us))
+        self.pose_cost.setText(f"{median:.0f} µs per pose at K = {modes}")
+
+    def set_truncation_profile(self, profile: np.ndarray | None) -> None:
+        """Use ``profile`` ((N + 1,) float64, share outside the cube per K; None: unknown)."""
+        self._profile = None if profile is None else np.asarray(profile, dtype=float)
+        self._show_truncation(None)
+
+    def truncation_at(self, k: int) -> float | None:
+        """The share of the spectrum's weight outside K³, None before a profile came."""
+        if self._profile is None or len(self._profile) == 0:
+            return None
+        return float(self._profile[min(max(int(k), 0), len(self._profile) - 1)])
+
+    def show_descriptor_cost(self, seconds: float) -> None:
+        """Show the last descriptor recompute's seconds (what a sigma or penalty costs)."""
+        self.recompute_cost.setText(f"last recompute {seconds:.1f} s; per pose unchanged")
+
+    def _show_truncation(self, preview: int | None) -> None:
+        current = int(self.modes.value())
+        now = self.truncation_at(current)
+        if now is None:
+            self.truncation.setText("-")
+            return
+        text = f"≤ {_percent(now)} at K = {current} (weight outside K³)"
+        if preview is not None and preview != current:
+            at = self.truncation_at(preview)
+            text = f"≤ {_percent(at or 0.0)} at K = {preview} if applied; now {_percent(now)}"
+        self.truncation.setText(text)
+
     # ------------------------------------------------------------------ progress
     def set_progress(self, fraction: float | None, text: str = "", *,
                      cancellable: bool = True) -> None:
@@ -211,6 +289,7 @@ class ParamsPanel(QtWidgets.QWidget):
     # ------------------------------------------------------------------ handlers
     def _show_modes(self, k: int) -> None:
         self.modes_label.setText(f"{k ** 3:,} modes")
+        self._show_truncation(None)
 
     def _modes_changed(self, k: float) -> None:
         self._show_modes(int(k))
@@ -255,3 +334,8 @@ class ParamsPanel(QtWidgets.QWidget):
     def _pause_toggled(self, paused: bool) -> None:
         self.pause.setText("Resume" if paused else "Pause")
         self.command.emit(runtime.Pause(paused))
+
+
+def _percent(share: float) -> str:
+    """A share as a percentage with two significant digits (0.0431 -> "4.3 %")."""
+    return f"{100.0 * share:.2g} %"

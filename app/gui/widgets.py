@@ -19,9 +19,12 @@ class SliderField(QtWidgets.QWidget):
     -------
     valueChanged(float)
         Every committed change, from either the slider or the field.
+    previewed(float)
+        While an ``on_release`` slider is held: the value it would commit.
     """
 
     valueChanged = QtCore.Signal(float)  # noqa: N815 (Qt naming)
+    previewed = QtCore.Signal(float)
     STEPS = 1000
 
     def __init__(self, lo: float, hi: float, value: float, *, decimals: int = 3,
@@ -94,6 +97,7 @@ class SliderField(QtWidgets.QWidget):
         self.field.blockSignals(True)
         self.field.setValue(int(round(v)) if self.integer else v)
         self.field.blockSignals(False)
+        self.previewed.emit(float(int(round(v))) if self.integer else v)
 
     def _from_field(self, v) -> None:
         self._set(float(v))

@@ -1,0 +1,84 @@
+"""The accuracy indicator's worker: the truncation profile of the descriptors in use.
+
+The engine sends the descriptors it correlates (``ReadyEvent`` and ``DescriptorsSwapped``
+carry them for the slice views); from them one worker thread computes, once per pair,
+:func:`engine.correlation.truncation.truncation_profile`: for every K the share of the
+correlation spectrum's weight outside the kept cube. The parameter panel then reads the
+value at any K without asking anyone. A newer pair supersedes an older one: its request
+id is newer, and an answer for an older id is dropped.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+from PySide6 import QtCore
+
+
+def profile_of(descriptors) -> np.ndarray | None:
+    """(N + 1,) float64: the truncation profile of part 1 and part 2, None without a pair.
+
+    ``N`` is the pair's padded FFT size as the engine picks it
+    (:func:`engine.correlation.required_fft_size` of the first and last grid).
+    """
+    from engine.correlation import required_fft_size
+    from engine.correlation.truncation import truncation_profile
+
+    if len(descriptors) < 2:
+        return None
+    fixed, moving = descriptors[0], descriptors[-1]
+    size = required_fft_size(fixed.rho.shape, moving.rho.shape)
+    return truncation_profile(fixed, moving, size)
+
+
+class AccuracyIndicator(QtCore.QObject):
+    """Computes truncation profiles off the GUI thread, one pair at a time.
+
+    Signals
+    -------
+    profile_ready(object)
+        The newest pair's profile ((N + 1,) float64), or None when there is no pair or it
+        failed (the panel then shows no estimate).
+    """
+
+    profile_ready = QtCore.Signal(object)
+    _answered = QtCore.Signal(int, object)
+
+    def __init__(self, parent=None) -> None:
+        super().__init__(parent)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accuracy")
+        self._request = 0
+        self._future: Future | None = None
+        # emitted from the worker, delivered on this object's (the GUI's) thread
+        self._answered.connect(self._deliver, QtCore.Qt.QueuedConnection)
+
+    def submit(self, descriptors) -> None:
+        """Compute the profile of ``descriptors`` (part 1 first, part 2 last)."""
+        self._request += 1
+        request = self._request
+        if self._future is not None:
+            self._future.cancel()  # not started yet: superseded
+
+        def work() -> None:
+            try:
+                profile = profile_of(tuple(descriptors))
+            except (ValueError, MemoryError):
+                profile = None
+            self._answered.emit(request, profile)
+
+        self._future = self._pool.submit(work)
+
+    def wait_until_idle(self, timeout: float | None = None) -> None:
+        """Block until the last request has been computed (tests)."""
+        if self._future is not None:
+            self._future.result(timeout)
+
+    def shutdown(self) -> None:
+        """Drop what is queued and stop the worker (the window closes)."""
+        self._request += 1
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def _deliver(self, request: int, profile) -> None:
+        if request == self._request:
+            self.profile_ready.emit(profile)
