@@ -123,3 +123,24 @@ def test_command_line_prints_the_tables_and_refuses_a_missing_folder(tmp_path, c
     assert "| refine 2, oversample 2 (q = 1) (ref) |" in text
     assert main(["bench", "accuracy", "--scenes", PEG, "-o",
                  str(tmp_path / "missing" / "a.png")]) == 2
+
+
+def test_progress_shows_the_task_and_the_time_left_on_a_terminal_only():
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    screen = Terminal()
+    progress = accuracy.Progress(2, screen)
+    progress.begin("pin: modes")
+    assert "[0/2] pin: modes" in screen.getvalue() and "left" not in screen.getvalue()
+    progress.end()
+    progress.begin("pin: grid")
+    assert "[1/2] pin: grid" in screen.getvalue() and "s left)" in screen.getvalue()
+    piped = io.StringIO()
+    quiet = accuracy.Progress(2, piped)
+    quiet.begin("pin: modes")
+    quiet.end()
+    assert piped.getvalue() == ""
