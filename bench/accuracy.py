@@ -31,7 +31,8 @@ Errors are ``max over poses |q - q_ref| / max over poses |q_ref|`` (q = energy, 
 vector, torque vector), the force direction error in degrees (largest over poses whose
 reference force is at least a tenth of the largest), and the seat shift: the distance, in
 grid cells, from the assembled pose to the energy's minimum along the insertion axis
-(sampled every quarter cell within 1.5 cells; a free axis along the insertion makes it
+(sampled every quarter cell within 3 cells, "> 3" when the
+minimum lies at the window's edge; a free axis along the insertion makes it
 ill-defined, so it is left out for such scenes).
 
 Prints one markdown table per scene and dial and writes one PNG (error against time,
@@ -76,8 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--adaptive-tolerances", type=float, nargs="*", default=[1e-2, 3e-3],
                         help="adaptive sampler tolerances (fractions of rms rho)")
     parser.add_argument("--interpolation-sweep", nargs="*",
-                        default=["1:1", "1:2", "2:2", "4:2", "4:3"],
-                        help="REFINE:OVERSAMPLE pairs (the last is the reference)")
+                        default=["1:1", "1:2", "2:2", "4:2"],
+                        help="REFINE:OVERSAMPLE pairs (the last is the reference; 4:3 adds "
+                             "part 2's lattice at q = 2, half a minute of spectra here)")
     parser.add_argument("--poses", type=int, default=200,
                         help="evaluations timed per row (median)")
     parser.add_argument("-o", "--output", default="bench_accuracy.png", help="plot (PNG)")
@@ -120,7 +122,7 @@ class Pair:
 
 @dataclass
 class Case:
-    """A scene loaded for the bench: parts, poses, base settings."""
+    """A scene loaded for the bench: parts, poses, the base grid's cell, the seat line."""
 
     name: str
     scene: Any
@@ -129,6 +131,7 @@ class Case:
     poses: list[tuple[np.ndarray, np.ndarray]]
     line: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     line_step: float = 0.0
+    cell: float = 1.0
 
 
 def load_case(path: str, grid: int) -> Case:
@@ -157,12 +160,12 @@ def load_case(path: str, grid: int) -> Case:
         rot = rotation_matrix(turn * side) @ base
         poses.append((rot, seat[:3] - back * axis + aside * side))
     name = os.path.basename(os.path.dirname(os.path.abspath(path)))
-    case = Case(name=name, scene=scene, parts=parts, longest=longest, poses=poses)
+    case = Case(name=name, scene=scene, parts=parts, longest=longest, poses=poses, cell=h)
     free = {str(a).lower() for a in (scene.seat.free_axes or ())}
     dominant = "xyz"[int(np.argmax(np.abs(axis)))]
     if dominant not in free:
         case.line_step = 0.25 * h
-        case.line = [(base, seat[:3] + s * case.line_step * axis) for s in range(-6, 7)]
+        case.line = [(base, seat[:3] + s * case.line_step * axis) for s in range(-12, 13)]
     return case
 
 
@@ -218,8 +221,7 @@ def evaluate(corr, poses) -> np.ndarray:
 def pose_cost(corr, case: Case, count: int, *, warm: bool = True) -> float:
     """Median microseconds per evaluation over ``count`` poses jittered about the error poses."""
     rng = np.random.default_rng(0)
-    h = case.longest / 16
-    poses = [(rot, t + rng.normal(scale=0.3 * h, size=3))
+    poses = [(rot, t + rng.normal(scale=0.3 * case.cell, size=3))
              for rot, t in (case.poses * (count // len(case.poses) + 1))[:count]]
     if warm:
         evaluate(corr, poses[:5])
@@ -245,12 +247,18 @@ def errors(values: np.ndarray, reference: np.ndarray) -> dict[str, float]:
 
 
 def seat_shift(corr, case: Case) -> float | None:
-    """Cells from the seat to the energy's minimum along the insertion axis (None: free)."""
+    """Cells from the seat to the energy's minimum along the insertion axis.
+
+    None when the insertion axis is free; ``inf`` when the minimum lies at the sampled
+    window's edge (farther than the window reaches).
+    """
     if not case.line:
         return None
     energy = evaluate(corr, case.line)[:, 0]
-    h = case.longest / 16
-    return abs(int(np.argmin(energy)) - len(case.line) // 2) * case.line_step / h
+    lowest = int(np.argmin(energy))
+    if lowest in (0, len(case.line) - 1):
+        return math.inf
+    return abs(lowest - len(case.line) // 2) * case.line_step / case.cell
 
 
 def rho_error(rho: np.ndarray, reference: np.ndarray) -> float:
@@ -434,6 +442,8 @@ def _cell(value: float | None, fmt: str) -> str:
         return "-"
     if isinstance(value, float) and math.isnan(value):
         return "n/a"
+    if value == math.inf:
+        return "> 3"
     return format(value, fmt)
 
 

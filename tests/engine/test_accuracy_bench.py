@@ -91,6 +91,8 @@ def test_times_are_filled_where_the_dial_costs_them(peg_rows):
     for r in _dial(peg_rows, "modes") + _dial(peg_rows, "interpolation"):
         assert r.pose_us is not None and r.pose_us > 0
         assert r.spectra_s is not None
+    # the peg's insertion axis is not free: the seat line is sampled for every truncated K
+    assert all(r.seat_cells is not None for r in _dial(peg_rows, "modes") if not r.reference)
     for r in _dial(peg_rows, "quadrature"):
         assert r.descriptor_s is not None and r.descriptor_s > 0 and r.pose_us is None
 
