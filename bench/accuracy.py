@@ -471,50 +471,70 @@ def cost_of(row: Row) -> tuple[float | None, str]:
     return row.descriptor_s, "descriptor s"
 
 
+def _series(row: Row) -> str:
+    """The curve a row belongs to within its dial (quadrature: tree or adaptive)."""
+    if row.dial == "quadrature":
+        return row.setting.split(",")[0]
+    return ""
+
+
 def plot(rows: list[Row], path: str) -> None:
-    """Force error (solid) and energy error (dashed) against time, a panel per dial."""
+    """Force error (solid) and energy error (dashed) against time, a panel per dial.
+
+    Points are joined in the order of the sweep (not of the time, which is noisy), one
+    curve per scene (and per method for the quadrature); reference rows (error 0) are left
+    out.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     dials = [d for d in DIALS if any(r.dial == d for r in rows)]
     cols = min(3, len(dials))
     nrows = math.ceil(len(dials) / cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.6 * nrows), dpi=110,
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.6 * cols, 3.8 * nrows), dpi=110,
                              squeeze=False)
+    scenes = list(dict.fromkeys(r.scene for r in rows))
     for ax, dial in zip(axes.ravel(), dials, strict=False):
         xlabel = ""
-        for i, scene in enumerate(sorted({r.scene for r in rows})):
-            points = []
-            for r in rows:
-                x, label = cost_of(r)
-                if r.scene == scene and r.dial == dial and x is not None and not r.reference:
-                    points.append((x, r.force, r.energy, r.setting))
-                    xlabel = label
-            points = [p for p in points if p[1] and p[1] > 0 and math.isfinite(p[1])]
-            if not points:
+        curves: dict[tuple[str, str], list[tuple[float, float, float, str]]] = {}
+        for r in rows:
+            x, label = cost_of(r)
+            if r.dial != dial or x is None or r.reference or not r.force:
                 continue
-            points.sort()
-            colour = f"C{i}"
-            ax.plot([p[0] for p in points], [p[1] for p in points], "o-", color=colour,
-                    label=f"{scene} force")
-            ax.plot([p[0] for p in points], [max(p[2] or 0.0, 1e-12) for p in points], "s--",
-                    color=colour, alpha=0.6, label=f"{scene} energy")
+            if not (r.force > 0 and math.isfinite(r.force)):
+                continue
+            curves.setdefault((r.scene, _series(r)), []).append(
+                (x, r.force, max(r.energy or 0.0, 1e-12), r.setting))
+            xlabel = label
+        for (scene, series), points in curves.items():
+            colour = f"C{scenes.index(scene)}"
+            style = ":" if series == "adaptive" else "-"
+            name = f"{scene} {series}".strip()
+            ax.plot([p[0] for p in points], [p[1] for p in points], "o" + style, color=colour,
+                    label=f"{name}: force")
+            ax.plot([p[0] for p in points], [p[2] for p in points], "s--", color=colour,
+                    alpha=0.5, label=f"{name}: energy")
             for x, y, _e, text in points:
-                ax.annotate(text.split(" (")[0].replace("per pose: ", ""), (x, y), fontsize=5,
-                            xytext=(2, 2), textcoords="offset points")
+                short = (text.split(" (")[0].replace("per pose: ", "").replace("tree, ", "")
+                         .replace("adaptive, ", "").replace("oversample", "q"))
+                ax.annotate(short, (x, y), fontsize=5, xytext=(2, 2), textcoords="offset points")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_title(dial + (" (change vs scene's sigma)" if dial == "sigma" else ""),
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_title(dial + (" (change against the scene's sigma)" if dial == "sigma" else ""),
                      fontsize=9)
         ax.set_xlabel(xlabel, fontsize=8)
-        ax.set_ylabel("error vs reference", fontsize=8)
+        ax.set_ylabel("change" if dial == "sigma" else "error against the reference",
+                      fontsize=8)
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=5)
     for ax in axes.ravel()[len(dials):]:
         ax.axis("off")
-    fig.suptitle("What accuracy costs in time (solid: force, dashed: energy)", fontsize=10)
+    fig.suptitle("What accuracy costs in time (solid: force, dashed: energy; the reference "
+                 "rows, error 0, are not drawn)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
