@@ -1,8 +1,9 @@
 """Adaptive sampling of the descriptor on a grid: exact where it is rough, else interpolated.
 
 Works on a grid given by its three axes (1D float64 arrays, local units) and an evaluator
-``evaluate(points (k, 3) float64) -> (k, 4) float64`` (Re rho, Im rho, xi, winding) that
-computes points exactly. Returns ``rho (nx, ny, nz) complex128`` and ``xi`` on the grid.
+``evaluate(points (k, 3) float64, progress, hints) -> (k, 4) float64`` (Re rho, Im rho,
+xi, winding) that computes points exactly. Returns ``rho (nx, ny, nz) complex128`` and
+``xi`` on the grid.
 
 Why it works. The skeletal density is scale-free: at a point ``|xi|`` from the surface it
 varies over lengths of about ``sigma |xi|``, so away from the surface a grid resolves it
@@ -35,12 +36,21 @@ import numpy as np
 
 import engine.descriptor.constants as _c
 
-#: ``evaluate(points (k, 3) float64, progress) -> (k, 4) float64``.
-Evaluator = Callable[[np.ndarray, Callable[[float], None] | None], np.ndarray]
+#: ``evaluate(points (k, 3) float64, progress, hints (k, 2) or None) -> (k, 4) float64``;
+#: ``hints`` as :func:`engine.descriptor.numba_kernels.evaluate` takes them.
+Evaluator = Callable[[np.ndarray, Callable[[float], None] | None, np.ndarray | None],
+                     np.ndarray]
 
 
 def _points(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
     return np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _odd(axis: np.ndarray) -> np.ndarray:
+    """The axis as given when it has an odd number of samples, else one step longer."""
+    if len(axis) % 2:
+        return axis
+    return np.append(axis, 2.0 * axis[-1] - axis[-2])
 
 
 def _second_difference_error(rho: np.ndarray) -> np.ndarray:
@@ -93,11 +103,30 @@ def sample_grid(
         ``"exact"`` and ``"interpolated"`` sample counts.
     """
     levels = _c.ADAPTIVE_LEVELS if levels is None else int(levels)
+    rho, xi, _, counts = _sample(xs, ys, zs, evaluate, levels, progress)
+    return rho, xi, counts
+
+
+def _sample(
+    xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, evaluate: Evaluator, levels: int,
+    progress: Callable[[float], None] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, int]]:
+    """:func:`sample_grid`, plus the mask of the samples evaluated exactly."""
     shape = (len(xs), len(ys), len(zs))
     if levels <= 0 or min(shape) < 5:
-        out = evaluate(_points(xs, ys, zs), progress)
+        out = evaluate(_points(xs, ys, zs), progress, None)
         rho = (out[:, 0] + 1j * out[:, 1]).reshape(shape)
-        return rho, out[:, 2].reshape(shape), {"exact": rho.size, "interpolated": 0}
+        return (rho, out[:, 2].reshape(shape), np.ones(shape, dtype=bool),
+                {"exact": rho.size, "interpolated": 0})  # fmt: skip
+    if any(n % 2 == 0 for n in shape):
+        # An even axis ends on a fine sample that no coarse cube holds, so a whole layer
+        # of the grid (3 n^2 samples of an n^3 grid, most far from the surface, the costly
+        # kind) would be evaluated exactly. Sample one more step along it instead and crop:
+        # the coarse grid then spans the whole grid.
+        rho, xi, exact, counts = _sample(_odd(xs), _odd(ys), _odd(zs), evaluate, levels,
+                                         progress)  # fmt: skip
+        crop = (slice(0, shape[0]), slice(0, shape[1]), slice(0, shape[2]))
+        return rho[crop], xi[crop], exact[crop], counts
     # The coarse level is about an eighth of the points: give it that share of progress.
     total = float(np.prod(shape))
     coarse_share = np.prod([(n + 1) // 2 for n in shape]) / total
@@ -106,8 +135,8 @@ def sample_grid(
         if progress is not None:
             progress(coarse_share * f)
 
-    rho_c, xi_c, counts = sample_grid(xs[::2], ys[::2], zs[::2], evaluate,
-                                      levels=levels - 1, progress=coarse_progress)  # fmt: skip
+    rho_c, xi_c, exact_c, counts = _sample(xs[::2], ys[::2], zs[::2], evaluate, levels - 1,
+                                           coarse_progress)  # fmt: skip
     stride = float(xs[2] - xs[0]) if len(xs) > 2 else 1.0
     scale = float(np.sqrt(np.mean(np.abs(rho_c) ** 2))) or 1.0
     node_ok = (_second_difference_error(rho_c) <= _c.ADAPTIVE_TOLERANCE * scale) & (
@@ -130,8 +159,10 @@ def sample_grid(
 
     rho = np.empty(shape, dtype=np.complex128)
     xi = np.empty(shape)
+    exact = np.zeros(shape, dtype=bool)
     rho[::2, ::2, ::2] = rho_c
     xi[::2, ::2, ::2] = xi_c
+    exact[::2, ::2, ::2] = exact_c
     idx = np.indices(shape).reshape(3, -1)
     fine = np.any(idx % 2 == 1, axis=0)
     fi = idx[:, fine]
@@ -166,11 +197,45 @@ def sample_grid(
             if progress is not None:
                 progress(coarse_share + (1.0 - coarse_share) * f)
 
-        out = evaluate(pts, fine_progress)
+        hints = _hints(ex, pts, (xs[::2], ys[::2], zs[::2]), xi_c, exact_c)
+        out = evaluate(pts, fine_progress, hints)
         rho[ex[0], ex[1], ex[2]] = out[:, 0] + 1j * out[:, 1]
         xi[ex[0], ex[1], ex[2]] = out[:, 2]
+        exact[ex[0], ex[1], ex[2]] = True
     elif progress is not None:
         progress(1.0)
     counts = {"exact": counts["exact"] + int(ex.shape[1]),
               "interpolated": counts["interpolated"] + int(use.sum())}  # fmt: skip
-    return rho, xi, counts
+    return rho, xi, exact, counts
+
+
+def _hints(fine: np.ndarray, pts: np.ndarray, coarse_axes: tuple[np.ndarray, ...],
+           xi_c: np.ndarray, exact_c: np.ndarray) -> np.ndarray:  # fmt: skip
+    """(k, 2) what the exactly evaluated corners of its cube tell of each fine sample.
+
+    A corner ``q`` evaluated exactly with signed distance ``x``, ``d`` from the sample: no
+    surface lies within ``|x|`` of ``q``, so the sample's distance is at most ``|x| + d``
+    and, when ``|x| > d`` (by more than ``2 EPS_FLOOR``, so that it is not within the
+    regularisation distance of the surface either), it lies on ``q``'s side. Column 0: the
+    least such bound (``inf`` if none); column 1: the side (+1 outside, -1 inside, 0
+    unknown). Interpolated corners are not used: their ``xi`` is not a distance.
+    """
+    hints = np.empty((pts.shape[0], 2))
+    hints[:, 0] = np.inf
+    hints[:, 1] = 0.0
+    base = fine // 2
+    limit = np.asarray(xi_c.shape)[:, None] - 1
+    for di in (0, 1):
+        for dj in (0, 1):
+            for dk in (0, 1):
+                c = np.minimum(base + np.array([[di], [dj], [dk]]), limit)
+                ok = exact_c[c[0], c[1], c[2]]
+                x = np.abs(xi_c[c[0], c[1], c[2]])
+                q = np.stack([coarse_axes[a][c[a]] for a in range(3)], axis=1)
+                d = np.linalg.norm(pts - q, axis=1)
+                np.minimum(hints[:, 0], np.where(ok, x + d, np.inf), out=hints[:, 0])
+                # (by more than the regularisation distance: a sample on the surface
+                # counts as inside whatever side its neighbour is on)
+                known = ok & (x > d + 2.0 * _c.EPS_FLOOR)
+                hints[known, 1] = np.sign(xi_c[c[0], c[1], c[2]])[known]
+    return hints

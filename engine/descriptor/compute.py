@@ -103,7 +103,9 @@ BackendLike = Backend | str | None
 #: chunk, and stay between MIN_CHUNK_POINTS and ``constants.CHUNK_POINTS``. (Kept here,
 #: not in ``constants``: those are part of the descriptor's cache key, and chunking does
 #: not change a single value.)
-CHUNK_SECONDS = 0.02
+CHUNK_SECONDS = 0.2
+#: Points a thread takes at a time within a chunk (numba's dynamic schedule).
+PARALLEL_BATCH = 8
 FIRST_CHUNK_POINTS = 256
 MIN_CHUNK_POINTS = 4
 
@@ -230,10 +232,20 @@ def _run(
     *,
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
+    hints: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Evaluate points (n, 3) in local units; returns (n, 4) float64 (re, im, xi, w)."""
+    """Evaluate points (n, 3) in local units; returns (n, 4) float64 (re, im, xi, w).
+
+    ``hints`` (n, 2): a distance bound and a known side per point (see
+    :func:`engine.descriptor.numba_kernels.evaluate`); the numba kernels use them, the
+    OpenCL kernel computes without.
+    """
     n = points_local.shape[0]
     out = np.empty((n, 4))
+    if hints is None:
+        hints = np.empty((n, 2))
+        hints[:, 0] = np.inf
+        hints[:, 1] = 0.0
     if backend.name == "opencl":
         runner = OpenCLDescriptor.for_backend(backend)
         evaluate = runner.prepare(local.tri, local.tree, params.sigma, params.lambda_in,
@@ -250,13 +262,16 @@ def _run(
 
         def chunk(lo: int, hi: int) -> None:
             # Points cost very different amounts (near the surface vs deep inside):
-            # hand them to the threads in small batches rather than one half each.
-            previous = numba.set_parallel_chunksize(64)
+            # hand them to the threads in small batches rather than one half each, and
+            # small enough that the threads finish a chunk together (a chunk of 0.2 s
+            # holds a few thousand points; batches of 64 left one thread idle for up to
+            # a batch's time, 20 ms, at the end of every chunk).
+            previous = numba.set_parallel_chunksize(PARALLEL_BATCH)
             try:
                 _evaluate_numba(
                     np.ascontiguousarray(points_local[lo:hi]), local.tri, node, nidx,
                     local.tree is not None, mode, params.sigma, params.lambda_in,
-                    params.lambda_out, kc, out[lo:hi],
+                    params.lambda_out, kc, np.ascontiguousarray(hints[lo:hi]), out[lo:hi],
                 )  # fmt: skip
             finally:
                 numba.set_parallel_chunksize(previous)
@@ -348,9 +363,10 @@ def compute_descriptor(
     local = _localise(triangles, centre, grid.spacing, use_tree)
     if method == "adaptive":
 
-        def evaluate(points: np.ndarray,
-                     part: Callable[[float], None] | None) -> np.ndarray:  # fmt: skip
-            return _run(local, points, 2, params, be, progress=part, cancel=cancel)
+        def evaluate(points: np.ndarray, part: Callable[[float], None] | None,
+                     hints: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+            return _run(local, points, 2, params, be, progress=part, cancel=cancel,
+                        hints=hints)
 
         xs, ys, zs = ((a - c) / grid.spacing for a, c in zip(grid.axes(), centre, strict=True))
         sampled, _, _ = sample_grid(xs, ys, zs, evaluate, progress=progress)

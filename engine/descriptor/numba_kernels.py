@@ -158,13 +158,16 @@ def _tri_solid_angle(px, py, pz, tri, k):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _nearest(px, py, pz, tri, node, nidx, use_tree, tie, stack):  # pragma: no cover - compiled
+def _nearest(px, py, pz, tri, node, nidx, use_tree, tie, stack, bound):  # pragma: no cover
     """(distance, triangle index) of the nearest triangle.
 
     Triangles within TIE of the best distance count as tied and the lowest index wins, so
-    float32 and float64 pick the same triangle on edges and corners.
+    float32 and float64 pick the same triangle on edges and corners; the distance returned
+    is the least one whichever triangle is picked. ``bound`` is an upper
+    bound on the distance known beforehand (``inf`` if none): the search then skips every
+    box farther than it. Returns index ``1 << 30`` when no triangle lies within it.
     """
-    best = np.inf
+    best = bound
     best_k = 1 << 30
     if not use_tree:
         for k in range(tri.shape[0]):
@@ -172,7 +175,7 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, tie, stack):  # pragma: no c
             if d < best - tie or (d <= best + tie and k < best_k):
                 if d < best or k < best_k:
                     best_k = k
-                best = min(best, d)
+            best = min(best, d)
         return best, best_k
     sp = 0
     stack[sp] = 0
@@ -199,7 +202,7 @@ def _nearest(px, py, pz, tri, node, nidx, use_tree, tie, stack):  # pragma: no c
                 if d < best - tie or (d <= best + tie and k < best_k):
                     if d < best or k < best_k:
                         best_k = k
-                    best = min(best, d)
+                best = min(best, d)  # the least distance, whichever triangle is picked
         else:
             right = nidx[nd, 1]
             # Visit the child whose centre is nearer first (push it last).
@@ -612,7 +615,7 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, kc, nstack, pstac
 
 
 @numba.njit(cache=True, parallel=True)
-def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc, out):
+def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc, hints, out):
     """Fill out (n, 4) float64 with (Re rho, Im rho, xi, winding) per point.
 
     Parameters
@@ -631,6 +634,13 @@ def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc
         The quadrature constants.
     out : (n, 4) float64
         Filled with (Re rho, Im rho, xi, winding).
+    hints : (n, 2) float64
+        Per point, what is known beforehand (from a neighbouring sample ``d`` away whose
+        signed distance is ``x``): an upper bound on the distance, ``|x| + d`` (``inf`` if
+        none), and the side, ``+1`` outside or ``-1`` inside when ``|x| > d + 2 eps`` (no
+        surface lies within ``|x|`` of the neighbour), else 0. A known side skips the winding
+        number (``out[i, 3]`` is then 1 or 0); the bound prunes the distance search. Both
+        are exact: rho and xi are those computed without hints.
     """  # pragma: no cover - compiled
     n = points.shape[0]
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
@@ -642,7 +652,11 @@ def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc
         px = points[i, 0]
         py = points[i, 1]
         pz = points[i, 2]
-        w = _winding(px, py, pz, tri, node, nidx, use_tree, kc.theta_winding, nstack)
+        side = hints[i, 1] if mode != 0 else 0.0
+        if side != 0.0:
+            w = 1.0 if side < 0.0 else 0.0
+        else:
+            w = _winding(px, py, pz, tri, node, nidx, use_tree, kc.theta_winding, nstack)
         out[i, 3] = w
         out[i, 0] = 0.0
         out[i, 1] = 0.0
@@ -650,7 +664,11 @@ def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc
         if mode == 0:
             continue
         inside = w > 0.5
-        dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, tie, nstack)
+        dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, tie, nstack, hints[i, 0])
+        if kn == 1 << 30 or (dist < eps and hints[i, 0] < np.inf):
+            # The bound was too tight (rounding), or p is on the surface, where the tied
+            # triangle picked decides the normal: search as without hints.
+            dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, tie, nstack, np.inf)
         push = False
         if dist < eps:
             nx, ny, nz = _boundary_normal(px, py, pz, tri, node, nidx, use_tree, dist, tie,

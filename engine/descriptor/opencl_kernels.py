@@ -132,8 +132,8 @@ void nearest(float3 p, __global const float *tri, int m, __global const float *n
             float d = sqrt(tri_dist2(p, tri + TS * k));
             if (d < best - TIE || (d <= best + TIE && k < best_k)) {
                 if (d < best || k < best_k) best_k = k;
-                best = fmin(best, d);
             }
+            best = fmin(best, d);
         }
         *out_d = best;
         *out_k = best_k;
@@ -158,8 +158,8 @@ void nearest(float3 p, __global const float *tri, int m, __global const float *n
                 float d = sqrt(tri_dist2(p, tri + TS * k));
                 if (d < best - TIE || (d <= best + TIE && k < best_k)) {
                     if (d < best || k < best_k) best_k = k;
-                    best = fmin(best, d);
                 }
+                best = fmin(best, d);
             }
         } else {
             int right = nidx[4 * nd + 1];

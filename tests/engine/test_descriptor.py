@@ -472,3 +472,85 @@ def test_adaptive_sampling_is_exact_where_the_field_is_rough():
     np.testing.assert_array_equal(adapt[near], tree[near])
     np.testing.assert_array_equal(adapt[::4, ::4, ::4], tree[::4, ::4, ::4])
     assert not np.array_equal(adapt, tree)  # and something was interpolated
+
+
+@pytest.mark.parametrize("name", ["torus", "peg"])
+def test_hints_from_coarse_samples_change_no_value(name):
+    # The adaptive sampler hands each exactly evaluated fine sample a distance bound and,
+    # where a corner of its cube is farther from the surface than from it, its side
+    # (engine.descriptor.adaptive._hints). The kernel then skips the winding number and
+    # prunes the distance search; rho and xi must be exactly those computed without.
+    import engine.descriptor.compute as compute
+    from engine.descriptor import adaptive
+
+    if name == "torus":
+        v, f = _mesh(trimesh.creation.torus(1.0, 0.35, major_sections=32, minor_sections=16))
+    else:
+        v, f = _cad("peg")
+    grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=16, padding=3)
+    local = compute._localise(compute._triangles(v, f), grid.center, grid.spacing, True)
+    be = compute.resolve_backend("numba")
+    xs, ys, zs = ((a - c) / grid.spacing for a, c in zip(grid.axes(), grid.center, strict=True))
+    xs, ys, zs = (adaptive._odd(a) for a in (xs, ys, zs))
+    shape = (len(xs), len(ys), len(zs))
+    pts = adaptive._points(xs, ys, zs)
+    plain = compute._run(local, pts, 2, DescriptorParams(), be)
+    xi = plain[:, 2].reshape(shape)
+    fine = np.indices(shape).reshape(3, -1)
+    odd = np.any(fine % 2 == 1, axis=0)
+    fine, fpts = fine[:, odd], pts[odd]
+    coarse = xi[::2, ::2, ::2]
+    hints = adaptive._hints(fine, fpts, (xs[::2], ys[::2], zs[::2]), coarse,
+                            np.ones(coarse.shape, dtype=bool))  # fmt: skip
+    true = plain[odd, 2]
+    assert np.all(hints[:, 0] >= np.abs(true) - 1e-9)  # a bound, and a tight one
+    known = hints[:, 1] != 0
+    assert known.mean() > 0.5 and np.all(np.sign(true[known]) == hints[known, 1])
+    hinted = compute._run(local, fpts, 2, DescriptorParams(), be, hints=hints)
+    np.testing.assert_array_equal(hinted[:, :3], plain[odd, :3])
+    # A wrong side is not silently corrected (so the comparison above can fail).
+    wrong = hints.copy()
+    wrong[known, 1] *= -1.0
+    flipped = compute._run(local, fpts, 2, DescriptorParams(), be, hints=wrong)
+    assert not np.array_equal(flipped[:, :3], plain[odd, :3])
+
+
+def test_adaptive_sampling_interpolates_the_last_layer_of_an_even_grid():
+    # An even number of samples along an axis leaves the last layer outside every coarse
+    # cube; the sampler samples one step beyond and crops, so that layer is interpolated
+    # where smooth, not evaluated everywhere, and stays within the error budget.
+    import engine.descriptor.compute as compute
+    from engine.descriptor import adaptive
+
+    v, f = _mesh(trimesh.creation.torus(1.0, 0.35, major_sections=32, minor_sections=16))
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    n = 28
+    spacing = float((hi - lo).max()) / (n - 9)
+    origin = 0.5 * (lo + hi) - 0.5 * spacing * (n - 1)
+    grid = Grid(tuple(origin), spacing, (n, n, n))
+    counts = {}
+    real = adaptive.sample_grid
+
+    def spy(*args, **kwargs):
+        rho, xi, c = real(*args, **kwargs)
+        counts.update(c)
+        assert rho.shape == (n, n, n) and xi.shape == (n, n, n)
+        return rho, xi, c
+
+    import unittest.mock
+
+    with unittest.mock.patch.object(compute, "sample_grid", spy):
+        adapt = compute_descriptor(v, f, grid, backend="numba", method="adaptive")
+    tree = compute_descriptor(v, f, grid, backend="numba", method="tree")
+    last = np.concatenate([adapt[-1].ravel(), adapt[:, -1].ravel(), adapt[:, :, -1].ravel()])
+    exact = np.concatenate([tree[-1].ravel(), tree[:, -1].ravel(), tree[:, :, -1].ravel()])
+    assert np.mean(last != exact) > 0.3  # most of the layer is far from the surface
+    # The promise of the method: an interpolated sample's error under ADAPTIVE_TOLERANCE
+    # times the RMS of rho over the grid (the layer's own values are small, far field).
+    from engine.descriptor import constants
+
+    rms = np.sqrt(np.mean(np.abs(tree) ** 2))
+    assert np.sqrt(np.mean(np.abs(last - exact) ** 2)) <= constants.ADAPTIVE_TOLERANCE * rms
+    assert _rel_l2(adapt.ravel(), tree.ravel()) <= 1e-3
+    # The samples one step beyond the grid are counted: more than n^3 in all.
+    assert counts["exact"] + counts["interpolated"] == (n + 1) ** 3
