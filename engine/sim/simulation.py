@@ -47,6 +47,9 @@ class Simulation:
     limits : HapticLimits
     coupled : bool
         False: no proxy, no coupling (free body in the field; for energy tests).
+    hold : (3,) float64, optional
+        Where the coupling holds the part, in the part's own frame (default: its centre of
+        mass). ``engine.sim.build`` holds it at the middle of the fit (``hold_point``).
     """
 
     def __init__(
@@ -60,8 +63,11 @@ class Simulation:
         dt: float | None = None,
         limits: HapticLimits | None = None,
         coupled: bool = True,
+        hold: np.ndarray | None = None,
     ):
         self.body = body
+        #: The coupling's attachment point in the part's own frame.
+        self.hold = np.array(body.center if hold is None else hold, np.float64).reshape(3)
         self.effects = effects
         self.field = field
         self.limits = limits or HapticLimits()
@@ -140,8 +146,8 @@ class Simulation:
         self._proxy_t = p[:3].copy()
         self._proxy_q = rotvec_to_quaternion(p[3:])
         self._proxy_R = quaternion_to_matrix(self._proxy_q)
-        # where the proxy wants the centre of mass: the coupling holds the part there
-        self._proxy_com = self._proxy_t + self._proxy_R @ self.body.center
+        # where the proxy wants the hold point: the coupling holds the part there
+        self._proxy_hold = self._proxy_t + self._proxy_R @ self.hold
 
     def part_pose(self) -> np.ndarray:
         """(6,) current pose of the part relative to part 1."""
@@ -152,8 +158,9 @@ class Simulation:
         e = kinetic_energy(self.body, self.state) + self.sample.energy
         e -= float(self._gravity_force @ self.state.com)
         if self.coupled:
-            e += coupling_energy(self.physics, self.state.com, self.state.quat,
-                                 self._proxy_com, self._proxy_q)
+            lever = self.state.rotation @ (self.hold - self.body.center)
+            e += coupling_energy(self.physics, self.state.com + lever, self.state.quat,
+                                 self._proxy_hold, self._proxy_q)
         return e
 
     def evaluate_field(self) -> Evaluation:
@@ -165,27 +172,28 @@ class Simulation:
     def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
         """Force at the part's origin and torque about it, on the part at its current state.
 
-        Sums the stored field sample (given at the origin), and gravity, the coupling to the
-        proxy and body damping, which act at the centre of mass. Sets the coupling outputs (about
-        the part's origin) and the haptic ones (the reaction about the proxy's origin, scaled and
-        clamped).
+        Sums the stored field sample (given at the origin), gravity and body damping (at the
+        centre of mass) and the coupling to the proxy (at the hold point). Sets the coupling
+        outputs (about the part's origin) and the haptic ones (the reaction about the proxy's
+        origin, scaled and clamped).
         """
         state, body, sample, p = self.state, self.body, self.sample, self.physics
         arm = state.rotation @ body.center  # (3,) origin -> centre of mass
         at_com = self._gravity_force  # (3,) forces acting at the centre of mass
         torque = sample.torque if sample.torque is not None else _ZERO3
         if self.coupled:
+            lever = state.rotation @ (self.hold - body.center)  # centre of mass -> hold
             fc, tc = coupling_wrench(
-                p, state.com, state.quat, state.velocity, state.omega,
-                self._proxy_com, self._proxy_q,
+                p, state.com + lever, state.quat, state.velocity + cross3(state.omega, lever),
+                state.omega, self._proxy_hold, self._proxy_q,
             )
             self.coupling_force = fc
-            self.coupling_torque = tc + cross3(arm, fc)
+            self.coupling_torque = tc + cross3(arm + lever, fc)
             self.haptic_force, self.haptic_torque = haptic_reaction(
-                fc, tc + cross3(self._proxy_com - self._proxy_t, fc), self.limits
+                fc, tc + cross3(self._proxy_hold - self._proxy_t, fc), self.limits
             )
             at_com = at_com + fc
-            torque = torque + tc
+            torque = torque + tc + cross3(lever, fc)
         if p.body_c_lin:
             at_com = at_com - p.body_c_lin * state.velocity
         if p.body_c_rot:

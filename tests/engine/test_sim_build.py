@@ -151,3 +151,46 @@ def test_fit_lowers_but_never_raises_the_rotational_coupling():
     assert flat.k_rot == pytest.approx(MIN_ROTATION_FRACTION * mass_based)
     # damping follows the stiffness (critical at the coupling's damping ratio)
     assert soft_fit.c_rot == pytest.approx(math.sqrt(0.3) * stiff_fit.c_rot)
+
+
+def test_hold_point_is_the_middle_of_the_fit(tmp_path):
+    """The coupling holds the moving part where the two parts' boxes overlap at the
+    assembled pose: a 6 long peg (own frame z -3..3) seated 2 up in a plate 2 thick
+    (z -1..1) is engaged over z -1..1 of the world, z -3..-1 of its own frame, so it is held
+    at its own z = -2, not at its centre of mass (z = 0); rotated, the same point maps into
+    the part's frame; parts whose boxes do not meet there are held at the centre of mass.
+    """
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from engine.scene import load_scene, load_scene_parts, relative_start_pose
+    from engine.sim import build_simulation
+    from engine.sim.build import hold_point
+
+    plate, peg = box((4.0, 4.0, 2.0))[0], box((1.0, 1.0, 6.0))[0]
+
+    def pair(pose):
+        return SimpleNamespace(parts=(SimpleNamespace(vertices=plate),
+                                      SimpleNamespace(vertices=peg)),
+                               scene=SimpleNamespace(assembled_pose=np.asarray(pose, float)))
+
+    np.testing.assert_allclose(hold_point(pair([0, 0, 2, 0, 0, 0])), [0, 0, -2], atol=1e-12)
+    # turned half a turn about x and seated 2 up: its own z = +2 is the end in the plate
+    np.testing.assert_allclose(hold_point(pair([0, 0, 2, math.pi, 0, 0])), [0, 0, 2],
+                               atol=1e-12)
+    assert hold_point(pair([0, 0, 5, 0, 0, 0])) is None  # boxes apart at the seat
+    # build_simulation holds the part there
+    trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
+    trimesh.creation.box(extents=(1.0, 1.0, 6.0)).export(tmp_path / "peg.stl")
+    (tmp_path / "scene.toml").write_text(
+        'units = "mm"\nassembled_pose = [0, 0, 2, 0, 0, 0]\n\n'
+        '[[part]]\nname = "base"\nfile = "base.stl"\npose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n'
+        '[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, 8, 0, 0, 0]\n'
+    )
+    scene = load_scene(tmp_path / "scene.toml")
+    handle = LoadedBoxes(scene, scene.config, tuple(load_scene_parts(scene)),
+                         relative_start_pose(scene))
+    sim, _ = build_simulation(handle, prepare=False)
+    np.testing.assert_allclose(sim.hold, [0, 0, -2], atol=1e-9)
+    np.testing.assert_allclose(sim.body.center, 0.0, atol=1e-9)
