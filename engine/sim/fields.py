@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from engine.correlation import Evaluation
+from engine.pose import rotation_matrix, rotation_vector
 
 if TYPE_CHECKING:
     from engine.correlation import Correlator, Landscape
@@ -174,7 +175,9 @@ class RotationCacheField:
       it moved since the last pose) that a new cache would serve fewer than ``min_poses``
       poses: then the full path runs;
     - in the background once :meth:`refresh_in_background` attached a submitter (the
-      runtime's refresh lane, when the loop is paced in real time): the request goes out,
+      runtime's refresh lane, when the loop is paced in real time): the request goes out
+      at half the refresh angle, for the rotation the part will have when the cache
+      arrives (extrapolated from its last turn over the poses the last refresh took);
       :meth:`install` swaps the new cache in between two steps, and meanwhile the old cache
       serves up to ``limit_angle``, beyond which the full per-pose path runs.
 
@@ -204,6 +207,8 @@ class RotationCacheField:
         self.cache: RotationCache = self._build(correlator.table, rotation)
         self._submit: RefreshSubmitter | None = None
         self._pending = 0  # id of the background refresh asked for; 0: none
+        self._waited = 0  # poses since it was asked for
+        self._lead = 0  # poses the last background refresh took to arrive
         self._last = self.cache.rotation  # the last pose's rotation
         self.last_path = "cached"
         self.counts = {"cached": 0, "refreshed": 0, "full": 0, "refreshes": 0,
@@ -218,6 +223,7 @@ class RotationCacheField:
         cache = self.cache
         out = self._pose(cache, rot, t, self.kappa)
         path = "cached"
+        self._waited += 1
         if not out[7] <= self.refresh_angle:  # also NaN: a bad pose goes to the full path
             if self._submit is None:
                 # a refresh costs about two full poses: not worth it while the part turns
@@ -231,20 +237,38 @@ class RotationCacheField:
                 self.counts["refreshes"] += 1
                 out = self._pose(cache, rot, t, self.kappa)
                 path = "refreshed"
-            else:
-                if not self._pending:
-                    self._pending = self._submit(self, rot.copy())
-                if not out[7] <= self.limit_angle:
-                    return self._full(rot, t, start)
+            elif not out[7] <= self.limit_angle:
+                self._ask(rot)
+                return self._full(rot, t, start)
+        if self._submit is not None and out[7] > 0.5 * self.refresh_angle:
+            self._ask(rot)
         self.last_path = path
         self.counts[path] += 1
         self._last = rot.copy()
         return Evaluation(float(out[0]), out[1:4], out[4:7],
                           (time.perf_counter() - start) * 1e6, cache.table.modes)
 
+    def _ask(self, rot: np.ndarray) -> None:
+        """Ask the background lane for a cache, unless one is pending.
+
+        Asked for at half the refresh angle, at the rotation the part will have when it
+        arrives: this one carried on by the last pose's turn for as many poses as the last
+        background refresh took. The old cache serves meanwhile.
+        """
+        if self._pending or self._submit is None:
+            return
+        ahead = rot
+        if self._lead > 0:
+            turn = rotation_vector(rot @ self._last.T)
+            if np.linalg.norm(turn) * self._lead < self.limit_angle:
+                ahead = rotation_matrix(turn * self._lead) @ rot
+        self._waited = 0
+        self._pending = self._submit(self, np.array(ahead))
+
     def _full(self, rot: np.ndarray, t: np.ndarray, start: float) -> Evaluation:
         self.last_path = "full"
         self.counts["full"] += 1
+        self._last = rot.copy()
         return _scaled(self.correlator.evaluate(rot, t), self.kappa,
                        (time.perf_counter() - start) * 1e6)
 
@@ -280,6 +304,7 @@ class RotationCacheField:
         if cache.table is not self.cache.table:
             return False
         self.cache = cache
+        self._lead = self._waited
         self.counts["refreshes"] += 1
         self.counts["background_refreshes"] += 1
         return True

@@ -167,6 +167,15 @@ def test_background_refresh_is_asked_for_and_the_full_path_runs_beyond_the_limit
     assert fld.install(1, fld.build_cache(asked[0]))
     assert fld.pending == 0 and fld.counts["background_refreshes"] == 1
     np.testing.assert_array_equal(fld.reference_rotation, asked[0])
+    # the next request is early (half the refresh angle) and ahead: the last turn carried
+    # on for the poses the last refresh took (one: the full-path pose)
+    step = rotation_matrix(3e-4 * AXIS)
+    rot = asked[0]
+    for _ in range(2):
+        rot = step @ rot
+        fld.evaluate(rot, t)
+    assert len(asked) == 2 and fld.last_path == "cached"
+    np.testing.assert_allclose(asked[1], step @ rot, atol=1e-12)
 
 
 def test_field_for_effects_picks_the_cache_where_it_serves():
