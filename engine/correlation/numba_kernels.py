@@ -307,17 +307,43 @@ class NumbaKernel:
         if table is not self._bound:
             self._args = _arguments(table)
             self._bound = table
+        rot = _plain(rot)
+        t = _plain(t)
         if self.parallel and self._parallel is not None:
             return self._parallel(rot, t, *self._args)
         return self._serial(rot, t, *self._args)
 
 
+def _plain(a: np.ndarray) -> np.ndarray:
+    """``a`` as a writable C-ordered float64 array (a copy only when it is not one).
+
+    numba compiles one variant per argument type, and a read-only array (a scene's pose,
+    a view of a cached file) or a transposed one is another type: the kernel compiled
+    ahead of time by :func:`compile_now` would then be compiled a second time, seconds
+    more, on the first pose.
+    """
+    if a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
+
+
 def _arguments(table: ModeTable) -> tuple[Any, ...]:
     """The kernel's arguments after the pose, from a table."""
     g = table.geometry
+    w = _writable
+    radius = int(table.radius)
     if table.kept is not None:
-        modes: tuple[Any, ...] = (table.fixed_kept, table.moving, table.radius, table.kept)
+        modes: tuple[Any, ...] = (w(table.fixed_kept), w(table.moving), radius, w(table.kept))
     else:
-        modes = (table.mode_k, table.mode_a, table.moving, table.radius)
-    return (*modes, g.centre_fixed, g.centre_moving, g.half_fixed, g.half_moving, g.spacing,
-            g.n_h, float(table.scale), g.kappa, g.rotation)
+        modes = (w(table.mode_k), w(table.mode_a), w(table.moving), radius)
+    # Plain Python scalars and writable C arrays: the types compile_now compiled for.
+    return (*modes, _plain(g.centre_fixed), _plain(g.centre_moving), _plain(g.half_fixed),
+            _plain(g.half_moving), float(g.spacing), float(g.n_h), float(table.scale),
+            float(g.kappa), bool(g.rotation))
+
+
+def _writable(a: Any) -> Any:
+    """A writable C-ordered array of ``a``'s dtype (a copy only when ``a`` is not one)."""
+    if a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, order="C")
