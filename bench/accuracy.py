@@ -9,8 +9,9 @@ torque at a few poses near the seat and in the approach against a reference sett
 - ``modes``: K, the Fourier modes kept per axis. Reference: the whole FFT lattice
   (``K = N``, nothing truncated; the numpy reference sum).
   Also printed: the share of the correlation spectrum's weight ``|rho1^| |rho2^|`` outside
-  the kept cube (:func:`engine.correlation.truncation.truncation_profile`), the indicator
-  the window shows beside K, so it can be read against the measured error.
+  the kept cube, and of ``|k| |rho1^| |rho2^|`` for the force
+  (:func:`engine.correlation.truncation.truncation_profile`), the indicator the window
+  shows beside K, so it can be read against the measured errors.
 - ``grid``: samples along the largest part (the grid spacing). Reference: the finest.
 - ``sigma``: the skeletal density's width. A different sigma is a different energy, not a
   less accurate one: its rows give the time and the *change* against the scene's sigma
@@ -107,6 +108,7 @@ class Row:
     seat_cells: float | None = None
     rho_l2: float | None = None
     outside: float | None = None
+    outside_force: float | None = None
     reference: bool = False
     note: str = ""
 
@@ -284,12 +286,13 @@ def sweep_modes(case: Case, base: Pair, args) -> list[Row]:
     sweep = sorted(set(args.mode_sweep))
     corr, spectra_s = correlator(base, max(sweep))
     profile = truncation_profile(base.fixed, base.moving, corr.size)
+    profile_force = truncation_profile(base.fixed, base.moving, corr.size, quantity="force")
     corr.use_backend("numpy")
     corr.set_modes(corr.size)
     reference = evaluate(corr, case.poses)
     full = Row(case.name, "modes", f"K = {corr.size} (full lattice, numpy)",
                spectra_s=spectra_s, pose_us=pose_cost(corr, case, 2, warm=False), outside=0.0,
-               reference=True, note="seat shift not run: a second per pose")
+               outside_force=0.0, reference=True, note="seat shift not run: a second per pose")
     corr.use_backend("numba")
     rows = []
     for k in sweep:
@@ -298,7 +301,7 @@ def sweep_modes(case: Case, base: Pair, args) -> list[Row]:
         corr.set_modes(k)
         row = Row(case.name, "modes", f"K = {k}", spectra_s=spectra_s,
                   pose_us=pose_cost(corr, case, args.poses), seat_cells=seat_shift(corr, case),
-                  outside=float(profile[k]))
+                  outside=float(profile[k]), outside_force=float(profile_force[k]))
         rows.append(_fill(row, evaluate(corr, case.poses), reference))
     return [*rows, _fill(full, reference, reference)]
 
@@ -434,7 +437,8 @@ def sweep_backend(case: Case, base: Pair, args) -> list[Row]:
 
 # ---------------------------------------------------------------------------- output
 COLUMNS = ("setting", "descriptor s", "spectra s", "per pose us", "energy err", "force err",
-           "torque err", "F dir (deg)", "seat shift (cells)", "rho rel L2", "weight outside")
+           "torque err", "F dir (deg)", "seat shift (cells)", "rho rel L2", "E weight outside",
+           "F weight outside")
 
 
 def _cell(value: float | None, fmt: str) -> str:
@@ -456,7 +460,8 @@ def table(rows: list[Row]) -> str:
         cells = [setting, _cell(r.descriptor_s, ".2f"), _cell(r.spectra_s, ".2f"),
                  _cell(r.pose_us, ".1f"), _cell(r.energy, ".2e"), _cell(r.force, ".2e"),
                  _cell(r.torque, ".2e"), _cell(r.direction_deg, ".2f"),
-                 _cell(r.seat_cells, ".2f"), _cell(r.rho_l2, ".2e"), _cell(r.outside, ".2e")]
+                 _cell(r.seat_cells, ".2f"), _cell(r.rho_l2, ".2e"), _cell(r.outside, ".2e"),
+                 _cell(r.outside_force, ".2e")]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -2,10 +2,11 @@
 
 The engine sends the descriptors it correlates (``ReadyEvent`` and ``DescriptorsSwapped``
 carry them for the slice views); from them one worker thread computes, once per pair,
-:func:`engine.correlation.truncation.truncation_profile`: for every K the share of the
-correlation spectrum's weight outside the kept cube. The parameter panel then reads the
-value at any K without asking anyone. A newer pair supersedes an older one: its request
-id is newer, and an answer for an older id is dropped.
+:func:`engine.correlation.truncation.truncation_profile` for the energy and the force: for
+every K the share of the correlation spectrum's weight outside the kept cube. The
+parameter panel then reads the values at any K without asking anyone. A newer pair
+supersedes an older one: its request id is newer, and an answer for an older id is
+dropped.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from PySide6 import QtCore
 
 
 def profile_of(descriptors) -> np.ndarray | None:
-    """(N + 1,) float64: the truncation profile of part 1 and part 2, None without a pair.
+    """(2, N + 1) float64: energy and force truncation profiles, None without a pair.
 
     ``N`` is the pair's padded FFT size as the engine picks it
     (:func:`engine.correlation.required_fft_size` of the first and last grid).
@@ -29,7 +30,8 @@ def profile_of(descriptors) -> np.ndarray | None:
         return None
     fixed, moving = descriptors[0], descriptors[-1]
     size = required_fft_size(fixed.rho.shape, moving.rho.shape)
-    return truncation_profile(fixed, moving, size)
+    return np.stack([truncation_profile(fixed, moving, size, quantity=q)
+                     for q in ("energy", "force")])
 
 
 class AccuracyIndicator(QtCore.QObject):
@@ -38,8 +40,8 @@ class AccuracyIndicator(QtCore.QObject):
     Signals
     -------
     profile_ready(object)
-        The newest pair's profile ((N + 1,) float64), or None when there is no pair or it
-        failed (the panel then shows no estimate).
+        The newest pair's profiles ((2, N + 1) float64: energy, force), or None when there
+        is no pair or it failed (the panel then shows no estimate).
     """
 
     profile_ready = QtCore.Signal(object)

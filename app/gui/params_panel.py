@@ -66,10 +66,11 @@ class ParamsPanel(QtWidgets.QWidget):
         self.truncation.setWordWrap(True)
         self.truncation.setToolTip(
             "Share of the correlation spectrum's weight |ρ1^|·|ρ2^| outside the K³ cube:\n"
-            "a bound on the score's truncation error relative to its largest value\n"
-            "(at the scene's orientation; phases cancel, so the error is usually smaller).\n"
-            "It says nothing of the grid or sigma. While the K slider is held it shows the\n"
-            "value at the K it would apply. See docs/accuracy.md.")
+            "a bound on the energy's truncation error relative to its largest value\n"
+            "(at the scene's orientation; phases cancel, so the error is usually smaller);\n"
+            "for the force the weight is |k|·|ρ1^|·|ρ2^| (the force reads higher\n"
+            "frequencies). It says nothing of the grid or sigma. While the K slider is held\n"
+            "it shows the values at the K it would apply. See docs/accuracy.md.")
         form.addRow("cost now", self.pose_cost)
         form.addRow("error bound", self.truncation)
         self._pose_us: deque[float] = deque(maxlen=50)
@@ -239,15 +240,19 @@ class ParamsPanel(QtWidgets.QWidget):
         self.pose_cost.setText(f"{median:.0f} µs per pose at K = {modes}")
 
     def set_truncation_profile(self, profile: np.ndarray | None) -> None:
-        """Use ``profile`` ((N + 1,) float64, share outside the cube per K; None: unknown)."""
+        """Use ``profile``: (2, N + 1) float64, the energy's and the force's share per K.
+
+        None: unknown (no pair, or before the first profile came).
+        """
         self._profile = None if profile is None else np.asarray(profile, dtype=float)
         self._show_truncation(None)
 
-    def truncation_at(self, k: int) -> float | None:
-        """The share of the spectrum's weight outside K³, None before a profile came."""
-        if self._profile is None or len(self._profile) == 0:
+    def truncation_at(self, k: int) -> tuple[float, float] | None:
+        """The energy's and the force's share outside K³, None before a profile came."""
+        if self._profile is None or self._profile.shape[-1] == 0:
             return None
-        return float(self._profile[min(max(int(k), 0), len(self._profile) - 1)])
+        i = min(max(int(k), 0), self._profile.shape[-1] - 1)
+        return float(self._profile[0, i]), float(self._profile[1, i])
 
     def show_descriptor_cost(self, seconds: float) -> None:
         """Show the last descriptor recompute's seconds (what a sigma or penalty costs)."""
@@ -259,10 +264,12 @@ class ParamsPanel(QtWidgets.QWidget):
         if now is None:
             self.truncation.setText("-")
             return
-        text = f"≤ {_percent(now)} at K = {current} (weight outside K³)"
-        if preview is not None and preview != current:
-            at = self.truncation_at(preview)
-            text = f"≤ {_percent(at or 0.0)} at K = {preview} if applied; now {_percent(now)}"
+        text = (f"energy ≤ {_percent(now[0])}, force ≤ {_percent(now[1])} at K = {current} "
+                "(weight outside K³)")
+        at = self.truncation_at(preview) if preview is not None else None
+        if at is not None and preview != current:
+            text = (f"at K = {preview} if applied: energy ≤ {_percent(at[0])}, force ≤ "
+                    f"{_percent(at[1])} (now {_percent(now[0])}, {_percent(now[1])})")
         self.truncation.setText(text)
 
     # ------------------------------------------------------------------ progress

@@ -10,7 +10,10 @@ scene orientation (``R = I``) the dropped part of the score is at most
 
 at every translation, and the whole score at most the same sum over every ``k``. Their
 ratio, the *share of the weight outside the cube*, bounds the truncation error of the
-score relative to its largest possible value. It is a bound, not the error (phases cancel
+score (hence the energy) relative to its largest possible value. The force is the
+score's gradient in the translation: each term is multiplied by ``2 pi i w``, so with
+``quantity="force"`` the weight is ``|k| |rho1^| |rho2^|``, a larger share (the force
+reads higher frequencies than the energy). It is a bound, not the error (phases cancel
 at most poses), it holds exactly at the unrotated orientation only (a rotation moves
 part 2's spectrum around the cube, but its radial fall-off, which decides the share, is
 the same), and it says nothing of the interpolation or the descriptor's sampling. It costs
@@ -37,7 +40,11 @@ def smallest_cube(size: int) -> np.ndarray:
     return np.where(k >= 0, 2 * k + 1, -2 * k)
 
 
-def truncation_profile(fixed, moving, size: int) -> np.ndarray:
+#: What the weight bounds: the energy (``|rho1^| |rho2^|``) or the force (times ``|k|``).
+QUANTITIES = ("energy", "force")
+
+
+def truncation_profile(fixed, moving, size: int, *, quantity: str = "energy") -> np.ndarray:
     """Share of the correlation spectrum's weight outside the kept cube, for every K.
 
     Parameters
@@ -47,12 +54,16 @@ def truncation_profile(fixed, moving, size: int) -> np.ndarray:
         spacing and no larger than ``size`` along any axis.
     size : int
         The padded FFT size ``N`` of the pair (``Correlator.size``).
+    quantity : {"energy", "force"}
+        Weight ``|rho1^| |rho2^|`` (energy, score) or ``|k| |rho1^| |rho2^|`` (force).
 
     Returns
     -------
     outside : (size + 1,) float64
         ``outside[K]`` for ``K = 0 .. size``: 1 at K = 0, 0 at K = size, never increasing.
     """
+    if quantity not in QUANTITIES:
+        raise ValueError(f"unknown quantity {quantity!r}; valid: {', '.join(QUANTITIES)}")
     shapes = (fixed.rho.shape, moving.rho.shape)
     if any(len(s) != 3 or max(s) > size for s in shapes):
         raise ValueError(f"grids {shapes[0]} and {shapes[1]} must be 3-D and fit the FFT "
@@ -60,6 +71,10 @@ def truncation_profile(fixed, moving, size: int) -> np.ndarray:
     a = np.abs(scipy.fft.fftn(fixed.rho, s=(size,) * 3, workers=WORKERS))  # (N, N, N)
     b = np.abs(scipy.fft.fftn(moving.rho, s=(size,) * 3, workers=WORKERS))
     weight = (a * b).astype(np.float64)
+    signed = np.fft.fftfreq(size, 1.0 / size)  # (N,) signed indices
+    if quantity == "force":
+        weight *= np.sqrt(signed[:, None, None] ** 2 + signed[None, :, None] ** 2
+                          + signed[None, None, :] ** 2)
     need = smallest_cube(size)
     cube = np.maximum(np.maximum(need[:, None, None], need[None, :, None]), need[None, None, :])
     inside = np.cumsum(np.bincount(cube.ravel(), weights=weight.ravel(), minlength=size + 1))

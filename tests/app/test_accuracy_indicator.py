@@ -26,14 +26,18 @@ def test_panel_shows_the_truncation_share_at_k_and_at_a_previewed_k(qtbot):
     panel = ParamsPanel()
     qtbot.addWidget(panel)
     assert panel.truncation.text() == "-"  # nothing known yet: no number made up
-    profile = np.linspace(1.0, 0.0, 49)  # share outside at K = 0 .. 48
+    energy = np.linspace(1.0, 0.0, 49)  # share outside at K = 0 .. 48
+    force = np.sqrt(energy)
     panel.modes.setValueSilently(16)
-    panel.set_truncation_profile(profile)
-    assert panel.truncation_at(16) == pytest.approx(profile[16])
-    assert panel.truncation.text().startswith(f"≤ {100 * profile[16]:.2g} % at K = 16")
+    panel.set_truncation_profile(np.stack([energy, force]))
+    assert panel.truncation_at(16) == pytest.approx((energy[16], force[16]))
+    assert panel.truncation.text().startswith(
+        f"energy ≤ {100 * energy[16]:.2g} %, force ≤ {100 * force[16]:.2g} % at K = 16")
     panel.modes.previewed.emit(32.0)  # the slider held at 32, not yet let go
-    assert f"{100 * profile[32]:.2g} % at K = 32 if applied" in panel.truncation.text()
-    assert f"now {100 * profile[16]:.2g} %" in panel.truncation.text()
+    text = panel.truncation.text()
+    assert text.startswith(f"at K = 32 if applied: energy ≤ {100 * energy[32]:.2g} %, "
+                           f"force ≤ {100 * force[32]:.2g} %")
+    assert f"(now {100 * energy[16]:.2g} %, {100 * force[16]:.2g} %)" in text
     panel.set_truncation_profile(None)
     assert panel.truncation.text() == "-"
 
@@ -64,7 +68,8 @@ def test_indicator_computes_off_the_gui_thread_and_keeps_only_the_newest(qtbot):
     qtbot.wait(200)  # an answer for the first request would have arrived by now
     size = required_fft_size((8, 7, 6), (5, 4, 3))
     assert len(got) == 1
-    np.testing.assert_allclose(got[0], truncation_profile(*second, size))
+    np.testing.assert_allclose(got[0][0], truncation_profile(*second, size))
+    np.testing.assert_allclose(got[0][1], truncation_profile(*second, size, quantity="force"))
     assert profile_of(second[:1]) is None  # guidance off: no pair, no estimate
     indicator.shutdown()
 
@@ -77,11 +82,11 @@ def test_window_shows_what_the_accuracy_setting_costs(make_window, small_scene, 
     wait_until(lambda: "%" in panel.truncation.text(), 15000, "the truncation estimate")
     k = int(panel.modes.value())
     assert f"at K = {k}" in panel.pose_cost.text()
-    share = panel.truncation_at(k)
-    assert share is not None and 0.0 <= share < 1.0
+    shares = panel.truncation_at(k)
+    assert shares is not None and 0.0 <= shares[0] < 1.0 and 0.0 <= shares[1] < 1.0
     # the indicator agrees with the bound computed from the engine's own descriptors
     descriptors = win.slice_view._descriptors
     assert len(descriptors) == 2
-    assert share == pytest.approx(float(profile_of(descriptors)[k]))
+    assert shares == pytest.approx(tuple(profile_of(descriptors)[:, k]))
     path = win.save_screenshot(tmp_path / "panel.png", panel)
     assert path.stat().st_size > 1000

@@ -44,6 +44,18 @@ def test_truncation_profile_matches_a_direct_sum_over_the_kept_cube():
         inside = np.sum((a * b)[np.ix_(kept, kept, kept)])
         assert profile[k] == pytest.approx(1.0 - inside / total, rel=1e-6, abs=1e-9)  # float32 FFT
     assert np.all(np.diff(profile) <= 1e-12)
+    # the force's weight is |k| times the energy's: the zero frequency counts for nothing
+    force = truncation_profile(fixed, moving, size, quantity="force")
+    signed = np.fft.fftfreq(size, 1.0 / size)
+    norm = np.sqrt(signed[:, None, None] ** 2 + signed[None, :, None] ** 2
+                   + signed[None, None, :] ** 2)
+    kept = np.mod(kept_indices(4, size), size)
+    weight = a * b * norm
+    expected = 1.0 - np.sum(weight[np.ix_(kept, kept, kept)]) / np.sum(weight)
+    assert force[4] == pytest.approx(expected, rel=1e-6)
+    assert force[1] == pytest.approx(1.0)  # K = 1 keeps only k = 0, whose |k| is 0
+    with pytest.raises(ValueError, match="valid: energy, force"):
+        truncation_profile(fixed, moving, size, quantity="torque")
 
 
 def test_truncation_profile_refuses_a_grid_larger_than_the_fft():
@@ -80,6 +92,9 @@ def test_errors_shrink_toward_the_reference(peg_rows):
     assert modes["K = 8"].energy < modes["K = 4"].energy
     # the indicator falls with K, and bounds the measured energy error from above here
     assert 0 < modes["K = 8"].outside < modes["K = 4"].outside < 1
+    assert modes["K = 8"].outside_force < modes["K = 4"].outside_force < 1
+    # the force reads higher frequencies: more of its weight lies outside a cube
+    assert modes["K = 8"].outside_force > modes["K = 8"].outside
     quad = {r.setting: r for r in _dial(peg_rows, "quadrature")}
     assert quad["tree, THETA = 0.5"].rho_l2 < quad["tree, THETA = 0.7"].rho_l2
     # (the force at four poses is not monotone in THETA at the 1e-3 level: the descriptor is)
