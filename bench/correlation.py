@@ -341,12 +341,17 @@ def rotation_cache_costs(corr, fitted: np.ndarray, spread: float, modes: list[in
     ``corr`` a numba Correlator with rotation on; poses scattered around ``fitted`` (within
     ``spread``), rotations within 1 mrad of a cache built 0.05 rad from the fitted rotation.
     """
+    from engine.correlation.rotation_cache import serves
     from engine.pose import rotation_matrix
 
     base = rotation_matrix(fitted[3:])
     out = []
     for k in modes:
         corr.set_modes(k)
+        if not serves(corr.table):  # part 2's table too large for the compiled kernels
+            print(f"  (K = {k}: part 2's table exceeds the compiled kernels' limit; the "
+                  "full path runs on the numpy reference and no cache is built)")
+            continue
         r0 = rotation_matrix(rng.normal(scale=0.05, size=3)) @ base
         sample = [(rotation_matrix(rng.normal(size=3) * 3e-4) @ r0,
                    fitted[:3] + rng.normal(scale=spread, size=3)) for _ in range(poses)]
