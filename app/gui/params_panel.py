@@ -14,6 +14,8 @@ build, which the engine runs while the old field stays in use.
 
 from __future__ import annotations
 
+import math
+import statistics
 from collections import deque
 from dataclasses import replace
 
@@ -230,13 +232,15 @@ class ParamsPanel(QtWidgets.QWidget):
     # ------------------------------------------------------------------ what accuracy costs
     def show_pose_cost(self, eval_us: float, modes: int) -> None:
         """Add one frame's correlator microseconds at ``modes``; show the running median."""
-        if not (np.isfinite(eval_us) and eval_us >= 0):
+        if not (math.isfinite(eval_us) and eval_us >= 0):
             return
         if modes != self._cost_modes:
             self._pose_us.clear()  # a new K: the old figures no longer say anything
             self._cost_modes = modes
         self._pose_us.append(float(eval_us))
-        median = float(np.median(self._pose_us))
+        # statistics, not numpy: np.median drops references to None on this Python (see
+        # tests/app/test_binding.py), and this runs on every readout
+        median = float(statistics.median(self._pose_us))
         self.pose_cost.setText(f"{median:.0f} µs per pose at K = {modes}")
 
     def set_truncation_profile(self, profile: np.ndarray | None) -> None:
