@@ -341,7 +341,10 @@ def cache_serves(correlator: Correlator) -> bool:
     it).
     """
     from engine.backend import backend_problem
+    from engine.correlation import Correlator
 
+    if not isinstance(correlator, Correlator):  # another field source (a test's well)
+        return False
     if (correlator.backend == "numpy" or correlator.selection != "cube"
             or backend_problem("numba") is not None):
         return False
