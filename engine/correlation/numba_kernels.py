@@ -253,7 +253,15 @@ def compile_now(kind: str) -> None:
     Calls it once with arguments of the real types at a pose whose boxes are apart (it
     returns at once). Lets a caller start the compilation early, on a worker thread.
     """
-    func = kernel_function(kind, False)
+    kernel_function(kind, False)(*warm_arguments(kind))
+
+
+def warm_arguments(kind: str) -> tuple[Any, ...]:
+    """Arguments of the real types for ``kind``'s kernel, at a pose whose boxes are apart.
+
+    The types must be those :meth:`NumbaKernel.pose` passes (numba compiles one variant
+    per argument type).
+    """
     far = np.array([1e9, 0.0, 0.0])
     zero, one = np.zeros(3), np.ones(3)
     table = np.zeros((8, 8), dtype=np.float32)
@@ -262,7 +270,7 @@ def compile_now(kind: str) -> None:
                                   np.zeros(1))
     else:
         modes = (np.zeros((1, 3)), np.zeros(1, dtype=np.complex64), table, 0)
-    func(np.eye(3), far, *modes, zero, zero, one, one, 1.0, 10.0, 1.0, 1.0, True)
+    return (np.eye(3), far, *modes, zero, zero, one, one, 1.0, 10.0, 1.0, 1.0, True)
 
 
 class NumbaKernel:
