@@ -211,7 +211,8 @@ def part_pivot(handle: LoadedScene, index: int = -1) -> np.ndarray:
     """(3,) point, in a part's own frame, that its typed and dragged rotations turn about.
 
     The scene's ``pivot`` for the part if it names one, else the part's centre of mass
-    (where the coupling acts). ``index`` -1 is the moving part.
+    (the coupling holds the part at :func:`hold_point` instead, where the fit is). ``index``
+    -1 is the moving part.
     """
     i = index % len(handle.parts)
     spec = handle.scene.parts[i]
