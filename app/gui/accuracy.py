@@ -47,6 +47,11 @@ class AccuracyIndicator(QtCore.QObject):
     profile_ready = QtCore.Signal(object)
     _answered = QtCore.Signal(int, object)
 
+    #: Pairs whose FFT has at most this many points are done at once on the calling
+    #: thread (a few milliseconds): a worker thread would then only add GIL hand-offs
+    #: that stretch a trivial job across the first live frames.
+    inline_points = 64**3
+
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accuracy")
@@ -57,17 +62,20 @@ class AccuracyIndicator(QtCore.QObject):
 
     def submit(self, descriptors) -> None:
         """Compute the profile of ``descriptors`` (part 1 first, part 2 last)."""
+        from engine.correlation import required_fft_size
+
         self._request += 1
         request = self._request
         if self._future is not None:
             self._future.cancel()  # not started yet: superseded
+        pair = tuple(descriptors)
+        if len(pair) < 2 or required_fft_size(pair[0].rho.shape,
+                                              pair[-1].rho.shape) ** 3 <= self.inline_points:
+            self._deliver(request, _profile_or_none(pair))
+            return
 
         def work() -> None:
-            try:
-                profile = profile_of(tuple(descriptors))
-            except (ValueError, MemoryError):
-                profile = None
-            self._answered.emit(request, profile)
+            self._answered.emit(request, _profile_or_none(pair))
 
         self._future = self._pool.submit(work)
 
@@ -84,3 +92,10 @@ class AccuracyIndicator(QtCore.QObject):
     def _deliver(self, request: int, profile) -> None:
         if request == self._request:
             self.profile_ready.emit(profile)
+
+
+def _profile_or_none(pair: tuple) -> np.ndarray | None:
+    try:
+        return profile_of(pair)
+    except (ValueError, MemoryError):
+        return None

@@ -5,6 +5,7 @@ recompute's seconds; the indicator's worker; the window showing them on a real s
 
 from __future__ import annotations
 
+import gc
 import types
 
 import numpy as np
@@ -14,6 +15,15 @@ from app.gui.accuracy import AccuracyIndicator, profile_of
 from app.gui.params_panel import ParamsPanel
 from engine.correlation import required_fft_size
 from engine.correlation.truncation import truncation_profile
+
+
+@pytest.fixture(autouse=True)
+def _collect_after():
+    """Free these tests' panels and windows here, not during a later test's measurement
+    (tests/app/test_binding.py counts references to None over a live window).
+    """
+    yield
+    gc.collect()
 
 
 def _descriptor(shape, seed):
@@ -58,6 +68,7 @@ def test_panel_shows_the_median_pose_cost_and_restarts_it_at_a_new_k(qtbot):
 
 def test_indicator_computes_off_the_gui_thread_and_keeps_only_the_newest(qtbot):
     indicator = AccuracyIndicator()
+    indicator.inline_points = 0  # these small pairs would be done at once
     first = (_descriptor((6, 6, 6), 0), _descriptor((4, 4, 4), 1))
     second = (_descriptor((8, 7, 6), 2), _descriptor((5, 4, 3), 3))
     got = []
@@ -71,6 +82,18 @@ def test_indicator_computes_off_the_gui_thread_and_keeps_only_the_newest(qtbot):
     np.testing.assert_allclose(got[0][0], truncation_profile(*second, size))
     np.testing.assert_allclose(got[0][1], truncation_profile(*second, size, quantity="force"))
     assert profile_of(second[:1]) is None  # guidance off: no pair, no estimate
+    indicator.shutdown()
+
+
+def test_indicator_does_a_small_pair_at_once(qtbot):
+    indicator = AccuracyIndicator()
+    got = []
+    indicator.profile_ready.connect(got.append)
+    pair = (_descriptor((6, 6, 6), 0), _descriptor((4, 4, 4), 1))
+    indicator.submit(pair)  # no event loop turn needed
+    assert len(got) == 1 and got[0].shape == (2, required_fft_size((6, 6, 6), (4, 4, 4)) + 1)
+    indicator.submit(())  # guidance off
+    assert got[-1] is None
     indicator.shutdown()
 
 
