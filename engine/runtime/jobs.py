@@ -380,8 +380,12 @@ class RefreshResponse:
     error: BaseException | None = None
 
 
+#: A refresh lane's thread ends after this many seconds without a request.
+IDLE_SECONDS = 1.0
+
+
 class RefreshLane:
-    """One thread of its own for rotation-cache refreshes (started on the first request).
+    """One thread of its own for rotation-cache refreshes (started on a request, ending idle).
 
     :meth:`submit` is a :data:`engine.sim.fields.RefreshSubmitter`: it queues the request
     (superseding one not started yet) and returns its id at once; the loop collects the
@@ -416,9 +420,12 @@ class RefreshLane:
         name = threading.current_thread().name
         while True:
             with self._cond:
-                while self._next is None and not self._closed:
-                    self._cond.wait()
-                if self._closed:
+                if self._next is None and not self._closed:
+                    self._cond.wait(IDLE_SECONDS)
+                if self._closed or self._next is None:
+                    # closed, or idle: the thread ends (the next request starts another), so
+                    # a lane whose owner was never closed leaves no thread behind
+                    self._thread = None
                     return
                 request, self._next = self._next, None
             assert request is not None
@@ -447,5 +454,6 @@ class RefreshLane:
             self._closed = True
             self._next = None
             self._cond.notify()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout)
+            thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout)

@@ -286,3 +286,24 @@ def test_unpaced_refreshes_run_in_the_step(small_peg_scene):
     loop.stop()
     assert sim.field.counts["refreshes"] > 0
     assert set(builds) == {threading.current_thread().name}
+
+
+def test_the_refresh_lane_leaves_no_thread_behind(monkeypatch):
+    """A lane whose owner is never closed: its thread ends once idle (the GUI's tests wait
+    for every skelasm- thread at exit), and a later request starts another.
+    """
+    from engine.runtime import jobs
+
+    monkeypatch.setattr(jobs, "IDLE_SECONDS", 0.05)
+    corr, _ = correlators(8)
+    fld = RotationCacheField(corr, 1.0, np.eye(3))
+    lane = jobs.RefreshLane()
+    for _ in range(2):
+        lane.submit(fld, rotation_matrix(0.01 * AXIS))
+        end = time.monotonic() + 5.0
+        while lane._thread is not None and time.monotonic() < end:
+            time.sleep(0.01)
+        assert lane._thread is None
+        assert not any(t.name == "skelasm-refresh" for t in threading.enumerate())
+        (done,) = lane.responses()
+        assert done.cache is not None and done.thread == "skelasm-refresh"
