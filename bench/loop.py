@@ -213,8 +213,7 @@ def _handle(args: argparse.Namespace):
 def _run_thread(args, load):
     from engine.devices import TrajectoryDevice
     from engine.runtime import AnalyticWell, EngineLoop, bench_trajectory
-    from engine.runtime.guidance import backend_name
-    from engine.sim import CorrelatorField, RotationCacheField, build_simulation
+    from engine.sim import CorrelatorField, RotationCacheField, build_simulation, evaluator_name
 
     handle = _handle(args)
     sim, model = build_simulation(handle, modes=args.modes, backend=args.backend,
@@ -243,7 +242,7 @@ def _run_thread(args, load):
     counts = getattr(sim.field, "counts", None)
     return np.asarray(loop.periods)[warm:], {
         "what": f"{handle.scene.name} ({Path(args.scene).name})",
-        "field": backend_name(sim.field),
+        "field": evaluator_name(sim.field),
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
         "eval_us": eval_us,
         "scheduling": loop.scheduling,

@@ -160,6 +160,18 @@ MAX_PADDING = 64.0
 #: scene's FFT size (the correlator says so when it is smaller).
 MAX_MODES = 128
 
+# The rotation cache (engine.sim.fields.RotationCacheField; docs/correlation.md)
+#: Rotation (radians) from a rotation cache's reference beyond which it is refreshed: there
+#: its energy and force errors are at the level of the rotated spectrum's interpolation.
+REFRESH_ANGLE = 1e-3
+#: While a background refresh is pending, the cache serves up to this rotation from its
+#: reference; beyond it the full per-pose path runs.
+LIMIT_ANGLE = 4e-3
+#: A synchronous refresh costs about two full per-pose evaluations (measured at K = 16 to
+#: 64): the cache is refreshed only if, at the rate the part turned since the last pose, the
+#: new cache would serve at least this many poses; otherwise the full path runs.
+MIN_POSES_PER_CACHE = 3
+
 
 def check_modes(modes: UserValue, what: str = "modes") -> int:
     """K as asked for by a user (scene, option): an integer from 1 to :data:`MAX_MODES`.

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from engine.runtime import EngineLoop, open_scene, period_stats
     from engine.runtime.frames import RECORDING_INDEX
     from engine.seat import seat_state
-    from engine.sim import build_simulation
+    from engine.sim import build_simulation, evaluator_name
 
     handle = open_scene(args.scene)
     if args.modes is not None:  # 0 would be taken for "the scene's"
@@ -159,8 +159,7 @@ def run(args: argparse.Namespace) -> int:
         "scene": str(handle.path),
         "guidance": sim.effects.guidance,
         "axes": list(sim.effects.axes),
-        "backend": getattr(getattr(sim.field, "correlator", None), "backend_name", "")
-        or type(sim.field).__name__,
+        "backend": evaluator_name(sim.field),
         "modes": int(getattr(sim.field, "modes", 0)),
         "final_pose": [float(v) for v in final],
         "assembled_pose": [float(v) for v in target],

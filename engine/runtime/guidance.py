@@ -51,21 +51,13 @@ from engine.sim import (
     LandscapeField,
     RotationCacheField,
     Simulation,
+    evaluator_name,
 )
 
 if TYPE_CHECKING:
     from engine.descriptor import Descriptor
 
-__all__ = ["Guidance", "backend_name"]
-
-
-def backend_name(fld: GeometricField) -> str:
-    """The per-pose evaluator behind a field, in words."""
-    if isinstance(fld, RotationCacheField):
-        return fld.describe()
-    if isinstance(fld, (CorrelatorField, LandscapeField, RotationCacheField)):
-        return str(fld.correlator.backend_name or type(fld).__name__)
-    return type(fld).__name__
+__all__ = ["Guidance"]
 
 
 class Guidance:
@@ -291,7 +283,7 @@ class Guidance:
             if r.coarse_grid is not None:
                 message += (f"; a coarse first field (grid {r.coarse_grid}) while the scene's "
                             "own descriptors are computed")
-            self.events.append(ReadyEvent(r.descriptors, backend_name(r.field), message,
+            self.events.append(ReadyEvent(r.descriptors, evaluator_name(r.field), message,
                                           coarse_grid=r.coarse_grid))
             if r.coarse_grid is not None:
                 self._request("descriptors")

@@ -29,7 +29,7 @@ import numpy as np
 
 from engine.devices import Device
 from engine.runtime.frames import FRAME_WIDTH, FrameRing, pack_frame
-from engine.runtime.guidance import Guidance, backend_name
+from engine.runtime.guidance import Guidance
 from engine.runtime.inputs import DeviceSlot
 from engine.runtime.jobs import FieldModel
 from engine.runtime.messages import (
@@ -61,7 +61,7 @@ from engine.runtime.pacing import (
     raise_thread_priority,
     switch_interval,
 )
-from engine.sim import Simulation
+from engine.sim import Simulation, evaluator_name
 
 __all__ = ["EngineLoop"]
 
@@ -239,7 +239,7 @@ class EngineLoop:
             self.guidance.prepare(self.model.modes)
         elif not self._announced:
             self.events.append(ReadyEvent(self.guidance.descriptors,
-                                              backend_name(self.sim.field),
+                                              evaluator_name(self.sim.field),
                                               self.guidance.ready_message))
         self._announced = True
         reason = "stopped"

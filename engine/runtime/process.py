@@ -37,7 +37,6 @@ import numpy as np
 from engine.devices import Device, DeviceError, MouseDevice, TrajectoryDevice, open_device
 from engine.runtime.benchmark import AnalyticWell, bench_trajectory
 from engine.runtime.frames import SLOTS, FrameRing
-from engine.runtime.guidance import backend_name
 from engine.runtime.loop import EngineLoop
 from engine.runtime.messages import (
     COMMAND_TYPES,
@@ -53,7 +52,7 @@ from engine.runtime.messages import (
 )
 from engine.runtime.pacing import drop_realtime_priority
 from engine.runtime.scene_handle import SceneHandle
-from engine.sim import Simulation, build_simulation
+from engine.sim import Simulation, build_simulation, evaluator_name
 
 __all__ = ["EngineOptions", "ParentGuard", "ProcessEngine", "recv_message", "send_message"]
 
@@ -421,7 +420,7 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
             loop.join(EVENT_POLL)
         if options.keep_periods:
             eval_us = float(np.median(eval_log)) if eval_log else float("nan")
-            described = f"{backend_name(sim.field)}; engine thread scheduling: {loop.scheduling}"
+            described = f"{evaluator_name(sim.field)}; engine thread scheduling: {loop.scheduling}"
             send_message(events, _Result(loop.periods, eval_us, described))
     except (BrokenPipeError, EOFError):
         guard.lost("event pipe closed")

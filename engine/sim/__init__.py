@@ -30,6 +30,7 @@ from engine.sim.fields import (
     LandscapeField,
     NullField,
     RotationCacheField,
+    evaluator_name,
     field_for_effects,
 )
 from engine.sim.simulation import Simulation
@@ -42,6 +43,7 @@ __all__ = [
     "NullField",
     "RigidBody",
     "RotationCacheField",
+    "evaluator_name",
     "SceneModel",
     "Simulation",
     "build_simulation",

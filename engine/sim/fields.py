@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from engine.correlation import Evaluation
+from engine.params import LIMIT_ANGLE, MIN_POSES_PER_CACHE, REFRESH_ANGLE
 from engine.pose import rotation_matrix, rotation_vector
 
 if TYPE_CHECKING:
@@ -138,17 +139,6 @@ class LandscapeField:
         self.modes = int(modes)
         self.landscape = self.correlator.landscape(self.locked_rotation)
 
-
-#: Rotation (radians) from a rotation cache's reference beyond which it is refreshed.
-REFRESH_ANGLE = 1e-3
-#: While a background refresh is pending, the cache serves up to this rotation from its
-#: reference; beyond it the full per-pose path runs.
-LIMIT_ANGLE = 4e-3
-
-#: A synchronous refresh costs about two full per-pose evaluations (measured at K = 16 to
-#: 64): the cache is refreshed only if, at the rate the part turned since the last pose, the
-#: new cache would serve at least this many poses; otherwise the full path runs.
-MIN_POSES_PER_CACHE = 3
 
 #: Submits a background refresh: ``submit(field, rotation)`` returns the request's id.
 RefreshSubmitter = Callable[["RotationCacheField", np.ndarray], int]
@@ -351,6 +341,15 @@ def cache_serves(correlator: Correlator) -> bool:
     from engine.correlation.rotation_cache import serves
 
     return bool(correlator.rotation) and serves(correlator.table)
+
+
+def evaluator_name(fld: GeometricField) -> str:
+    """The per-pose evaluator behind a field, in words (the frames' and reports' "backend")."""
+    if isinstance(fld, RotationCacheField):
+        return fld.describe()
+    if isinstance(fld, (CorrelatorField, LandscapeField)):
+        return str(fld.correlator.backend_name or type(fld).__name__)
+    return type(fld).__name__
 
 
 def field_for_effects(

@@ -22,8 +22,8 @@ from engine.pose import rotation_matrix
 
 numba = pytest.importorskip("numba")
 
+from engine.params import REFRESH_ANGLE  # noqa: E402 -- after the numba check
 from engine.sim.fields import (  # noqa: E402 -- after the numba check
-    REFRESH_ANGLE,
     CorrelatorField,
     RotationCacheField,
     field_for_effects,
