@@ -487,7 +487,10 @@ class MainWindow(QtWidgets.QMainWindow):
         Written whole or not at all (a temporary file renamed into place); a part or scene
         file is never replaced.
         """
-        from engine.files import atomic_write, check_output
+        import os
+        import tempfile
+
+        from engine.files import TEMP_PREFIX, TEMP_SUFFIX, check_output, move_into_place
 
         self.viewport.request_render()
         self.viewport.render_if_dirty(force=True)
@@ -499,14 +502,20 @@ class MainWindow(QtWidgets.QMainWindow):
         inputs = ([handle.scene.path, *(spec.file for spec in handle.scene.parts)]
                   if handle is not None else [])
         check_output(path, force=True, inputs=[p for p in inputs if p], what="screenshot")
-        data = QtCore.QByteArray()
-        buffer = QtCore.QBuffer(data)
-        buffer.open(QtCore.QIODevice.OpenModeFlag.WriteOnly)
-        if not pixmap.save(buffer, "PNG"):
-            raise OSError(f"{path}: could not encode the window as PNG")
-        buffer.close()
-        with atomic_write(path, "wb", what="screenshot") as fh:
-            fh.write(bytes(data.data()))
+        # Qt writes a temporary file in the folder, renamed over the target when whole (a
+        # QBuffer in memory would do, but PySide6 leaks references to None through it)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.name}.",
+                                   suffix=TEMP_SUFFIX)
+        os.close(fd)
+        try:
+            if not pixmap.save(tmp, "PNG"):
+                raise OSError(f"{path}: could not write the PNG (disk full or no permission?)")
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            move_into_place(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
         return path
 
     def dragEnterEvent(self, event) -> None:  # noqa: N802
