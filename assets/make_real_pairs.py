@@ -183,7 +183,7 @@ class Pair:
     axis: tuple                 # insertion direction, part 1's frame
     backoff: float              # start this far back along the axis (mm)
     grid: int = 56
-    modes: int = 24
+    modes: int = 64             # the fits need them (docs/real_pairs.md)
 
 
 # (A) Ø5 H7/h6 pin through a plate (through hole) --------------------------------------------
@@ -472,7 +472,7 @@ grid = {grid}          # samples along the longest side of the largest part ({ce
 padding = 6
 
 [correlation]
-modes = {modes}
+modes = {modes}          # modes per axis K: the fits need them (docs/real_pairs.md)
 
 [[part]]             # fixed
 name = "{name1}"
