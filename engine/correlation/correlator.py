@@ -33,7 +33,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -58,6 +58,20 @@ if TYPE_CHECKING:
 
 #: Backend names a Correlator accepts.
 BACKEND_CHOICES = CHOICES
+
+
+class SampledField(Protocol):
+    """What a Correlator reads of a descriptor: its samples and their grid."""
+
+    @property
+    def rho(self) -> np.ndarray:
+        """(nx, ny, nz) complex64 samples."""
+        ...
+
+    @property
+    def grid(self) -> Grid:
+        """Where the samples sit (one spacing shared by both parts)."""
+        ...
 
 
 def required_fft_size(shape1: tuple[int, ...], shape2: tuple[int, ...]) -> int:
@@ -116,8 +130,8 @@ class Correlator:
 
     def __init__(
         self,
-        fixed: Any,
-        moving: Any,
+        fixed: SampledField,
+        moving: SampledField,
         params: CorrelationParams | None = None,
         *,
         modes: int | None = None,

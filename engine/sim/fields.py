@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from engine.pose import rotation_matrix, rotation_vector
 if TYPE_CHECKING:
     from engine.correlation import Correlator, Landscape
     from engine.correlation.rotation_cache import RotationCache
+    from engine.correlation.tables import ModeTable
     from engine.params import Effects
 
 _ZERO3 = np.zeros(3)
@@ -186,7 +187,7 @@ class RotationCacheField:
         if not (0.0 < refresh_angle <= limit_angle):
             raise ValueError(f"refresh angle {refresh_angle!r} must be positive and at most "
                              f"the limit angle {limit_angle!r}")
-        self._build: Callable[[Any, np.ndarray], RotationCache] = build_rotation_cache
+        self._build: Callable[[ModeTable, np.ndarray], RotationCache] = build_rotation_cache
         self._pose: Callable[..., np.ndarray] = cached_pose
         self.correlator = correlator
         self.kappa = float(kappa)
