@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
@@ -259,6 +259,19 @@ def compute_landscape(
     return LandscapeResponse(request.id, request.rotvec, land)
 
 
+T = TypeVar("T")
+
+
+def _drain(done: queue.SimpleQueue[T]) -> list[T]:
+    """Everything queued in ``done`` now, oldest first, without waiting."""
+    out: list[T] = []
+    while True:
+        try:
+            out.append(done.get_nowait())
+        except queue.Empty:
+            return out
+
+
 @dataclass
 class _Job:
     future: Future[None]
@@ -330,12 +343,7 @@ class JobWorker:
 
     def responses(self) -> list[Response]:
         """Responses finished since the last call, in the order they finished."""
-        out: list[Response] = []
-        while True:
-            try:
-                out.append(self._done.get_nowait())
-            except queue.Empty:
-                return out
+        return _drain(self._done)
 
     def wait_until_idle(self, timeout: float) -> bool:
         """Wait for the submitted jobs; True when none is left."""
@@ -441,12 +449,7 @@ class RefreshLane:
 
     def responses(self) -> list[RefreshResponse]:
         """Refreshes finished since the last call, oldest first."""
-        out: list[RefreshResponse] = []
-        while True:
-            try:
-                out.append(self._done.get_nowait())
-            except queue.Empty:
-                return out
+        return _drain(self._done)
 
     def shutdown(self, timeout: float = 2.0) -> None:
         """Drop the request not started and stop the thread (waits for a running build)."""
