@@ -6,8 +6,10 @@ repaint of the strip chart does about ten such calls; after some minutes the cou
 zero, Python frees ``None`` and aborts with "Fatal Python error: none_dealloc". pyproject.toml
 excludes that release for those Pythons; these tests catch a binding with the same fault.
 
-From Python 3.12 ``None`` is immortal and its reference count never moves, so there the
-tests pass whatever the binding does, which is right: it cannot crash.
+From Python 3.12 ``None`` is immortal: it cannot be freed, so this fault cannot crash
+there, and its reference count says nothing (extensions built for the stable ABI still
+add and drop references to it: on 3.13 the count was seen 777 above its immortal value at
+one moment and back on it the next). The tests are skipped there.
 """
 
 from __future__ import annotations
@@ -21,6 +23,11 @@ import pytest
 from app.gui import colormap
 from app.gui.canvas import FieldCanvas, Marker
 from app.gui.strip_chart import StripChart
+
+pytestmark = pytest.mark.skipif(
+    sys.version_info >= (3, 12),
+    reason="None is immortal from Python 3.12: it cannot be freed and its count means nothing",
+)
 
 REPAINTS = 300
 #: A sound binding moves the count by a few at most (objects holding None made or freed

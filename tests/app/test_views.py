@@ -217,5 +217,13 @@ def test_the_engine_reports_new_k_tables_and_landscape_progress(ready_window, wa
                "a landscape")
     fractions = [e.fraction for e in seen
                  if isinstance(e, runtime.ProgressEvent) and e.task == "landscape"]
-    assert fractions and max(fractions) == pytest.approx(1.0)
-    assert fractions == sorted(fractions)
+    # the window may ask for a landscape of its own (the new K's) before ours: a request
+    # supersedes a running one, so the events can hold two runs. Each run starts at 0 and
+    # only rises; the last one ends at 1.
+    runs: list[list[float]] = []
+    for f in fractions:
+        if not runs or f < runs[-1][-1]:
+            runs.append([])
+        runs[-1].append(f)
+    assert runs and runs[-1][-1] == pytest.approx(1.0), fractions
+    assert all(run[0] == 0.0 for run in runs[1:]), fractions
