@@ -12,6 +12,7 @@ import argparse
 import math
 import shutil
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -235,6 +236,40 @@ def test_descriptor_chunks_are_sized_by_time(monkeypatch):
         compute.compute_descriptor(v, f, grid, backend="numba", method="tree", cancel=cancel)
     assert max(chunks) <= 0.3  # the first chunk: 256 points, then about CHUNK_SECONDS each
     assert max(np.diff(polls)) <= 0.3 and polls[-1] < 3.3
+
+
+def test_opencl_chunks_grow_past_a_fixed_launch_latency(monkeypatch):
+    """On a GPU a launch costs about 20 ms whatever the chunk holds; chunks sized by the rate
+    of a small one used to stay small (an H100 ran a 32^3 grid as 808 chunks of ~70 points,
+    16 s). Here a fake OpenCL evaluation costs 20 ms plus 1 us per point on a fake clock:
+    the grid must go in a handful of launches, each short enough for cancel.
+    """
+    clock = [0.0]
+    sizes: list[int] = []
+
+    class Runner:
+        def prepare(self, *args):
+            def evaluate(points, mode):
+                sizes.append(len(points))
+                clock[0] += 0.02 + 1e-6 * len(points)
+                return np.zeros((len(points), 4))
+
+            return evaluate
+
+    monkeypatch.setattr(compute.OpenCLDescriptor, "for_backend",
+                        classmethod(lambda cls, backend: Runner()))
+    monkeypatch.setattr(compute.time, "perf_counter", lambda: clock[0])
+    backend = types.SimpleNamespace(name="opencl")
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    grid = grid_for_bounds(v.min(0), v.max(0), samples=40, padding=4)
+    local = compute._localise(compute._triangles(v, f), grid.center, grid.spacing, True)
+    points = grid.points().reshape(-1, 3)
+    out = compute._run(local, points, 2, compute.DescriptorParams(), backend)
+    assert out.shape == (len(points), 4) and sum(sizes) == len(points)
+    assert len(sizes) <= 12, f"{len(sizes)} launches for {len(points)} points"
+    # every launch (latency included) stays well inside the second cancel is promised in
+    assert 0.02 + 1e-6 * max(sizes) < 0.5
 
 
 @pytest.mark.slow
