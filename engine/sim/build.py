@@ -299,6 +299,7 @@ def resolve_physics(
     effects: Effects | None = None,
     kappa: float | None = None,
     geometric_rotation: float | None = None,
+    measured: tuple[float, np.ndarray, np.ndarray] | None = None,
 ) -> Physics:
     """Scale the defaults to the moving part (and to the fit, where it is known).
 
@@ -320,10 +321,14 @@ def resolve_physics(
         mass-based ``I (2 pi f)^2``, lowered to ``kappa * geometric_rotation /
         ROTATION_AUTHORITY`` where the fit is softer than that (but not below
         ``MIN_ROTATION_FRACTION`` of the mass-based one).
+    measured : (mass, inertia, centre), optional
+        :func:`mass_properties` of this mesh and part, measured before (it costs about a
+        millisecond per thousand triangles: a caller on the loop thread passes it).
     """
     effects = effects or config.effects
-    spec = config.mass_spec(part_index)
-    mass, inertia, center = mass_properties(vertices, faces, spec, config.units)
+    if measured is None:
+        measured = mass_properties(vertices, faces, config.mass_spec(part_index), config.units)
+    mass, inertia, center = measured
     v = np.asarray(vertices, float)
     length = float(np.max(np.ptp(v, axis=0))) if len(v) else 1.0
     length = length if length > 0 else 1.0
@@ -413,6 +418,7 @@ class SceneModel:
         #: Rotational stiffness at the assembled pose, per unit kappa, of the field last
         #: built (None: no field, or rotation locked); sets the default rotational coupling.
         self.geometric_rotation: float | None = None
+        self._mass: tuple[float, np.ndarray, np.ndarray] | None = None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
@@ -422,9 +428,12 @@ class SceneModel:
         The rotational coupling is scaled to the fit of the field last built.
         """
         config = self.config if coupling is None else replace(self.config, coupling=coupling)
+        if self._mass is None:  # once: a new K re-resolves the physics on the loop thread
+            self._mass = mass_properties(self.moving.vertices, self.moving.faces,
+                                         config.mass_spec(1), config.units)
         return resolve_physics(
             config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa,
-            geometric_rotation=self.geometric_rotation,
+            geometric_rotation=self.geometric_rotation, measured=self._mass,
         )
 
     def descriptors(
