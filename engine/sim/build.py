@@ -24,6 +24,7 @@ moves alike:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -418,7 +419,6 @@ class SceneModel:
         #: Rotational stiffness at the assembled pose, per unit kappa, of the field last
         #: built (None: no field, or rotation locked); sets the default rotational coupling.
         self.geometric_rotation: float | None = None
-        self._mass: tuple[float, np.ndarray, np.ndarray] | None = None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
@@ -428,13 +428,20 @@ class SceneModel:
         The rotational coupling is scaled to the fit of the field last built.
         """
         config = self.config if coupling is None else replace(self.config, coupling=coupling)
-        if self._mass is None:  # once: a new K re-resolves the physics on the loop thread
-            self._mass = mass_properties(self.moving.vertices, self.moving.faces,
-                                         config.mass_spec(1), config.units)
         return resolve_physics(
             config, self.moving.vertices, self.moving.faces, effects=effects, kappa=kappa,
-            geometric_rotation=self.geometric_rotation, measured=self._mass,
+            geometric_rotation=self.geometric_rotation, measured=self._moving_mass,
         )
+
+    @functools.cached_property
+    def _moving_mass(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """The moving part's (mass, inertia, centre), measured once.
+
+        A new K re-resolves the physics on the loop thread, where measuring the mesh cost a
+        millisecond per thousand triangles.
+        """
+        return mass_properties(self.moving.vertices, self.moving.faces,
+                               self.config.mass_spec(1), self.config.units)
 
     def descriptors(
         self,
