@@ -58,6 +58,7 @@ from engine.runtime.pacing import (
     Pacer,
     PeriodWindow,
     current_native_id,
+    drop_realtime_priority,
     raise_thread_priority,
     switch_interval,
 )
@@ -258,6 +259,8 @@ class EngineLoop:
                     pacer.wait()
                     self.window.tick()
         finally:
+            if self.raise_priority:
+                drop_realtime_priority()  # the calling thread may live on (run() called directly)
             self.overruns += pacer.overruns
             if self._jobs_running:
                 self._jobs_running = False

@@ -411,6 +411,22 @@ def test_loop_asks_for_priority_only_when_told(monkeypatch):
     assert asked.scheduling == "normal (SKELASM_REALTIME=0)"
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_a_loop_run_in_the_callers_thread_gives_its_priority_back(monkeypatch):
+    # the thread engine now asks for real-time priority too; a loop run directly must not
+    # leave the caller's thread (a test's, a GUI's) in SCHED_FIFO after it returns
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+
+    def run_and_look():
+        loop, _, _ = make_loop(realtime=False, raise_priority=True)
+        loop.run(max_steps=3)
+        return loop.scheduling, os.sched_getscheduler(0)
+
+    said, after = _in_thread(run_and_look)
+    assert said.startswith(("real-time", "normal (real-time scheduling refused"))
+    assert after == os.SCHED_OTHER
+
+
 def _load_too_high() -> str | None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
     cpus = os.cpu_count() or 1
