@@ -223,9 +223,9 @@ def _load_too_high() -> str | None:
 
 @pytest.mark.slow
 @pytest.mark.xfail(reason="the goal is 2 ms; on this shared 2-core machine, quiet, with a "
-                   "real-time loop thread, 3 of 8 thread rounds and 4 of 8 process rounds "
-                   "held it and single stalls of 8 to 12 ms remain (normal priority: 0 of "
-                   "8, 2.1 to 13.6 ms): see docs/runtime.md", strict=False)
+                   "real-time loop thread, 7 of 9 rounds held it with rotation free and 4 of "
+                   "9 locked (thread engine; normal priority 0 of 8), single stalls up to "
+                   "12 ms remain: see docs/runtime.md", strict=False)
 @pytest.mark.parametrize("rotation", ["free", "locked"])
 def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
     # issue 10, bug 3: SetModes recomputed the landscape's FFTs (rotation locked) or
