@@ -4,7 +4,8 @@ Entries are ``.npz`` files named by the SHA-256 of everything that determines th
 the mesh bytes, the grid, the parameters, a format version and a digest of the code that
 computes them (:func:`code_digest`). The cache lives in ``SKELASM_CACHE`` or
 ``~/.cache/skelasm`` and is kept under ``SKELASM_CACHE_MAX_GB`` (default 2 GiB) by deleting
-the least recently used entries after each store.
+entries after each store: those cheapest to compute again per byte first (each entry
+records how long it took), the least recently used first among equals.
 
 Layout: ``<cache>/<kind>/<64 hex digits>.npz`` plus a ``CACHEDIR.TAG``; only files of that
 layout are entries (:func:`entries`), so eviction never touches anything else in the
@@ -147,6 +148,9 @@ def cache_dir() -> Path:
 
 #: Default cap on the cache's size, in GiB (spectra of a 160^3 FFT are ~60 MB each).
 DEFAULT_MAX_GB = 2.0
+#: The member of an entry's ``.npz`` that records how long its computation took (seconds);
+#: eviction reads it, :func:`load` never returns it.
+SECONDS_MEMBER = "__compute_seconds__"
 #: An entry's file name: the 64 hex digits of its key. Nothing else is ever evicted.
 ENTRY_NAME = re.compile(r"^[0-9a-f]{64}\.npz$")
 #: An entry kind, the sub-folder it lives in (``descriptor``, ``spectrum``, ...).
@@ -237,12 +241,41 @@ def _kind_folders(root: Path) -> set[Path]:
         return set()
 
 
-def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
-    """Delete least recently used entries until the cache holds at most ``limit`` bytes.
+def recompute_seconds(path: Path) -> float | None:
+    """How long the entry at ``path`` took to compute, as :func:`store` recorded it.
 
-    Only the cache's own entries count and go (:func:`entries`); ``keep`` (the entry just
-    written) is never deleted. Temporary files of writes killed more than an hour ago go
-    too. Returns the bytes freed.
+    None when it was not recorded (an entry of an older version) or cannot be read.
+    """
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
+            if SECONDS_MEMBER not in data.files:
+                return None
+            value = float(data[SECONDS_MEMBER])
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
+        return None
+    return value if math.isfinite(value) and value >= 0.0 else None
+
+
+def cost_class(seconds: float | None, nbytes: int) -> int:
+    """The decade of an entry's recompute seconds per MiB (unknown: that of 1 s per MiB).
+
+    :func:`evict` deletes the lower classes first: a spectrum table of 400 MiB that an FFT
+    rebuilds in 5 s (class -2) goes before a 1.4 MiB descriptor that took 20 s (class 1).
+    """
+    if seconds is None:
+        return 0
+    per_mib = max(seconds, 1e-6) / max(nbytes / 2**20, 1e-6)
+    return math.floor(math.log10(per_mib))
+
+
+def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
+    """Delete entries until the cache holds at most ``limit`` bytes, cheapest first.
+
+    Entries go in order of :func:`cost_class` (what takes less time per byte to compute
+    again goes first: spectra and tables before descriptors), and within a class the
+    least recently used first. Only the cache's own entries count and go (:func:`entries`);
+    ``keep`` (the entry just written) is never deleted. Temporary files of writes killed
+    more than an hour ago go too. Returns the bytes freed.
     """
     limit = max_bytes() if limit is None else limit
     listed = []
@@ -257,7 +290,12 @@ def evict(limit: int | None = None, *, keep: Path | None = None) -> int:
     for path in _stale_temporaries(time.time()):
         with contextlib.suppress(OSError):
             path.unlink()
-    for _, size, path in sorted(listed):
+    if total > limit:  # read what each entry cost only when something must go
+        order = sorted((cost_class(recompute_seconds(path), size), used, size, path)
+                       for used, size, path in listed)
+    else:
+        order = []
+    for _, _, size, path in order:
         if total - freed <= limit:
             break
         if keep is not None and path == keep:
@@ -307,7 +345,7 @@ def load(kind: str, key: str) -> dict[str, np.ndarray] | None:
     path = entry_path(kind, key)
     try:  # the file is opened here: np.load leaks its handle when the zip is bad
         with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
+            arrays = {k: data[k] for k in data.files if k != SECONDS_MEMBER}
     except FileNotFoundError:
         return None
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
@@ -336,8 +374,12 @@ def _drop(path: Path, why: str) -> None:
     _log.warning(f"cache: entry {path} {why}; deleted, it is computed again")
 
 
-def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path | None:
+def store(kind: str, key: str, arrays: Mapping[str, np.ndarray], *,
+          seconds: float | None = None) -> Path | None:
     """Write an entry atomically and return its path; None when it is not stored.
+
+    ``seconds``, how long the computation took, is kept in the entry (``SECONDS_MEMBER``)
+    for :func:`evict`, which lets entries that are cheap to compute again go first.
 
     Not stored (each with one warning): non-finite values, an entry larger than the cap
     (:func:`max_bytes`) or than the disk's free space, a cache folder that does not take
@@ -368,8 +410,11 @@ def store(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path | None:
         if room is not None:
             _warn_once(path.parent, "space", f"cache: {room}; not stored")
             return None
+        members = dict(arrays)
+        if seconds is not None:
+            members[SECONDS_MEMBER] = np.asarray(float(seconds), dtype=np.float64)
         with atomic_write(path, what=f"{kind} cache entry") as fh:
-            np.savez(fh, **dict(arrays))  # type: ignore[arg-type]  # numpy's stub: **kwds bool
+            np.savez(fh, **members)  # type: ignore[arg-type]  # numpy's stub: **kwds bool
     except OSError as exc:
         _warn_once(cache_dir(), "write", f"cache: cannot write to {cache_dir()} ({exc}); "
                    "results are not cached (set SKELASM_CACHE to a folder you can write)")
@@ -394,9 +439,11 @@ def load_or_compute(
         hit = load(kind, key)
         if hit is not None:
             return hit, True
+    start = time.perf_counter()
     arrays = dict(compute())
+    seconds = time.perf_counter() - start
     if use_cache:
-        written = store(kind, key, arrays)
+        written = store(kind, key, arrays, seconds=seconds)
         if written is not None:
             evict(keep=written)
     return arrays, False

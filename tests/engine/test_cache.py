@@ -68,6 +68,55 @@ def test_cache_stays_under_its_cap_dropping_least_recently_used(tmp_path, monkey
     assert total <= 3.5 * one.nbytes
 
 
+def test_eviction_keeps_what_is_costly_to_recompute(tmp_path, monkeypatch):
+    # a suite of real pairs filled a 2 GiB cache with spectrum tables (hundreds of MiB,
+    # rebuilt in seconds) and evicted the descriptors (a few MiB, 20 to 60 s each): every
+    # run recomputed them. Entries now go cheapest per byte first
+    import time
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    small = np.zeros(1 << 14, dtype=np.float64)  # 128 KiB: a descriptor
+    big = np.zeros(1 << 16, dtype=np.float64)  # 512 KiB: a spectrum table
+    monkeypatch.setenv("SKELASM_CACHE_MAX_GB", str(2.5 * big.nbytes / 2**30))
+    key = {n: cache.content_key("k", {"n": n}) for n in range(4)}
+    path = {n: tmp_path / "k" / f"{key[n]}.npz" for n in range(4)}
+    cache.store("k", key[0], {"x": small}, seconds=30.0)  # the oldest, but costly
+    old = time.time() - 100
+    os.utime(path[0], (old, old))
+    for n in (1, 2, 3):
+        cache.store("k", key[n], {"x": big}, seconds=0.5)
+        os.utime(path[n], (old + 10 * n, old + 10 * n))
+        cache.evict(keep=path[n])
+    left = {n for n in range(4) if path[n].exists()}
+    assert left == {0, 2, 3}  # plain least-recently-used would have dropped 0 first
+    total = sum(p.stat().st_size for p in tmp_path.glob("*/*.npz"))
+    assert total <= 2.5 * big.nbytes
+    assert cache.recompute_seconds(path[0]) == pytest.approx(30.0)
+    assert set(cache.load("k", key[0])) == {"x"}  # the record is not handed back
+
+
+def test_an_entry_records_how_long_it_took_and_unrecorded_ones_rank_as_one_second_a_mib(
+        tmp_path, monkeypatch):
+    import time
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+
+    def slow():
+        time.sleep(0.05)
+        return {"x": np.ones(4)}
+
+    arrays, hit = cache.load_or_compute("k", {"n": 1}, slow)
+    assert not hit and set(arrays) == {"x"}
+    written = tmp_path / "k" / f"{cache.content_key('k', {'n': 1})}.npz"
+    assert 0.05 <= cache.recompute_seconds(written) < 5.0
+    cache.store("k", "0" * 64, {"x": np.ones(4)})  # as older versions wrote
+    assert cache.recompute_seconds(tmp_path / "k" / f"{'0' * 64}.npz") is None
+    mib = 2**20
+    assert cache.cost_class(None, mib) == 0
+    assert cache.cost_class(20.0, int(1.4 * mib)) == 1
+    assert cache.cost_class(5.0, 400 * mib) == -2
+
+
 def test_bad_cap_is_reported(monkeypatch):
     import pytest
 
