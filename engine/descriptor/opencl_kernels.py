@@ -23,6 +23,10 @@ import engine.descriptor.constants as _c
 from engine.backend import Backend, BackendError
 from engine.descriptor.tree import TriangleTree
 
+#: Work items per work-group of the evaluation kernel. With the size left to the driver,
+#: PoCL ran a whole chunk (thousands of points) as one work-group, on one CPU core.
+LOCAL_SIZE = 64
+
 KERNEL_SOURCE = r"""
 #ifdef USE_DOUBLE
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
@@ -613,7 +617,8 @@ class OpenCLDescriptor:
             pts_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pts)
             out_buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             kernel(
-                queue, (k,), None, pts_buf, np.int32(k), tri_buf, m, node_buf, nidx_buf,
+                queue, (-(-k // LOCAL_SIZE) * LOCAL_SIZE,), (LOCAL_SIZE,), pts_buf, np.int32(k),
+                tri_buf, m, node_buf, nidx_buf,
                 np.int32(use_tree), np.int32(mode), *scalars, out_buf,
             )  # fmt: skip
             cl.enqueue_copy(queue, out, out_buf)

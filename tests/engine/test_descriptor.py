@@ -173,6 +173,40 @@ def test_opencl_float_accumulation_matches_numpy(opencl_backend):
     assert _rel_l2(got[:, 0] + 1j * got[:, 1], rho_ref) < 1e-3
 
 
+def test_opencl_launches_split_a_chunk_into_work_groups(opencl_backend, monkeypatch):
+    # with the work-group size left to the driver, PoCL ran each chunk (thousands of
+    # points) as one work-group: one CPU core busy, the descriptor twice as slow on two.
+    # Every launch now names its work-group size and covers the chunk with whole groups;
+    # the items past the chunk's end must write nothing (the kernel's guard)
+    from engine.descriptor import compute as d
+    from engine.descriptor.opencl_kernels import LOCAL_SIZE, OpenCLDescriptor
+
+    v, f = MESHES["icosphere"]()
+    grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=12, padding=2)
+    local = d._localise(v[f], grid.center, grid.spacing, True)
+    points = ((grid.points().reshape(-1, 3) - grid.center) / grid.spacing)[:1000]
+    assert len(points) % LOCAL_SIZE  # a chunk that does not fill its last group
+    params = DescriptorParams()
+    runner = OpenCLDescriptor.for_backend(opencl_backend)  # the shared one: one kernel
+    launches = []
+    real = runner.kernel
+
+    def spy(queue, global_size, local_size, *args):
+        launches.append((global_size, local_size))
+        return real(queue, global_size, local_size, *args)
+
+    monkeypatch.setattr(runner, "kernel", spy)
+    evaluate = runner.prepare(local.tri, local.tree, params.sigma, params.lambda_in,
+                              params.lambda_out)
+    got = evaluate(points, 2)
+    assert launches == [((-(-len(points) // LOCAL_SIZE) * LOCAL_SIZE,), (LOCAL_SIZE,))]
+    assert len(points) // LOCAL_SIZE >= 2  # two cores can share it
+    ref = d._run(local, points, 2, params, d.resolve_backend("numba"))
+    rho_ref = ref[:, 0] + 1j * ref[:, 1]
+    assert got.shape == (len(points), 4)
+    assert _rel_l2(got[:, 0] + 1j * got[:, 1], rho_ref) < 1e-3
+
+
 def test_sign_and_size_inside_and_outside(descriptor_backend):
     v, f = MESHES["annulus"]()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=12, padding=2)
