@@ -550,9 +550,19 @@ class OpenCLDescriptor:
     """The compiled kernel on one backend (context and queue)."""
 
     def __init__(self, backend: Backend, *, double: bool | None = None) -> None:
+        import pyopencl as cl
+
         self.backend = backend
         self.program = build_program(backend.context, double=double)
         self.kernel = self.program.skeletal
+        #: Work items per group: LOCAL_SIZE, or less where the device cannot run that many
+        #: of this kernel at once (its registers or private memory per item).
+        try:
+            most = int(self.kernel.get_work_group_info(
+                cl.kernel_work_group_info.WORK_GROUP_SIZE, backend.device))
+        except cl.Error:  # a driver that cannot say: the size every device here ran
+            most = LOCAL_SIZE
+        self.local_size = max(1, min(LOCAL_SIZE, most))
 
     _instances: dict[int, OpenCLDescriptor] = {}
 
@@ -609,6 +619,7 @@ class OpenCLDescriptor:
             np.float32(_c.SIGMA_RESOLUTION),
         ]
         kernel = self.kernel
+        group = self.local_size
 
         def evaluate(points: np.ndarray, mode: int) -> np.ndarray:
             k = points.shape[0]
@@ -617,7 +628,7 @@ class OpenCLDescriptor:
             pts_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pts)
             out_buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             kernel(
-                queue, (-(-k // LOCAL_SIZE) * LOCAL_SIZE,), (LOCAL_SIZE,), pts_buf, np.int32(k),
+                queue, (-(-k // group) * group,), (group,), pts_buf, np.int32(k),
                 tri_buf, m, node_buf, nidx_buf,
                 np.int32(use_tree), np.int32(mode), *scalars, out_buf,
             )  # fmt: skip
