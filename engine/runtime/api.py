@@ -129,9 +129,11 @@ def start_engine(
     rate_hz : float, optional
         Overrides ``[simulation] rate_hz``: the loop's period and the simulation's step.
     realtime : bool
-        Hold the rate on the wall clock (sleep-then-spin) and ask the OS to run the loop
-        thread ahead of other work (``SCHED_FIFO``, both transports; ``SKELASM_REALTIME=0``
-        turns the request off); False steps as fast as possible at normal priority.
+        Hold the rate on the wall clock (sleep-then-spin); False steps as fast as possible.
+        A process engine also asks the OS to run its loop thread ahead of other work
+        (``SCHED_FIFO``; ``SKELASM_REALTIME=0`` turns the request off). A thread engine does
+        not: sharing the interpreter with the caller (a window), a real-time loop thread
+        made the window's own thread 1.5 to 5 times slower (docs/runtime.md).
     device : engine.devices.Device, optional
         Input device (thread engine only); default: the scene's ``[device]`` (falling back to
         the mouse, with a DeviceEvent, when it is absent).
@@ -142,8 +144,8 @@ def start_engine(
     frame_queue : int
         Frames kept for the reader of a thread engine; older ones are dropped.
     process : bool or None
-        True: run the loop in its own process, out of reach of the GUI's interpreter lock;
-        it opens the scene's device
+        True: run the loop in its own process, out of reach of the GUI's interpreter lock,
+        asking for real-time scheduling when ``realtime``; it opens the scene's device
         itself. None (default): a process when the scene's device renders force
         (``openhaptics``, ``udp``), else a thread.
     switch_interval : float or None
@@ -176,7 +178,7 @@ def start_engine(
             notice = DeviceEvent(cfg.kind, False, str(exc), fallback="mouse")
     loop = EngineLoop(sim, model=model, device=device, realtime=realtime,
                       frame_queue=frame_queue, prepare=True, switch_interval=switch_interval,
-                      raise_priority=realtime, base_dir=handle.path.parent)
+                      base_dir=handle.path.parent)
     if notice is not None:
         loop.events.append(notice)
     loop.start()
