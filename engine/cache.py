@@ -151,6 +151,8 @@ DEFAULT_MAX_GB = 2.0
 #: The member of an entry's ``.npz`` that records how long its computation took (seconds);
 #: eviction reads it, :func:`load` never returns it.
 SECONDS_MEMBER = "__compute_seconds__"
+#: What reading an entry that is not a whole ``.npz`` raises (truncated, a flipped bit).
+_UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
 #: An entry's file name: the 64 hex digits of its key. Nothing else is ever evicted.
 ENTRY_NAME = re.compile(r"^[0-9a-f]{64}\.npz$")
 #: An entry kind, the sub-folder it lives in (``descriptor``, ``spectrum``, ...).
@@ -251,7 +253,7 @@ def recompute_seconds(path: Path) -> float | None:
             if SECONDS_MEMBER not in data.files:
                 return None
             value = float(data[SECONDS_MEMBER])
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
+    except _UNREADABLE:
         return None
     return value if math.isfinite(value) and value >= 0.0 else None
 
@@ -348,7 +350,7 @@ def load(kind: str, key: str) -> dict[str, np.ndarray] | None:
             arrays = {k: data[k] for k in data.files if k != SECONDS_MEMBER}
     except FileNotFoundError:
         return None
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+    except _UNREADABLE as exc:
         _drop(path, f"cannot be read ({type(exc).__name__}: {exc})")
         return None
     bad = _non_finite(arrays)
