@@ -413,8 +413,8 @@ def test_loop_asks_for_priority_only_when_told(monkeypatch):
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
 def test_a_loop_run_in_the_callers_thread_gives_its_priority_back(monkeypatch):
-    # the thread engine now asks for real-time priority too; a loop run directly must not
-    # leave the caller's thread (a test's, a GUI's) in SCHED_FIFO after it returns
+    # a loop asked to raise its priority and run directly (not in an engine's own thread)
+    # must not leave the caller's thread (a test's, a GUI's) in SCHED_FIFO after it returns
     monkeypatch.delenv("SKELASM_REALTIME", raising=False)
 
     def run_and_look():
