@@ -26,7 +26,11 @@ import pytest
 from app.display import start_virtual_screen, stop_virtual_screens
 
 _SETTINGS_DIR = tempfile.mkdtemp(prefix="skelasm-gui-settings-")
-_CACHE_DIR = tempfile.mkdtemp(prefix="skelasm-gui-cache-")
+# Descriptors of the tests' scenes go to a private cache, computed once per test run and
+# removed at its end (it can reach the cache's 2 GiB cap); a cache the caller names is kept.
+_OWN_CACHE = "SKELASM_CACHE" not in os.environ
+if _OWN_CACHE:
+    os.environ["SKELASM_CACHE"] = tempfile.mkdtemp(prefix="skelasm-gui-cache-")
 
 
 _PROBE = """
@@ -66,8 +70,6 @@ try:
 except ImportError as exc:  # the [gui] extra is not installed
     DISPLAY_PROBLEM = f"the GUI packages are not installed: {exc}"
 
-# Descriptors of the tests' scenes go to a private cache: each session computes them once.
-os.environ.setdefault("SKELASM_CACHE", _CACHE_DIR)
 os.environ["XDG_CONFIG_HOME"] = _SETTINGS_DIR
 
 
@@ -83,6 +85,8 @@ def pytest_collection_modifyitems(config, items):
 def pytest_sessionfinish(session, exitstatus):
     stop_virtual_screens()
     shutil.rmtree(_SETTINGS_DIR, ignore_errors=True)
+    if _OWN_CACHE:
+        shutil.rmtree(os.environ["SKELASM_CACHE"], ignore_errors=True)
 
 
 @pytest.fixture(scope="session")
