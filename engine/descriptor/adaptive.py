@@ -24,8 +24,18 @@ exactly). A coarse cube (eight coarse samples) is *smooth* when
 The fine samples inside smooth cubes are interpolated trilinearly from the cube's corners;
 every other fine sample is evaluated exactly. Since each interpolated value carries an
 estimated error under ``ADAPTIVE_TOLERANCE * rms(rho)``, the interpolation adds at most
-about that to the relative L2 error of the whole grid; docs/descriptor.md gives the
-measured errors and gains.
+about that to the relative L2 error of the whole grid.
+
+Where the cube's 4 x 4 x 4 stencil (the cube and one coarse sample beyond it on every side)
+is inside the grid, on one side and clear of the surface, the samples are interpolated
+tricubically instead (separable cubic midpoints, weights -1, 9, 9, -1 over 16) when the
+estimated cubic error, ``(3/128) (|d4x| + |d4y| + |d4z|)`` from fourth differences, is
+under the same tolerance at every stencil sample, and the signed distance has no kink in
+the stencil (:func:`_no_kink`: a cubic across the medial axis misses the cusp by some 16
+times what fourth differences say). Far from the surface and inside thick walls the
+density is smooth but curved enough that second differences reject many cubes a cubic
+passes. A sample on the grid's last face counts as in the last cube along that axis.
+docs/descriptor.md gives the measured errors and gains.
 """
 
 from __future__ import annotations
@@ -68,6 +78,81 @@ def _second_difference_error(rho: np.ndarray) -> np.ndarray:
     return est / 8.0
 
 
+def _fourth_difference_error(rho: np.ndarray) -> np.ndarray:
+    """(nx, ny, nz) estimated tricubic error at midpoints next to each sample.
+
+    The cubic through four equally spaced samples misses the midpoint of its middle
+    interval by ``(9/16) (1/24) h^4 f4 = (3/128) d4`` (``f4`` the fourth derivative, ``d4``
+    the fourth difference), summed over the three axes. A sample within two of the border
+    takes its nearest inner neighbour's.
+    """
+    est = np.zeros(rho.shape)
+    for axis in range(3):
+        a = np.moveaxis(rho, axis, 0)
+        d4 = np.abs(a[4:] - 4.0 * a[3:-1] + 6.0 * a[2:-2] - 4.0 * a[1:-3] + a[:-4])
+        full = np.concatenate([d4[:1], d4[:1], d4, d4[-1:], d4[-1:]], axis=0)
+        est += np.moveaxis(full, 0, axis)
+    return est * (3.0 / 128.0)
+
+
+def _no_kink(xi: np.ndarray, stride: float) -> np.ndarray:
+    """(nx, ny, nz) True where the signed distance has no kink next to the sample.
+
+    The distance bends smoothly (its second difference is about ``h^2`` over the distance
+    to the nearest centre of curvature) except across the medial axis, where its slope
+    jumps and the density has a cusp. A cusp hides from fourth differences (a cubic's
+    error there is some 16 times what they estimate), so a cubic stencil must not span
+    one: every second difference of ``xi`` at most ``ADAPTIVE_KINK`` times the spacing,
+    that is, at least ``1 / ADAPTIVE_KINK`` spacings from any centre of curvature.
+    """
+    ok = np.ones(xi.shape, dtype=bool)
+    for axis in range(3):
+        a = np.moveaxis(xi, axis, 0)
+        d2 = np.abs(a[2:] - 2.0 * a[1:-1] + a[:-2])
+        full = np.concatenate([d2[:1], d2, d2[-1:]], axis=0)
+        ok &= np.moveaxis(full, 0, axis) <= _c.ADAPTIVE_KINK * stride
+    return ok
+
+
+def _window_all(ok: np.ndarray, side: np.ndarray, width: int) -> np.ndarray:
+    """Per window of ``width`` samples along each axis: all ``ok`` and all on one side.
+
+    Window ``(i, j, k)`` spans samples ``i..i+width-1`` along each axis; the result has
+    ``n - width + 1`` windows per axis.
+    """
+
+    def every(mask: np.ndarray) -> np.ndarray:
+        for axis in range(3):
+            a = np.moveaxis(mask, axis, 0)
+            n = a.shape[0] - width + 1
+            acc = a[:n].copy()
+            for d in range(1, width):
+                acc &= a[d:d + n]
+            mask = np.moveaxis(acc, 0, axis)
+        return mask
+
+    return every(ok) & (every(side) | every(~side))
+
+
+def _upsample(c: np.ndarray, *, cubic: bool) -> np.ndarray:
+    """``c`` refined to ``2 n - 1`` samples per axis, midpoints interpolated axis by axis.
+
+    Midpoints are linear, or cubic (weights -1, 9, 9, -1 over 16) where two samples lie on
+    either side of them (the two end intervals stay linear).
+    """
+    out = c
+    for axis in range(3):
+        a = np.moveaxis(out, axis, 0)
+        up = np.empty((2 * a.shape[0] - 1, *a.shape[1:]), dtype=a.dtype)
+        up[::2] = a
+        mid = 0.5 * (a[:-1] + a[1:])
+        if cubic and a.shape[0] >= 4:
+            mid[1:-1] = (9.0 * (a[1:-2] + a[2:-1]) - (a[:-3] + a[3:])) / 16.0
+        up[1::2] = mid
+        out = np.moveaxis(up, 0, axis)
+    return out
+
+
 def sample_grid(
     xs: np.ndarray,
     ys: np.ndarray,
@@ -100,7 +185,8 @@ def sample_grid(
     rho : (nx, ny, nz) complex128
     xi : (nx, ny, nz) float64
     counts : dict
-        ``"exact"`` and ``"interpolated"`` sample counts.
+        ``"exact"`` and ``"interpolated"`` sample counts, and ``"cubic"``: how many of the
+        interpolated ones are tricubic.
     """
     levels = _c.ADAPTIVE_LEVELS if levels is None else int(levels)
     rho, xi, _, counts = _sample(xs, ys, zs, evaluate, levels, progress)
@@ -117,7 +203,7 @@ def _sample(
         out = evaluate(_points(xs, ys, zs), progress, None)
         rho = (out[:, 0] + 1j * out[:, 1]).reshape(shape)
         return (rho, out[:, 2].reshape(shape), np.ones(shape, dtype=bool),
-                {"exact": rho.size, "interpolated": 0})  # fmt: skip
+                {"exact": rho.size, "interpolated": 0, "cubic": 0})  # fmt: skip
     if any(n % 2 == 0 for n in shape):
         # An even axis ends on a fine sample that no coarse cube holds, so a whole layer
         # of the grid (3 n^2 samples of an n^3 grid, most far from the surface, the costly
@@ -139,23 +225,16 @@ def _sample(
                                            coarse_progress)  # fmt: skip
     stride = float(xs[2] - xs[0]) if len(xs) > 2 else 1.0
     scale = float(np.sqrt(np.mean(np.abs(rho_c) ** 2))) or 1.0
-    node_ok = (_second_difference_error(rho_c) <= _c.ADAPTIVE_TOLERANCE * scale) & (
-        np.abs(xi_c) >= _c.ADAPTIVE_CLEARANCE * stride
-    )
+    limit = _c.ADAPTIVE_TOLERANCE * scale
+    clear = np.abs(xi_c) >= _c.ADAPTIVE_CLEARANCE * stride
     side = xi_c > 0
-    # A cube (i, j, k) has corners (i..i+1, j..j+1, k..k+1) of the coarse grid.
-    smooth = np.ones(tuple(n - 1 for n in rho_c.shape), dtype=bool)
-    same_side_pos = np.ones_like(smooth)
-    same_side_neg = np.ones_like(smooth)
-    for di in (0, 1):
-        for dj in (0, 1):
-            for dk in (0, 1):
-                sl = (slice(di, di + smooth.shape[0]), slice(dj, dj + smooth.shape[1]),
-                      slice(dk, dk + smooth.shape[2]))  # fmt: skip
-                smooth &= node_ok[sl]
-                same_side_pos &= side[sl]
-                same_side_neg &= ~side[sl]
-    smooth &= same_side_pos | same_side_neg
+    # A cube (i, j, k) has corners (i..i+1, j..j+1, k..k+1) of the coarse grid; its cubic
+    # stencil is (i-1..i+2, ...), so only cubes one node in from the border have one.
+    linear = _window_all((_second_difference_error(rho_c) <= limit) & clear, side, 2)
+    cubic = np.zeros_like(linear)
+    if min(rho_c.shape) >= 5:
+        node_ok = (_fourth_difference_error(rho_c) <= limit) & clear & _no_kink(xi_c, stride)
+        cubic[1:-1, 1:-1, 1:-1] = _window_all(node_ok, side, 4)
 
     rho = np.empty(shape, dtype=np.complex128)
     xi = np.empty(shape)
@@ -166,28 +245,21 @@ def _sample(
     idx = np.indices(shape).reshape(3, -1)
     fine = np.any(idx % 2 == 1, axis=0)
     fi = idx[:, fine]
-    cube = fi // 2  # the cube holding each fine sample (its lower corner)
-    inside = np.all(cube < np.asarray(smooth.shape)[:, None], axis=0)
-    use = np.zeros(fi.shape[1], dtype=bool)
-    use[inside] = smooth[cube[0, inside], cube[1, inside], cube[2, inside]]
+    # The cube holding each fine sample (a sample on the grid's last face lies on a face of
+    # the last cube along that axis).
+    cube = np.minimum(fi // 2, np.asarray(linear.shape)[:, None] - 1)
+    use_cubic = cubic[cube[0], cube[1], cube[2]]
+    use = linear[cube[0], cube[1], cube[2]] | use_cubic
 
-    # Trilinear interpolation from the cube's corners (fractions 0 or 1/2 per axis).
+    # Interpolated values: tricubic where the cube's stencil allows, else trilinear, both
+    # separable (midpoints along each axis in turn); xi is always trilinear.
     ii = fi[:, use]
-    frac = (ii % 2) * 0.5
-    base = ii // 2
-    r_acc = np.zeros(ii.shape[1], dtype=np.complex128)
-    x_acc = np.zeros(ii.shape[1])
-    for di in (0, 1):
-        for dj in (0, 1):
-            for dk in (0, 1):
-                w = ((frac[0] if di else 1 - frac[0]) * (frac[1] if dj else 1 - frac[1])
-                     * (frac[2] if dk else 1 - frac[2]))  # fmt: skip
-                nz = w > 0
-                ci, cj, ck = base[0, nz] + di, base[1, nz] + dj, base[2, nz] + dk
-                r_acc[nz] += w[nz] * rho_c[ci, cj, ck]
-                x_acc[nz] += w[nz] * xi_c[ci, cj, ck]
-    rho[ii[0], ii[1], ii[2]] = r_acc
-    xi[ii[0], ii[1], ii[2]] = x_acc
+    value = _upsample(rho_c, cubic=False)[ii[0], ii[1], ii[2]]
+    if use_cubic.any():
+        pick = use_cubic[use]
+        value[pick] = _upsample(rho_c, cubic=True)[ii[0, pick], ii[1, pick], ii[2, pick]]
+    rho[ii[0], ii[1], ii[2]] = value
+    xi[ii[0], ii[1], ii[2]] = _upsample(xi_c, cubic=False)[ii[0], ii[1], ii[2]]
 
     ex = fi[:, ~use]
     if ex.shape[1]:
@@ -205,7 +277,8 @@ def _sample(
     elif progress is not None:
         progress(1.0)
     counts = {"exact": counts["exact"] + int(ex.shape[1]),
-              "interpolated": counts["interpolated"] + int(use.sum())}  # fmt: skip
+              "interpolated": counts["interpolated"] + int(use.sum()),
+              "cubic": counts["cubic"] + int(use_cubic.sum())}  # fmt: skip
     return rho, xi, exact, counts
 
 

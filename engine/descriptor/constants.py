@@ -48,6 +48,9 @@ SPLIT_BUDGET = 1_000_000
 ADAPTIVE_LEVELS = 2
 ADAPTIVE_TOLERANCE = 3e-3
 ADAPTIVE_CLEARANCE = 1.0
+#: A tricubic stencil must not span the medial axis: second differences of the signed
+#: distance within ADAPTIVE_KINK times the spacing (engine.descriptor.adaptive._no_kink).
+ADAPTIVE_KINK = 0.25
 
 #: Evaluation methods: the hierarchy with adaptive sampling of grids (exact where the
 #: field is rough, interpolated elsewhere), the hierarchy at every point, or every
