@@ -222,7 +222,7 @@ def _plot(rows, cad_rows, path: str) -> None:
     ax.set_title("Tori: seconds per part (15 s target dashed)")
     ax.legend(fontsize=7)
     if cad_rows:
-        labels = [f"{r[1]}\n{r[6]}" for r in cad_rows]
+        labels = [f"{r[0]} {r[1]} {r[6]}" for r in cad_rows]
         bx.bar(range(len(cad_rows)), [r[8] for r in cad_rows],
                color=["tab:red" if "CAD" in r[1] else "tab:blue" for r in cad_rows])  # fmt: skip
         bx.set_xticks(range(len(cad_rows)), labels, rotation=60, ha="right", fontsize=7)
