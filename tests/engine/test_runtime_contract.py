@@ -222,17 +222,21 @@ def _load_too_high() -> str | None:
     return None
 
 
+#: A K change may stall the loop by no more than this, or three times the longest period of
+#: the steady loop just before, whichever is more (the bug was a stall of 1.2 s; reading the
+#: spectra back from the cache cost 10 to 125 ms; the host alone stalls 8 to 12 ms at times).
+STALL_BOUND_US = 20_000.0
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(reason="the goal is 2 ms; on this shared 2-core machine, quiet: the "
-                   "process engine (real-time loop thread) held it in 6 of 9 rounds free and "
-                   "7 of 9 locked, the thread engine (normal priority) in 0 of 8; single "
-                   "stalls up to 12 ms remain: see docs/runtime.md", strict=False)
 @pytest.mark.parametrize("rotation", ["free", "locked"])
 def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
     # issue 10, bug 3: SetModes recomputed the landscape's FFTs (rotation locked) or
     # re-sliced the spectra on the loop thread: one K change stalled the 1 kHz loop for
     # 1.2 s. A timing check, so slow-marked and skipped on a busy machine; `skelasm bench
-    # loop --modes-sweep 12,6,8` measures the same with the full period distribution
+    # loop --modes-sweep 12,6,8` measures the same with the full period distribution.
+    # Two bounds: no stall beyond what the steady loop shows on this machine (asserted),
+    # and the 2 ms goal (an expected failure where missed, with the figures).
     problem = _load_too_high()
     if problem:
         pytest.skip(problem)
@@ -247,6 +251,10 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
         time.sleep(1.5)  # a full statistics window of steady stepping
         seen.drain()
         mark = len(seen.frames)
+        time.sleep(3.0)  # the steady loop alone, as long as the K changes below take
+        seen.drain()
+        steady = max(f.period.max_us for f in seen.frames[mark:])
+        mark = len(seen.frames)
         for k in (12, 6, 10, 8, 12, 6):
             engine.send(rt.SetModes(k))
             assert seen.wait(lambda k=k: seen.frames[-1].modes == k, 30.0)
@@ -254,6 +262,12 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
         time.sleep(1.2)  # until the window holds only periods after the last change
         seen.drain()
         longest = max(f.period.max_us for f in seen.frames[mark:])
-        assert longest < 2000.0, f"longest period {longest:.0f} us while K changed"
     finally:
         engine.stop()
+    assert longest <= max(STALL_BOUND_US, 3.0 * steady), (
+        f"longest period {longest:.0f} us while K changed, {steady:.0f} us steady")
+    if longest >= 2000.0:
+        pytest.xfail(f"the goal is 2 ms: longest period {longest:.0f} us while K changed, "
+                     f"{steady:.0f} us in the steady window before; on this shared 2-core "
+                     "machine the process engine holds it in most rounds, the thread engine "
+                     "(normal priority) in few: see docs/runtime.md")
