@@ -316,16 +316,22 @@ def _winding(px, py, pz, tri, node, nidx, use_tree, theta_w, stack):  # pragma: 
 
 
 @numba.njit(cache=True, inline="always")
-def _radial(xi, eta, x, axi, inv2s2, quq):  # pragma: no cover - compiled
-    """Complex factor ``1 + (w''/w) u.Q.u / 2`` for w(eta) = zeta^-2 g varying over a piece.
+def _radial(xi, eta, x, axi, inv2s2, quq, trq):  # pragma: no cover - compiled
+    """Complex second-order factor of a flat piece lumped at its centroid.
 
-    ``Q`` is the piece's (or cluster's) area-normalised second moment about its centroid
-    and ``u`` the direction to it, so ``u.Q.u`` is the variance of eta across it. With
-    ``h = log w``: ``h' = -2i/zeta - x/(sigma^2 |xi|)``, ``h'' = -2/zeta^2 - 1/(sigma |xi|)^2``
-    and ``w''/w = h'' + h'^2``. This removes the leading (second-order) error of the
-    centroid rule. The correction is scaled down to at most 0.5 in modulus: in the
-    Gaussian's far tail pieces may be coarse (see _tail) and the expansion no longer holds,
-    but there the term is negligible anyway.
+    The integrand is ``w(eta) n.u`` with ``u = (q - p)/eta``; over a piece with
+    area-normalised second moment ``Q`` about its centroid (``u.Q.u`` the variance of eta
+    across it, ``tr Q`` its whole spread) the second-order terms of its Taylor expansion are,
+    relative to the centroid value (eta already shifted to its mean, see _term):
+    ``(w''/w) u.Q.u / 2`` (w along the ray), ``-(w'/w) u.Q.u / eta`` (w times the change of
+    the projection ``n.u``) and ``-(tr Q - 3 u.Q.u) / (2 eta^2)`` (the second derivative of
+    ``u`` itself), using ``n.Q = 0`` for a flat piece. With ``h = log w``: ``w'/w = h' =
+    -2i/zeta - x/(sigma^2 |xi|)``, ``h'' = -2/zeta^2 - 1/(sigma |xi|)^2``, ``w''/w = h'' +
+    h'^2``. The centroid rule's error is then of third order in the piece's size over its
+    distance (a triangle's third moment about its centroid does not vanish; second order
+    with the first term alone). The correction is scaled down to at
+    most 0.5 in modulus: in the Gaussian's far tail pieces may be coarse (see _tail) and the
+    expansion no longer holds, but there the term is negligible anyway.
     """
     den = xi * xi + eta * eta
     inv_s2 = 2.0 * inv2s2
@@ -333,8 +339,10 @@ def _radial(xi, eta, x, axi, inv2s2, quq):  # pragma: no cover - compiled
     hi = -2.0 * xi / den
     b = -inv_s2 / (axi * axi)
     den2 = den * den
-    cr = 0.5 * quq * (-2.0 * (xi * xi - eta * eta) / den2 + b + hr * hr - hi * hi)
-    ci = 0.5 * quq * (4.0 * xi * eta / den2 + 2.0 * hr * hi)
+    inv_eta = 1.0 / eta
+    cr = (0.5 * quq * (-2.0 * (xi * xi - eta * eta) / den2 + b + hr * hr - hi * hi)
+          - hr * quq * inv_eta - 0.5 * (trq - 3.0 * quq) * inv_eta * inv_eta)
+    ci = 0.5 * quq * (4.0 * xi * eta / den2 + 2.0 * hr * hi) - hi * quq * inv_eta
     mag = math.sqrt(cr * cr + ci * ci)
     if mag > 0.5:
         cr *= 0.5 / mag
@@ -367,7 +375,7 @@ def _term(px, py, pz, cx, cy, cz, nx, ny, nz, xi, inv_axi, inv2s2, trq, quq):  #
     f = f / (den * den)
     tr = f * (xi * xi - eta2)
     ti = f * (-2.0 * xi * eta)
-    kr, ki = _radial(xi, eta, x, 1.0 / inv_axi, inv2s2, quq)
+    kr, ki = _radial(xi, eta, x, 1.0 / inv_axi, inv2s2, quq, trq)
     return tr * kr - ti * ki, tr * ki + ti * kr
 
 
@@ -380,6 +388,9 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
     ``V(q) = w(eta) (q - p)/eta`` and ``S`` the cluster's first moment (see tree.py), which
     removes the O(r/d) error of clusters whose normals differ (edges, corners, thin walls):
     ``J_ab = (w' - w/eta) u_a u_b + (w/eta) delta_ab``, ``w'/w = -2i/zeta - x/(sigma^2 |xi|)``.
+    The second-order terms take the cluster's third moment as ``N Q`` (exact for a flat
+    cluster): _radial's factor, and ``(w'/w - 1/eta) N.Q.u / eta``, which a curved cluster's
+    ``N.Q`` (its bulge along its mean normal) makes non-zero.
     """
     dx = node[nd, 6] - px
     dy = node[nd, 7] - py
@@ -413,11 +424,18 @@ def _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2):  # pragma: no cover -
         + uz * (node[nd, 22] * ux + node[nd, 23] * uy + node[nd, 24] * uz)
     )
     trs = node[nd, 16] + node[nd, 20] + node[nd, 24]
-    fr = nu + (-2.0 * eta / den - 2.0 * x * inv2s2 * inv_axi - 1.0 / eta) * usu + trs / eta
-    fi = (-2.0 * xi / den) * usu
+    hr = -2.0 * eta / den - 2.0 * x * inv2s2 * inv_axi
+    hi = -2.0 * xi / den
+    qx = node[nd, 25] * ux + node[nd, 28] * uy + node[nd, 29] * uz
+    qy = node[nd, 28] * ux + node[nd, 26] * uy + node[nd, 30] * uz
+    qz = node[nd, 29] * ux + node[nd, 30] * uy + node[nd, 27] * uz
+    nqu = node[nd, 9] * qx + node[nd, 10] * qy + node[nd, 11] * qz
+    inv_eta = 1.0 / eta
+    fr = nu + (hr - inv_eta) * usu + trs * inv_eta + (hr - inv_eta) * inv_eta * nqu
+    fi = hi * usu + hi * inv_eta * nqu
     tr = wr * fr - wi * fi
     ti = wr * fi + wi * fr
-    kr, ki = _radial(xi, eta, x, 1.0 / inv_axi, inv2s2, quq)
+    kr, ki = _radial(xi, eta, x, 1.0 / inv_axi, inv2s2, quq, trq)
     return tr * kr - ti * ki, tr * ki + ti * kr
 
 
@@ -428,6 +446,9 @@ def _tail(dc, r, axi, inv_axi, inv2s2, inv_sigma):  # pragma: no cover - compile
     The centroid rule's error over a piece scales like g * max(1, x/sigma)^2 * (r/(sigma
     |xi|))^2 (g and its curvature); keeping it at the peak's level lets the size grow by
     exp(x^2/(4 sigma^2)) / max(1, x/sigma), x taken at the piece's nearest possible point.
+    (Derived for a second-order rule. With _radial's terms the error is of higher order,
+    which would allow only about exp(x^2/(8 sigma^2)); that version, measured on the headline
+    torus, gave a smaller error at the same THETA_NODE but a worse error for the time.)
     """
     x = max(dc - r - axi, 0.0) * inv_axi
     return math.exp(0.5 * x * x * inv2s2) / max(1.0, x * inv_sigma)
@@ -615,7 +636,8 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, kc, nstack, pstac
 
 
 @numba.njit(cache=True, parallel=True)
-def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc, hints, out):
+def evaluate(points, tri, node, nidx, dtri, dnode, dnidx, use_tree, mode, sigma, lam_in,
+             lam_out, kc, hints, out):  # fmt: skip
     """Fill out (n, 4) float64 with (Re rho, Im rho, xi, winding) per point.
 
     Parameters
@@ -623,7 +645,14 @@ def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc
     points : (n, 3) float64
         Query points in local units.
     tri, node, nidx : arrays of :class:`engine.descriptor.tree.TriangleTree`
-        Packed triangles and hierarchy (any ``node``/``nidx`` when ``use_tree`` is False).
+        Packed triangles and hierarchy (any ``node``/``nidx`` when ``use_tree`` is False):
+        what the winding number and the boundary sum run over (slivers cut into pieces).
+    dtri, dnode, dnidx : arrays of a TriangleTree
+        The same surface for the nearest distance, with slivers left whole: the distance
+        to a sliver is as cheap as to any triangle, while its pieces (a hundred to a
+        faceted cylinder's strip) all lie at about the same distance from a point near the
+        axis and would all be visited. The same arrays as ``tri``, ``node``, ``nidx``
+        when nothing was cut.
     use_tree : bool
         The hierarchy, or every triangle (brute force, the reference).
     mode : int
@@ -664,14 +693,15 @@ def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc
         if mode == 0:
             continue
         inside = w > 0.5
-        dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, tie, nstack, hints[i, 0])
+        dist, kn = _nearest(px, py, pz, dtri, dnode, dnidx, use_tree, tie, nstack,
+                            hints[i, 0])  # fmt: skip
         if kn == 1 << 30 or (dist < eps and hints[i, 0] < np.inf):
             # The bound was too tight (rounding), or p is on the surface, where the tied
             # triangle picked decides the normal: search as without hints.
-            dist, kn = _nearest(px, py, pz, tri, node, nidx, use_tree, tie, nstack, np.inf)
+            dist, kn = _nearest(px, py, pz, dtri, dnode, dnidx, use_tree, tie, nstack, np.inf)
         push = False
         if dist < eps:
-            nx, ny, nz = _boundary_normal(px, py, pz, tri, node, nidx, use_tree, dist, tie,
+            nx, ny, nz = _boundary_normal(px, py, pz, dtri, dnode, dnidx, use_tree, dist, tie,
                                           kc.max_normals, nstack)  # fmt: skip
             nn = math.sqrt(nx * nx + ny * ny + nz * nz)
             if nn > 1e-3:
@@ -681,7 +711,7 @@ def evaluate(points, tri, node, nidx, use_tree, mode, sigma, lam_in, lam_out, kc
                 nx /= nn
                 ny /= nn
                 nz /= nn
-                qx, qy, qz = _tri_closest(px, py, pz, tri, kn)
+                qx, qy, qz = _tri_closest(px, py, pz, dtri, kn)
                 off = (px - qx) * nx + (py - qy) * ny + (pz - qz) * nz
                 inside = off < tie
                 push = True

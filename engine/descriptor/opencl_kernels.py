@@ -262,8 +262,9 @@ float winding(float3 p, __global const float *tri, int m, __global const float *
     return (float)total / (4.0f * M_PI_F);
 }
 
-/* Complex second-order factor 1 + (w''/w) u.Q.u / 2 (engine.descriptor._radial). */
-inline float2 radial(float xi, float eta, float x, float axi, float inv2s2, float quq)
+/* Complex second-order factor of a lumped piece (engine.descriptor._radial). */
+inline float2 radial(float xi, float eta, float x, float axi, float inv2s2, float quq,
+                     float trq)
 {
     float den = xi * xi + eta * eta;
     float inv_s2 = 2.0f * inv2s2;
@@ -271,8 +272,10 @@ inline float2 radial(float xi, float eta, float x, float axi, float inv2s2, floa
     float hi = -2.0f * xi / den;
     float b = -inv_s2 / (axi * axi);
     float den2 = den * den;
-    float cr = 0.5f * quq * (-2.0f * (xi * xi - eta * eta) / den2 + b + hr * hr - hi * hi);
-    float ci = 0.5f * quq * (4.0f * xi * eta / den2 + 2.0f * hr * hi);
+    float inv_eta = 1.0f / eta;
+    float cr = 0.5f * quq * (-2.0f * (xi * xi - eta * eta) / den2 + b + hr * hr - hi * hi)
+               - hr * quq * inv_eta - 0.5f * (trq - 3.0f * quq) * inv_eta * inv_eta;
+    float ci = 0.5f * quq * (4.0f * xi * eta / den2 + 2.0f * hr * hi) - hi * quq * inv_eta;
     float mag = sqrt(cr * cr + ci * ci);
     if (mag > 0.5f) {
         cr *= 0.5f / mag;
@@ -303,7 +306,7 @@ inline float2 term(float3 p, float3 c, float3 n, float xi, float inv_axi, float 
     float den = xi * xi + eta2;
     f = f / (den * den);
     float2 tv = (float2)(f * (xi * xi - eta2), f * (-2.0f * xi * eta));
-    return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq));
+    return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq, trq));
 }
 
 /* A lumped cluster to second order (engine.descriptor._node_term). */
@@ -330,11 +333,17 @@ float2 node_term(float3 p, __global const float *nb, float xi, float inv_axi, fl
               + u.y * (nb[19] * u.x + nb[20] * u.y + nb[21] * u.z)
               + u.z * (nb[22] * u.x + nb[23] * u.y + nb[24] * u.z);
     float trs = nb[16] + nb[20] + nb[24];
-    float fr = nu + (-2.0f * eta / den - 2.0f * x * inv2s2 * inv_axi - 1.0f / eta) * usu
-               + trs / eta;
-    float fi = (-2.0f * xi / den) * usu;
+    float hr = -2.0f * eta / den - 2.0f * x * inv2s2 * inv_axi;
+    float hi = -2.0f * xi / den;
+    float3 qu = (float3)(nb[25] * u.x + nb[28] * u.y + nb[29] * u.z,
+                         nb[28] * u.x + nb[26] * u.y + nb[30] * u.z,
+                         nb[29] * u.x + nb[30] * u.y + nb[27] * u.z);
+    float nqu = dot((float3)(nb[9], nb[10], nb[11]), qu);
+    float inv_eta = 1.0f / eta;
+    float fr = nu + (hr - inv_eta) * usu + trs * inv_eta + (hr - inv_eta) * inv_eta * nqu;
+    float fi = hi * usu + hi * inv_eta * nqu;
     float2 tv = (float2)(wr * fr - wi * fi, wr * fi + wi * fr);
-    return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq));
+    return cmul(tv, radial(xi, eta, x, 1.0f / inv_axi, inv2s2, quq, trq));
 }
 
 /* How much coarser than at the Gaussian's peak a piece may be (engine.descriptor._tail). */
@@ -411,6 +420,8 @@ void tri_rho(float3 p, __global const float *t, float xi, float inv_axi, float i
 __kernel void skeletal(__global const float *pts, int npts,
                        __global const float *tri, int m,
                        __global const float *node, __global const int *nidx,
+                       __global const float *dtri, int dm,
+                       __global const float *dnode, __global const int *dnidx,
                        int use_tree, int mode,
                        float sigma, float lam_in, float lam_out,
                        float theta, float theta_node, float theta_w, float eps, float cut_k,
@@ -428,16 +439,16 @@ __kernel void skeletal(__global const float *pts, int npts,
     int inside = w > 0.5f;
     float dist;
     int kn;
-    nearest(p, tri, m, node, nidx, use_tree, &dist, &kn);
+    nearest(p, dtri, dm, dnode, dnidx, use_tree, &dist, &kn);  /* slivers whole */
     int push = 0;
     float3 nrm = (float3)(0.0f);
     float3 q = p;
     if (dist < eps) {
-        nrm = boundary_normal(p, tri, m, node, nidx, use_tree, dist);
+        nrm = boundary_normal(p, dtri, dm, dnode, dnidx, use_tree, dist);
         float nn = length(nrm);
         if (nn > 1e-3f) {
             nrm /= nn;
-            q = tri_closest(p, tri + TS * kn);
+            q = tri_closest(p, dtri + TS * kn);
             inside = dot(p - q, nrm) < TIE;
             push = 1;
         }
@@ -577,7 +588,8 @@ class OpenCLDescriptor:
         return inst
 
     def prepare(self, tri: np.ndarray, tree: TriangleTree | None, sigma: float,
-                lambda_in: float, lambda_out: float) -> Callable[[np.ndarray, int], np.ndarray]:
+                lambda_in: float, lambda_out: float, *,
+                surface: TriangleTree | None = None) -> Callable[[np.ndarray, int], np.ndarray]:
         """Upload one mesh; returns ``evaluate(points (k, 3) float, mode) -> (k, 4) float64``.
 
         Parameters
@@ -588,6 +600,9 @@ class OpenCLDescriptor:
             None for brute force.
         sigma, lambda_in, lambda_out : float
             The descriptor's parameters.
+        surface : TriangleTree, optional
+            The uncut triangles' tree for the nearest distance (default: ``tree``; see
+            :func:`engine.descriptor.numba_kernels.evaluate`).
         """
         import pyopencl as cl
 
@@ -607,6 +622,16 @@ class OpenCLDescriptor:
         node_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=node32)
         nidx_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=nidx)
         m = np.int32(tri32.shape[0])
+        if tree is not None and surface is not None and surface is not tree:
+            dtri32 = np.ascontiguousarray(surface.tri, dtype=np.float32)
+            dtri_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dtri32)
+            dnode_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                  hostbuf=np.ascontiguousarray(surface.node, dtype=np.float32))
+            dnidx_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                  hostbuf=np.ascontiguousarray(surface.node_index, np.int32))
+            dm = np.int32(dtri32.shape[0])
+        else:
+            dtri_buf, dnode_buf, dnidx_buf, dm = tri_buf, node_buf, nidx_buf, m
         scalars = [
             np.float32(sigma),
             np.float32(lambda_in),
@@ -629,7 +654,7 @@ class OpenCLDescriptor:
             out_buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
             kernel(
                 queue, (-(-k // group) * group,), (group,), pts_buf, np.int32(k),
-                tri_buf, m, node_buf, nidx_buf,
+                tri_buf, m, node_buf, nidx_buf, dtri_buf, dm, dnode_buf, dnidx_buf,
                 np.int32(use_tree), np.int32(mode), *scalars, out_buf,
             )  # fmt: skip
             cl.enqueue_copy(queue, out, out_buf)

@@ -248,7 +248,7 @@ def test_opencl_chunks_grow_past_a_fixed_launch_latency(monkeypatch):
     sizes: list[int] = []
 
     class Runner:
-        def prepare(self, *args):
+        def prepare(self, *args, **kwargs):
             def evaluate(points, mode):
                 sizes.append(len(points))
                 clock[0] += 0.02 + 1e-6 * len(points)
