@@ -490,8 +490,22 @@ class SceneModel:
         if penalty is not None:
             d = replace(d, penalty=float(penalty))
         if grid is not None:
-            d = replace(d, grid=int(grid), spacing=None)
+            d = replace(d, grid=int(grid), spacing=None, padding=self._padding_for(int(grid)))
         return self.scene if d is self.scene.descriptor else replace(self.scene, descriptor=d)
+
+    def _padding_for(self, grid: int) -> float:
+        """Padding in cells of a ``grid`` that reaches as far (in mm) as the scene's own.
+
+        A field reaches no farther than its descriptors' padding: kept in cells, a coarse
+        first field (cells 2.3 times larger on the peg in hole) pulled the peg down onto the
+        block from 3 mm above it, where the scene's own field is still exactly zero.
+        """
+        from engine.descriptor import scene_spacing
+
+        own = scene_spacing(self.scene, self.parts)
+        coarse = scene_spacing(replace(self.scene, descriptor=replace(
+            self.scene.descriptor, grid=grid, spacing=None)), self.parts)
+        return float(self.scene.descriptor.padding) * own / coarse
 
     def descriptors_cached(self, *, sigma: float | None = None,
                            penalty: float | None = None) -> bool:

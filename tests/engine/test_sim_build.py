@@ -219,3 +219,30 @@ def test_a_new_field_resolves_the_physics_without_measuring_the_mesh_again(monke
                              kappa=first.kappa, geometric_rotation=1e-6)
     for name in ("k_lin", "c_lin", "k_rot", "c_rot", "mass", "kappa", "inertia", "center"):
         assert np.allclose(getattr(second, name), getattr(direct, name)), name
+
+
+def test_a_coarse_first_field_reaches_no_farther_than_the_scenes_own(small_peg_scene):
+    # A field reaches as far as its descriptors' padding. Kept in cells, the coarse first
+    # field of a scene (built while the scene's own descriptors are computed) reached 2.3
+    # times farther on the peg in hole and pulled the peg down onto the block from where the
+    # scene's own field is exactly zero. Its padding now covers the same millimetres.
+    from engine import runtime as rt
+    from engine.descriptor import scene_spacing
+    from engine.sim.build import SceneModel
+
+    model = SceneModel(rt.open_scene(small_peg_scene), modes=8, backend="numba")
+    coarse = model._scene_with(None, None, 8)  # the scene's grid is 16
+
+    def reach(scene):
+        return scene.descriptor.padding * scene_spacing(scene, model.parts)
+
+    assert reach(coarse) == pytest.approx(reach(model.scene))  # 15 mm each
+    effects = model.config.effects
+    far = np.array([0.0, 0.0, 36.0])  # the peg's tip 36 mm above the block: gap 6 mm
+    energies = []
+    for grid in (None, 8):
+        fld, _ = model.field(effects, 1.0, np.eye(3), grid=grid)
+        energies.append(fld.evaluate(np.eye(3), far).energy)
+    near = model.field(effects, 1.0, np.eye(3), grid=8)[0].evaluate(np.eye(3), far - 20).energy
+    assert energies == [0.0, 0.0]
+    assert near != 0.0  # the coarse field does act within its reach
