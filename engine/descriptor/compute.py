@@ -45,7 +45,8 @@ other two), the winding number (Barnes-Hut: a cluster with radius below ``THETA_
 times its distance counts as a dipole, near triangles get their exact Van
 Oosterom-Strackee solid angle) and the ``rho`` sum, where a whole cluster is skipped
 beyond the Gaussian cut-off, lumped into one term when it passes the same two size tests
-as a piece (``THETA_NODE`` in place of ``THETA``), and otherwise opened; its triangles
+as a piece (``THETA_NODE`` in place of ``THETA``) and its bend ``1 - |N| / A`` times
+``(r / d)^2`` is under ``NODE_BEND``, and otherwise opened; its triangles
 then get the adaptive quadrature above. A lumped cluster uses its summed area vector at
 its area-weighted centroid, its first moment ``S = sum N_i (g_i - c)^T`` (which removes
 the first-order error of clusters whose normals differ: edges, corners, thin walls) and

@@ -19,8 +19,14 @@ EPS_FLOOR = 1e-3
 THETA = 0.7
 #: Largest cluster radius / distance (and / sigma |xi|) for a lumped cluster. Clusters are
 #: curved, and their error (mostly far from the part, where they are large) is what this
-#: trades against time: 0.35 / 0.55 / 0.7 gave 2.2e-4 / 5.5e-4 / 1.3e-3 on the headline.
-THETA_NODE = 0.55
+#: trades against time (with NODE_BEND: docs/descriptor.md).
+THETA_NODE = 0.6
+#: A cluster is opened when its bend (1 - |N| / A, its summed area vector against its
+#: area; about a^2 / 4 for a spherical cap of angular radius a) times (radius / distance)^2
+#: exceeds this. A lumped cluster's third moment is taken as N Q, which curvature breaks:
+#: with large clusters far from a small part (a pin 2 to 3 cells across on a coarse grid)
+#: the error reached 2e-3 to 3.5e-3 without this test.
+NODE_BEND = 0.002
 #: The Gaussian size test uses min(sigma, SIGMA_RESOLUTION): a wide Gaussian still gets
 #: pieces no coarser than at the default sigma (the 1/r^2-like kernel needs them anyway).
 SIGMA_RESOLUTION = 0.5
@@ -78,6 +84,7 @@ class KernelConstants(NamedTuple):
     max_level: int
     piece_stack: int
     node_stack: int
+    node_bend: float
 
 
 def kernel_constants() -> KernelConstants:
@@ -85,7 +92,7 @@ def kernel_constants() -> KernelConstants:
     return KernelConstants(
         float(THETA), float(THETA_NODE), float(THETA_WINDING), float(EPS_FLOOR),
         float(GAUSS_CUTOFF), float(SIGMA_RESOLUTION), float(TIE), int(MAX_NORMALS),
-        int(MAX_LEVEL), int(PIECE_STACK), int(NODE_STACK),
+        int(MAX_LEVEL), int(PIECE_STACK), int(NODE_STACK), float(NODE_BEND),
     )  # fmt: skip
 
 

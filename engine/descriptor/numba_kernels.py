@@ -581,6 +581,7 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, kc, nstack, pstac
     """(re, im) of the boundary sum (without c(p) and the Gaussian's constant)."""  # noqa: D401
     theta = kc.theta
     theta_node = kc.theta_node
+    node_bend = kc.node_bend
     eps = kc.eps
     max_level = kc.max_level
     axi = abs(xi)
@@ -618,6 +619,7 @@ def _rho_sum(px, py, pz, xi, tri, node, nidx, use_tree, sigma, kc, nstack, pstac
         if not (
             r > theta_node * max(dc, eps)
             or r > gauss_node * _tail(dc, r, axi, inv_axi, inv2s2, 1.0 / sigma)
+            or node[nd, 14] * r * r > node_bend * dc * dc
         ):
             tr, ti = _node_term(px, py, pz, node, nd, xi, inv_axi, inv2s2)
             re += tr

@@ -425,7 +425,7 @@ __kernel void skeletal(__global const float *pts, int npts,
                        int use_tree, int mode,
                        float sigma, float lam_in, float lam_out,
                        float theta, float theta_node, float theta_w, float eps, float cut_k,
-                       float sigma_res, __global float *out)
+                       float sigma_res, float node_bend, __global float *out)
 {
     int i = get_global_id(0);
     if (i >= npts) return;
@@ -480,7 +480,8 @@ __kernel void skeletal(__global const float *pts, int npts,
             float dc = length((float3)(nb[6], nb[7], nb[8]) - p);
             if (dc - r > cut) continue;
             if (!(r > theta_node * fmax(dc, eps)
-                  || r > gauss_node * tail(dc, r, axi, inv_axi, inv2s2, 1.0f / sigma))) {
+                  || r > gauss_node * tail(dc, r, axi, inv_axi, inv2s2, 1.0f / sigma)
+                  || nb[14] * r * r > node_bend * dc * dc)) {
                 float2 tv = node_term(p, nb, xi, inv_axi, inv2s2);
                 re += tv.x;
                 im += tv.y;
@@ -642,6 +643,7 @@ class OpenCLDescriptor:
             np.float32(_c.EPS_FLOOR),
             np.float32(_c.GAUSS_CUTOFF),
             np.float32(_c.SIGMA_RESOLUTION),
+            np.float32(_c.NODE_BEND),
         ]
         kernel = self.kernel
         group = self.local_size

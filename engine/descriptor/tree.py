@@ -10,7 +10,8 @@ the same layout:
   radius of the triangle about its centroid (1), three unused.
 - ``node`` ``(n, 32)``: bounding box ``lo`` (3), ``hi`` (3), the area-weighted centroid ``c``
   (3), the summed area vector (3), a radius about ``c`` that bounds every vertex below the
-  node (1), total area (1), two unused, then the first moment
+  node (1), total area (1), the bend ``1 - |N| / A`` (1: 0 for a flat cluster), one unused,
+  then the first moment
   ``S[a, b] = sum_i N_i[a] (g_i - c)[b]`` (9, row-major; ``g_i`` the triangle centroids),
   which lets a lumped cluster be integrated to second order (see engine.descriptor.compute),
   then the area-normalised second moment of the cluster about ``c``
@@ -376,4 +377,6 @@ def build_tree(triangles: np.ndarray, *, leaf_size: int = LEAF_SIZE) -> Triangle
     order, index, depth = _split(centroids, int(leaf_size))
     tri = pack_triangles(t[order])
     node = _node_geometry(tri, index)
+    # how far a cluster is from flat: 0 for a plane patch, 1 for a closed surface
+    node[:, 14] = 1.0 - np.linalg.norm(node[:, 9:12], axis=1) / np.maximum(node[:, 13], 1e-300)
     return TriangleTree(tri, node, np.ascontiguousarray(index, dtype=np.int32), order, int(depth))
