@@ -298,6 +298,7 @@ def _plot(results: list[SeatingResult], path: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     names = sorted({r.pair for r in results}, key=[r.pair for r in results].index)
     fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(names) + 2), dpi=110,
@@ -318,6 +319,7 @@ def _plot(results: list[SeatingResult], path: str) -> None:
     for ax in axes:  # errors span from hundredths to hundreds
         ax.set_xscale("log")
         ax.set_xlim(left=0.01)
+        ax.xaxis.set_minor_formatter(NullFormatter())  # labels at the decades only
     axes[0].set_xlabel("position error, % of width (constrained axes; log)")
     axes[1].set_xlabel("tilt, degrees (constrained axes; log)")
     axes[0].set_yticks(y, names)

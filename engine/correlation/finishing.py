@@ -48,6 +48,11 @@ class Evaluation:
         Wall time of the evaluation.
     modes : int
         Modes per axis used (``m' = modes^3``).
+    switched : float
+        Where the evaluator switched models at this pose (a rotation cache refreshed, or
+        the full path took over from it): the energy the part, stepped through its poses,
+        gained over the old model's stretch (``engine.sim.fields.RotationCacheField``),
+        which the simulation takes back. 0 otherwise.
     """
 
     energy: float
@@ -55,6 +60,7 @@ class Evaluation:
     torque: np.ndarray | None
     microseconds: float
     modes: int
+    switched: float = 0.0
 
 
 def overlap_bounds(rot, c1, c2, half1, half2, h):

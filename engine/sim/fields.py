@@ -21,8 +21,10 @@ the part's origin, zeros where no torque is computed).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -76,6 +78,29 @@ class NullField:
     def set_modes(self, modes: int) -> None:
         """Remember ``modes`` (nothing depends on it)."""
         self.modes = int(modes)
+
+
+def _gain(after: np.ndarray, before: np.ndarray | None, rot: np.ndarray, t: np.ndarray,
+          last: tuple[np.ndarray, np.ndarray]) -> float:
+    """Energy a switch of model at this pose gave a part stepped through its poses.
+
+    ``after`` and ``before``: ``(energy, force (3), torque (3), ...)`` of the new and the
+    old model at this pose (``before`` None: nothing to compare, 0). The new model's energy
+    here exceeds the old one's by the jump, and the step that arrived here already took half
+    of the new force's difference over its displacement (a velocity Verlet step's second
+    half-kick uses the new model): the part's gain over the old model's stretch is their sum,
+    ``dE + 1/2 (dF . dt + dT . dtheta)`` (``dt``, ``dtheta`` the move from the last pose). A
+    cache refreshed at every step so gains nothing; a stretch of ``n`` steps of ``s`` ends
+    ``1/2 K s^2 (n^2 - n)`` richer.
+    """
+    if before is None:
+        return 0.0
+    shift = t - last[1]
+    turn = rotation_vector(rot @ last[0].T)
+    gain = (float(after[0]) - float(before[0])
+            + 0.5 * float((after[1:4] - before[1:4]) @ shift
+                          + (after[4:7] - before[4:7]) @ turn))
+    return gain if math.isfinite(gain) else 0.0
 
 
 def _scaled(ev: Evaluation, kappa: float, microseconds: float | None = None) -> Evaluation:
@@ -172,6 +197,11 @@ class RotationCacheField:
       :meth:`install` swaps the new cache in between two steps, and meanwhile the old cache
       serves up to ``limit_angle``, beyond which the full per-pose path runs.
 
+    Each switch of model (a refresh, or the full path taking over) reports in
+    ``Evaluation.switched`` the energy the first-order model gave the part over the stretch
+    it served (it lacks the curvature in the rotation since its anchor; :func:`_gain`),
+    which the simulation takes back (docs/correlation.md, "What a refresh gives the part").
+
     Built (its first cache included) wherever it is constructed: the runtime's worker.
     ``last_path`` says which path served the last pose (``"cached"``, ``"refreshed"``,
     ``"full"``); ``counts`` counts them and the refreshes.
@@ -201,6 +231,8 @@ class RotationCacheField:
         self._waited = 0  # poses since it was asked for
         self._lead = 0  # poses the last background refresh took to arrive
         self._last = self.cache.rotation  # the last pose's rotation
+        self._last_t: np.ndarray | None = None  # and its translation (None: no pose yet)
+        self._previous: RotationCache | None = None  # the cache a background refresh replaced
         self.last_path = "cached"
         self.counts = {"cached": 0, "refreshed": 0, "full": 0, "refreshes": 0,
                        "background_refreshes": 0}
@@ -215,6 +247,16 @@ class RotationCacheField:
         out = self._pose(cache, rot, t, self.kappa)
         path = "cached"
         self._waited += 1
+        last_t = self._last_t
+        self._last_t = t.copy()
+        # the model that served the last pose, evaluated at this one (None: the full path
+        # served it, or this field served none)
+        before = out if self.last_path != "full" and last_t is not None else None
+        if self._previous is not None:  # a background refresh was installed since
+            if before is not None:
+                before = self._pose(self._previous, rot, t, self.kappa)
+            self._previous = None
+        last = (self._last, t if last_t is None else last_t)  # the last pose
         if not out[7] <= self.refresh_angle:  # also NaN: a bad pose goes to the full path
             if self._submit is None:
                 # a refresh costs about two full poses: not worth it while the part turns
@@ -223,21 +265,22 @@ class RotationCacheField:
                 moved = _angle_between(rot, self._last)
                 self._last = rot.copy()
                 if not self.min_poses * moved <= self.refresh_angle:
-                    return self._full(rot, t, start)
+                    return self._full(rot, t, start, before, last)
                 cache = self.cache = self._build(cache.table, rot)
                 self.counts["refreshes"] += 1
                 out = self._pose(cache, rot, t, self.kappa)
                 path = "refreshed"
             elif not out[7] <= self.limit_angle:
                 self._ask(rot)
-                return self._full(rot, t, start)
+                return self._full(rot, t, start, before, last)
         if self._submit is not None and out[7] > 0.5 * self.refresh_angle:
             self._ask(rot)
         self.last_path = path
         self.counts[path] += 1
         self._last = rot.copy()
+        gain = 0.0 if before is out else _gain(out, before, rot, t, last)
         return Evaluation(float(out[0]), out[1:4], out[4:7],
-                          (time.perf_counter() - start) * 1e6, cache.table.modes)
+                          (time.perf_counter() - start) * 1e6, cache.table.modes, gain)
 
     def _ask(self, rot: np.ndarray) -> None:
         """Ask the background lane for a cache, unless one is pending.
@@ -256,12 +299,16 @@ class RotationCacheField:
         self._waited = 0
         self._pending = self._submit(self, np.array(ahead))
 
-    def _full(self, rot: np.ndarray, t: np.ndarray, start: float) -> Evaluation:
+    def _full(self, rot: np.ndarray, t: np.ndarray, start: float,
+              before: np.ndarray | None, last: tuple[np.ndarray, np.ndarray]) -> Evaluation:
         self.last_path = "full"
         self.counts["full"] += 1
         self._last = rot.copy()
-        return _scaled(self.correlator.evaluate(rot, t), self.kappa,
-                       (time.perf_counter() - start) * 1e6)
+        ev = _scaled(self.correlator.evaluate(rot, t), self.kappa,
+                     (time.perf_counter() - start) * 1e6)
+        torque = _ZERO3 if ev.torque is None else ev.torque
+        after: np.ndarray = np.concatenate(([ev.energy], ev.force, torque))
+        return replace(ev, switched=_gain(after, before, rot, t, last))
 
     # -- refreshes --------------------------------------------------------------------------
     @property
@@ -294,6 +341,7 @@ class RotationCacheField:
         self._pending = 0
         if cache.table is not self.cache.table:
             return False
+        self._previous = self.cache  # the next pose measures the switch against it
         self.cache = cache
         self._lead = self._waited
         self.counts["refreshes"] += 1
@@ -314,6 +362,7 @@ class RotationCacheField:
         self.correlator.set_modes(int(modes))
         self.modes = int(modes)
         self._pending = 0
+        self._previous = None
         self.cache = self._build(self.correlator.table, self.cache.rotation)
 
     def describe(self) -> str:

@@ -321,3 +321,57 @@ def test_coupling_at_the_hold_point_is_minus_the_gradient_of_its_energy():
                 for s in (1, -1)]
         grad_r.append((energy(base_t, turn[0]) - energy(base_t, turn[1])) / (2 * h))
     np.testing.assert_allclose(torque, -np.array(grad_r), rtol=1e-4, atol=1e-5 * phys.k_lin)
+
+
+class _Switching:
+    """A field with no force that reports a model switch of ``jump`` at every pose."""
+
+    rotation = True
+    modes = 0
+    kappa = 1.0
+
+    def __init__(self, jump):
+        self.jump = float(jump)
+
+    def evaluate(self, rotation, translation):
+        from engine.correlation import Evaluation
+
+        return Evaluation(0.0, np.zeros(3), np.zeros(3), 0.0, 0, self.jump)
+
+    def set_modes(self, modes):
+        pass
+
+
+def test_a_model_switch_s_energy_is_taken_back_from_the_turning():
+    """A free part spinning in a field that reports a jump ``J`` of its model's energy at
+    every pose (as a rotation cache does at a refresh) loses ``J`` of rotational kinetic
+    energy per evaluation, its axis of spin kept; never more than it has; a negative jump
+    (the model lost energy) changes nothing.
+    """
+    from dataclasses import replace
+
+    from engine.sim.body import kinetic_energy
+
+    v, f = box_mesh()
+    config = SimConfig()
+    effects = replace(config.effects, damping=False, gravity=None)
+    phys = resolve_physics(config, v, f, effects=effects)
+    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    spin = np.array([0.3, -0.2, 0.5])
+    for jump in (1e-3, -1e-3, 1e3):
+        sim = Simulation(body, phys, effects, _Switching(jump), np.zeros(6), coupled=False)
+        sim.state.omega = spin.copy()
+        before = kinetic_energy(body, sim.state)
+        sim.step()  # the first step evaluates twice: at the start and after the drift
+        after = kinetic_energy(body, sim.state)
+        if jump < 0:
+            assert after == pytest.approx(before, rel=1e-12)
+            assert sim.taken_back == 0.0
+        elif jump < before:
+            assert before - after == pytest.approx(2 * jump, rel=1e-9)
+            assert sim.taken_back == pytest.approx(2 * jump, rel=1e-9)
+            axis = sim.state.omega / np.linalg.norm(sim.state.omega)
+            assert axis @ spin / np.linalg.norm(spin) > 1 - 1e-6
+        else:
+            assert after == pytest.approx(0.0, abs=1e-15)
+            assert sim.taken_back == pytest.approx(before, rel=1e-9)

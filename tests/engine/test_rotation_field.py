@@ -137,6 +137,40 @@ def test_the_force_jump_at_a_refresh_is_below_the_interpolation_error():
     assert jumps[1] > 30 * jumps[0]
 
 
+def test_a_refresh_reports_the_energy_the_cache_gave_the_part():
+    """Turned back and forth about one axis (6 mrad, four cycles, 24 microradians a pose),
+    the first-order cache does net work on the part: its energy lacks the curvature in the
+    rotation since its anchor, so each stretch between refreshes ends with the part richer.
+    Each refresh reports that gain (``switched``: the new cache's energy minus the old
+    one's at that pose, plus half the torque's change times the last move, which the
+    trapezoid rule of a step already took with the new cache), and the work over the closed
+    path (trapezoid rule over the poses, with the torque of whichever cache served each)
+    equals their sum to rounding; the exact path does no net work. A field that reported
+    the energy jump alone is 3 % off here; one that reported nothing, the whole sum.
+    """
+    corr, ref = correlators(12)
+    base = rotation_matrix(0.3 * AXIS)
+    turn_axis = np.array([0.0, 0.6, 0.8])
+    t = np.array([0.2, -0.3, 0.1])
+    theta = 6e-3 * np.sin(2 * np.pi * np.arange(4 * 1000 + 1) / 1000)
+
+    def net_work(model):
+        """(work over the path, sum of the reported jumps)."""
+        evs = [model.evaluate(rotation_matrix(a * turn_axis) @ base, t) for a in theta]
+        torque = np.array([e.torque @ turn_axis for e in evs])
+        work = float(np.sum(0.5 * (torque[1:] + torque[:-1]) * np.diff(theta)))
+        return work + evs[-1].energy - evs[0].energy, sum(e.switched for e in evs)
+
+    fld = RotationCacheField(corr, 1.0, base)
+    work, jumps = net_work(fld)
+    assert fld.counts["refreshes"] > 40 and fld.counts["full"] == 0
+    assert abs(jumps) > 1e-5
+    assert abs(work - jumps) < 1e-6 * abs(jumps)
+    exact_work, none = net_work(ref)
+    assert none == 0.0
+    assert abs(exact_work) < 1e-3 * abs(work)
+
+
 def test_a_fast_turn_runs_the_full_path_instead_of_refreshing_every_pose():
     corr, ref = correlators(8)
     fld = RotationCacheField(corr, 1.0, np.eye(3))
