@@ -316,9 +316,12 @@ def _plot(results: list[SeatingResult], path: str) -> None:
         axes[1].barh(y + off, tilt, height=0.36, label=label)
     axes[0].axvline(100 * SEAT_FRACTION, color="k", ls="--", lw=1)
     axes[1].axvline(SEAT_DEGREES, color="k", ls="--", lw=1)
-    for ax in axes:  # errors span from hundredths to hundreds
+    for ax, values in zip(axes, ([r.position_percent for r in results],
+                                 [r.tilt_deg for r in results]), strict=True):
+        # errors span from thousandths to hundreds: start the axis below the smallest
         ax.set_xscale("log")
-        ax.set_xlim(left=0.01)
+        small = [v for v in values if v > 0]
+        ax.set_xlim(left=min(0.01, 0.5 * min(small)) if small else 0.01)
         ax.xaxis.set_minor_formatter(NullFormatter())  # labels at the decades only
     axes[0].set_xlabel("position error, % of width (constrained axes; log)")
     axes[1].set_xlabel("tilt, degrees (constrained axes; log)")
