@@ -209,7 +209,7 @@ class Simulation:
     def _follow_fit(self) -> None:
         """Move the hold point where ``follow`` puts it for the part's current pose.
 
-        The coupling's energy change at this pose is taken back where it is a gain
+        The coupling's energy change at this pose is booked with the other changes of model
         (:meth:`_take_back`).
         """
         if self.follow is None or not self.coupled:
