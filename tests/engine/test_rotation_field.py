@@ -8,6 +8,7 @@ the loop thread.
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 import types
@@ -137,7 +138,8 @@ def test_the_force_jump_at_a_refresh_is_below_the_interpolation_error():
     assert jumps[1] > 30 * jumps[0]
 
 
-def test_a_refresh_reports_the_energy_the_cache_gave_the_part():
+@pytest.mark.parametrize("lane", [False, True])
+def test_a_refresh_reports_the_energy_the_cache_gave_the_part(lane):
     """Turned back and forth about one axis (6 mrad, four cycles, 24 microradians a pose),
     the first-order cache does net work on the part: its energy lacks the curvature in the
     rotation since its anchor, so each stretch between refreshes ends with the part richer.
@@ -146,7 +148,10 @@ def test_a_refresh_reports_the_energy_the_cache_gave_the_part():
     trapezoid rule of a step already took with the new cache), and the work over the closed
     path (trapezoid rule over the poses, with the torque of whichever cache served each)
     equals their sum to rounding; the exact path does no net work. A field that reported
-    the energy jump alone is 3 % off here; one that reported nothing, the whole sum.
+    the energy jump alone is 3 % off here; one that reported nothing, the whole sum. The
+    same with refreshes from a background lane (``lane``: each request built and installed
+    three poses later, the old cache serving meanwhile): the gain is measured at the first
+    pose after the install, against the cache it replaced.
     """
     corr, ref = correlators(12)
     base = rotation_matrix(0.3 * AXIS)
@@ -154,16 +159,32 @@ def test_a_refresh_reports_the_energy_the_cache_gave_the_part():
     t = np.array([0.2, -0.3, 0.1])
     theta = 6e-3 * np.sin(2 * np.pi * np.arange(4 * 1000 + 1) / 1000)
 
-    def net_work(model):
+    def net_work(model, pending=None):
         """(work over the path, sum of the reported jumps)."""
-        evs = [model.evaluate(rotation_matrix(a * turn_axis) @ base, t) for a in theta]
+        evs = []
+        for a in theta:
+            if pending:  # the lane delivers each request three poses after it was made
+                pending[:] = [[wait - 1, rid, rot] for wait, rid, rot in pending]
+                for _, rid, rot in [p for p in pending if p[0] <= 0]:
+                    model.install(rid, model.build_cache(rot))
+                pending[:] = [p for p in pending if p[0] > 0]
+            evs.append(model.evaluate(rotation_matrix(a * turn_axis) @ base, t))
         torque = np.array([e.torque @ turn_axis for e in evs])
         work = float(np.sum(0.5 * (torque[1:] + torque[:-1]) * np.diff(theta)))
         return work + evs[-1].energy - evs[0].energy, sum(e.switched for e in evs)
 
     fld = RotationCacheField(corr, 1.0, base)
-    work, jumps = net_work(fld)
+    pending: list[list] = []  # [poses to wait, request id, rotation]
+    ids = itertools.count(1)
+    if lane:
+        def submit(f, rot):
+            pending.append([3, next(ids), rot])
+            return pending[-1][1]
+
+        fld.refresh_in_background(submit)
+    work, jumps = net_work(fld, pending if lane else None)
     assert fld.counts["refreshes"] > 40 and fld.counts["full"] == 0
+    assert fld.counts["background_refreshes"] == (fld.counts["refreshes"] if lane else 0)
     assert abs(jumps) > 1e-5
     assert abs(work - jumps) < 1e-6 * abs(jumps)
     exact_work, none = net_work(ref)
