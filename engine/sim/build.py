@@ -248,22 +248,22 @@ def _overlap(fixed_lo: np.ndarray, fixed_hi: np.ndarray, corners: np.ndarray,
 
 
 class FitHold:
-    """Where the coupling holds the moving part: at the fit, as far in as the part is.
+    """Where the coupling holds the moving part: at the fit, also past its seat.
 
-    At the assembled pose the hold point is the middle of the fit (:func:`hold_point`).
-    Elsewhere it slides along the part's line through that point that lies on the insertion
-    axis at the assembled pose (a peg's own axis), to the level of the middle of the length
-    the parts are engaged over now: the part of the axis where their boxes overlap (the
-    moving part's box placed at its pose). The slide is weighted by how deep the part is in,
-    that length over the one at the assembled pose (at most 1), so the hold point moves
-    continuously from where the part is held in free space (the middle of the fit at the
-    assembled pose) as the boxes start to meet.
+    At and before the assembled pose the hold point is the middle of the fit there
+    (:func:`hold_point`). A part that goes on past its seat along the insertion axis (a peg
+    through a through hole: that axis is free, and the energy draws it on) carries the fit
+    up its own axis: the hold point slides back along the part's line through it that lies
+    on the insertion axis at the assembled pose (a peg's own axis) by as far as the part has
+    gone past, so it stays at the fit, but never beyond the part's far end.
 
     Held there the coupling is a remote centre of compliance at the fit wherever the part
-    is along the axis. A peg that slides on through a through hole (its axis is free) past
-    the assembled pose would otherwise be held below the fit, and a sideways pull at the
-    hold point then tilts it about the fit: the 16 mm Factory peg, 3.4 mm past its seat
-    and aimed 0.48 mm sideways, rested 0.76 degree tilted; held at the fit, 0.10.
+    is along the axis. Held at a fixed point of the part, the 16 mm Factory peg, 3.4 mm past
+    its seat and aimed 0.48 mm sideways, rested 0.76 degree tilted (the sideways pull 3.4 mm
+    below the fit tilted it about the fit); held at the fit, 0.10. Before the seat the hold
+    point stays put: a first version that also slid it towards the leading end while the
+    part went in (the middle of where the parts' boxes overlapped) toppled the thin-walled
+    sleeve 22 degrees at the mouth when the proxy's tilt opposed its sideways aim.
 
     Parameters
     ----------
@@ -272,39 +272,37 @@ class FitHold:
     assembled_pose : (6,) float64
         Part 2 relative to part 1 at the seat.
     axis : (3,) float64
-        The insertion axis, part 1's frame.
+        The insertion axis, part 1's frame (the way part 2 travels to its seat).
     """
 
     def __init__(self, fixed: np.ndarray, moving: np.ndarray, assembled_pose: np.ndarray,
                  axis: np.ndarray):
         fixed = np.asarray(fixed, np.float64)
-        self.fixed_lo, self.fixed_hi = fixed.min(axis=0), fixed.max(axis=0)
-        self.corners = _box_corners(moving)
+        corners = _box_corners(moving)
         a = np.asarray(axis, np.float64).reshape(3)
         self.axis = a / np.linalg.norm(a)
         pose = np.asarray(assembled_pose, np.float64).reshape(6)
         rot = rotation_matrix(pose[3:])
-        box = _overlap(self.fixed_lo, self.fixed_hi, self.corners, rot, pose[:3])
+        box = _overlap(fixed.min(axis=0), fixed.max(axis=0), corners, rot, pose[:3])
         if box is None:
             raise ValueError("the parts' boxes do not meet at the assembled pose")
         lo, hi = box
-        #: The hold point at the assembled pose, in the part's own frame.
+        #: The hold point at and before the assembled pose, in the part's own frame.
         self.rest = rot.T @ (0.5 * (lo + hi) - pose[:3])
-        #: The engaged length along the axis at the assembled pose.
-        self.depth = float(np.abs(self.axis) @ (hi - lo))
+        #: The part's origin at the assembled pose (part 1's frame).
+        self.seat = pose[:3].copy()
         #: The insertion axis in the part's own frame, as it is at the assembled pose: the
         #: hold point slides along this line of the part.
         self.along = rot.T @ self.axis
+        #: How far the hold point can slide back before it leaves the part's box.
+        self.reach = max(0.0, float(np.max((self.rest - corners) @ self.along)))
 
     def at(self, rotation: np.ndarray, origin: np.ndarray) -> np.ndarray:
         """(3,) the hold point in the part's own frame, the part at ``rotation``, ``origin``."""
-        box = _overlap(self.fixed_lo, self.fixed_hi, self.corners, rotation, origin)
-        if box is None:
+        past = float((np.asarray(origin, np.float64) - self.seat) @ self.axis)
+        if not past > 0.0:
             return self.rest
-        lo, hi = box
-        weight = min(float(np.abs(self.axis) @ (hi - lo)) / self.depth, 1.0)
-        middle = rotation.T @ (0.5 * (lo + hi) - origin)
-        return self.rest + (weight * float((middle - self.rest) @ self.along)) * self.along
+        return self.rest - min(past, self.reach) * self.along
 
 
 def fit_hold(handle: LoadedScene) -> FitHold | None:
@@ -331,7 +329,7 @@ def hold_point(handle: LoadedScene) -> np.ndarray | None:
     compliance at the fit: a tilt is resisted by the rotational spring alone, not also by
     the translational spring times the square of the lever from the fit to the centre of
     mass (a 50 mm peg held at its centre of mass pivots 20 mm below it in a 9 mm plate).
-    Where the scene names an insertion axis the point then follows the fit along it
+    Where the scene names an insertion axis the point follows the fit past the seat
     (:class:`FitHold`). None (hold at the centre of mass) for a single part or where the
     boxes do not overlap at the assembled pose.
     """

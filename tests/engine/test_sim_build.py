@@ -200,10 +200,10 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
 def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
     """The 6 long peg of the test above in its 2 thick plate (z -1..1), inserted along -z:
     seated (2 up) it is held at its own z = -2, the middle of the engaged length; pushed
-    on 1 further through (1 up, world z -2..4) the middle of what is engaged is its own
-    z = -1; a quarter as deep as seated (3.5 up: z 0.5..1 engaged) the hold point has slid
-    a quarter of the way to that middle (own z -2.75); with the boxes apart, and turned, it
-    stays on the part's axis. The simulation of such a scene moves its hold point so.
+    on 1 further through (1 up) the fit sits at its own z = -1, and so does the hold point;
+    before the seat (3.5 up, or far above) it stays at -2; pushed through until it leaves
+    the plate, the point stops at the part's far end (own z = 3); tilted, it slides along
+    the part's own axis. The simulation of such a scene moves its hold point so.
     """
     from engine.scene import load_scene, load_scene_parts, relative_start_pose
     from engine.sim import build_simulation
@@ -213,20 +213,19 @@ def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
     rule = FitHold(plate, peg, [0, 0, 2, 0, 0, 0], [0, 0, -1])
     eye = np.eye(3)
     np.testing.assert_allclose(rule.rest, [0, 0, -2], atol=1e-12)
-    assert rule.depth == pytest.approx(2.0)
+    assert rule.reach == pytest.approx(5.0)
     np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 2.0])), [0, 0, -2], atol=1e-12)
     np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 1.0])), [0, 0, -1], atol=1e-12)
-    np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 3.5])),
-                               [0, 0, -2 + 0.25 * (-2.75 + 2)], atol=1e-12)
-    np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 9.0])), rule.rest)  # apart
-    # continuous as the boxes start to meet (the weight goes to 0 with the engaged length)
-    near = rule.at(eye, np.array([0, 0, 4.0 - 1e-6]))
-    np.testing.assert_allclose(near, rule.rest, atol=1e-5)
+    np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 3.5])), rule.rest)  # before
+    np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 9.0])), rule.rest)  # far above
+    np.testing.assert_allclose(rule.at(eye, np.array([0, 0, -9.0])), [0, 0, 3], atol=1e-12)
+    # continuous at the seat
+    np.testing.assert_allclose(rule.at(eye, np.array([0, 0, 2.0 - 1e-6])), rule.rest,
+                               atol=2e-6)
     # tilted, the point slides along the part's own axis only
     tilt = rotation_matrix(np.array([0.05, 0.0, 0.0]))
     held = rule.at(tilt, np.array([0.1, 0.0, 1.0]))
-    np.testing.assert_allclose(held[:2], 0.0, atol=1e-12)
-    assert -1.2 < held[2] < -0.8
+    np.testing.assert_allclose(held, [0, 0, -1], atol=1e-12)
     # a scene with an insertion axis holds its part so; the hold point is the rest one there
     trimesh = pytest.importorskip("trimesh")
     trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
@@ -299,14 +298,14 @@ def test_a_coarse_first_field_reaches_no_farther_than_the_scenes_own(small_peg_s
 
 
 def test_a_hold_point_that_follows_the_fit_gives_the_part_no_energy():
-    """Undamped, the peg of the tests above swings on a stiff coupling across the plate's
-    face, where the hold point slides with how deep it is in. The coupling's energy changes
+    """Undamped, the peg of the tests above swings and tumbles on a stiff coupling 2 past its
+    seat, where the hold point slides with how far past it is. The coupling's energy changes
     at the slides are booked and their net gain taken back, so over 8 s the energy (kinetic
-    plus coupling, its mean over the last second against the first) moves by 0.2 % (the
-    step's own error, no longer that of one fixed energy); with the hold point fixed, 3e-6.
-    Without the take-back the same run gains 2 % (the undamped small peg at a 4 ms step with
-    a doubled coupling frequency diverged so in the runtime's contract test); taking back
-    only the gains, it lost 5 %.
+    plus coupling, its mean over the last second against the first) moves by 4e-4 (the
+    step's own error, no longer that of one fixed energy); with the hold point fixed, 1e-5.
+    Without the take-back the same run gains 0.9 % (a first rule that also slid the point
+    while the part went in: an undamped small peg at a 4 ms step with a doubled coupling
+    frequency diverged so in the runtime's contract test).
     """
     from engine.sim import NullField, RigidBody, Simulation
     from engine.sim.build import FitHold
@@ -318,15 +317,15 @@ def test_a_hold_point_that_follows_the_fit_gives_the_part_no_energy():
     phys = resolve_physics(config, peg, peg_faces, effects=effects)
     phys = replace(phys, k_lin=4 * phys.k_lin, k_rot=4 * phys.k_rot)
     body = RigidBody(phys.mass, phys.inertia, phys.center)
-    proxy = np.array([0.0, 0.0, 3.9, 0.0, 0.0, 0.0])  # just engaged: the boxes meet 0.1 deep
+    proxy = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 2 past the seat: the point slides
     gains = []
     for follow, take_back in ((None, True), (rule, True), (rule, False)):
         sim = Simulation(body, phys, effects, NullField(), proxy, dt=1e-3, follow=follow,
                          hold=rule.rest)
         if not take_back:
             sim._take_back = lambda jump: None
-        sim.state.velocity = np.array([0.5, -0.3, 3.0])  # swings in and out of the plate
-        sim.state.omega = np.array([0.4, 0.2, 0.0])
+        sim.state.velocity = np.array([0.5, -0.3, 5.0])  # swings along and across the axis
+        sim.state.omega = np.array([5.0, 2.5, 0.0])
         e0 = sim.total_energy()
         energies = []
         for _ in range(8000):
@@ -335,5 +334,5 @@ def test_a_hold_point_that_follows_the_fit_gives_the_part_no_energy():
         gains.append((np.mean(energies[-1000:]) - np.mean(energies[:1000])) / e0)
     fixed, taken_back, kept = gains
     assert abs(fixed) < 1e-4
-    assert abs(taken_back) < 5e-3
-    assert kept > 0.01
+    assert abs(taken_back) < 2e-3
+    assert kept > 4e-3
