@@ -289,7 +289,9 @@ class Simulation:
         """
         state, body, dt = self.state, self.body, self._dt
         if not self._sample_fresh:
-            self._take_back(self.evaluate_field().switched)
+            # after a reset, a new field or new gains the last pose the field saw was not
+            # this step's: a switch it reports here measured nothing the part gained
+            self.evaluate_field()
             self._sample_fresh = True
         self._follow_fit()
         tmask, rmask = self._tmask, self._rmask
