@@ -154,6 +154,25 @@ def test_fit_lowers_but_never_raises_the_rotational_coupling():
     assert soft_fit.c_rot == pytest.approx(math.sqrt(0.3) * stiff_fit.c_rot)
 
 
+def peg_in_plate(tmp_path, *, start_z: float, axis: str | None = None):
+    """A loaded scene: a 1 x 1 x 6 peg seated 2 up in a 4 x 4 x 2 plate, starting at z."""
+    import trimesh
+
+    from engine.scene import load_scene, load_scene_parts, relative_start_pose
+
+    trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
+    trimesh.creation.box(extents=(1.0, 1.0, 6.0)).export(tmp_path / "peg.stl")
+    (tmp_path / "scene.toml").write_text(
+        'units = "mm"\nassembled_pose = [0, 0, 2, 0, 0, 0]\n'
+        + ("" if axis is None else f"insertion_axis = {axis}\n") + "\n"
+        '[[part]]\nname = "base"\nfile = "base.stl"\npose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n'
+        f'[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, {start_z}, 0, 0, 0]\n'
+    )
+    scene = load_scene(tmp_path / "scene.toml")
+    return LoadedBoxes(scene, scene.config, tuple(load_scene_parts(scene)),
+                       relative_start_pose(scene))
+
+
 def test_hold_point_is_the_middle_of_the_fit(tmp_path):
     """The coupling holds the moving part where the two parts' boxes overlap at the
     assembled pose: a 6 long peg (own frame z -3..3) seated 2 up in a plate 2 thick
@@ -163,9 +182,6 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
     """
     from types import SimpleNamespace
 
-    import trimesh
-
-    from engine.scene import load_scene, load_scene_parts, relative_start_pose
     from engine.sim import build_simulation
     from engine.sim.build import hold_point
 
@@ -182,17 +198,7 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
                                atol=1e-12)
     assert hold_point(pair([0, 0, 5, 0, 0, 0])) is None  # boxes apart at the seat
     # build_simulation holds the part there
-    trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
-    trimesh.creation.box(extents=(1.0, 1.0, 6.0)).export(tmp_path / "peg.stl")
-    (tmp_path / "scene.toml").write_text(
-        'units = "mm"\nassembled_pose = [0, 0, 2, 0, 0, 0]\n\n'
-        '[[part]]\nname = "base"\nfile = "base.stl"\npose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n'
-        '[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, 8, 0, 0, 0]\n'
-    )
-    scene = load_scene(tmp_path / "scene.toml")
-    handle = LoadedBoxes(scene, scene.config, tuple(load_scene_parts(scene)),
-                         relative_start_pose(scene))
-    sim, _ = build_simulation(handle, prepare=False)
+    sim, _ = build_simulation(peg_in_plate(tmp_path, start_z=8.0), prepare=False)
     np.testing.assert_allclose(sim.hold, [0, 0, -2], atol=1e-9)
     np.testing.assert_allclose(sim.body.center, 0.0, atol=1e-9)
 
@@ -205,7 +211,6 @@ def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
     the plate, the point stops at the part's far end (own z = 3); tilted, it slides along
     the part's own axis. The simulation of such a scene moves its hold point so.
     """
-    from engine.scene import load_scene, load_scene_parts, relative_start_pose
     from engine.sim import build_simulation
     from engine.sim.build import FitHold, hold_point
 
@@ -227,17 +232,7 @@ def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
     held = rule.at(tilt, np.array([0.1, 0.0, 1.0]))
     np.testing.assert_allclose(held, [0, 0, -1], atol=1e-12)
     # a scene with an insertion axis holds its part so; the hold point is the rest one there
-    trimesh = pytest.importorskip("trimesh")
-    trimesh.creation.box(extents=(4.0, 4.0, 2.0)).export(tmp_path / "base.stl")
-    trimesh.creation.box(extents=(1.0, 1.0, 6.0)).export(tmp_path / "peg.stl")
-    (tmp_path / "scene.toml").write_text(
-        'units = "mm"\nassembled_pose = [0, 0, 2, 0, 0, 0]\ninsertion_axis = [0, 0, -1]\n\n'
-        '[[part]]\nname = "base"\nfile = "base.stl"\npose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n'
-        '[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, 1, 0, 0, 0]\n'
-    )
-    scene = load_scene(tmp_path / "scene.toml")
-    handle = LoadedBoxes(scene, scene.config, tuple(load_scene_parts(scene)),
-                         relative_start_pose(scene))
+    handle = peg_in_plate(tmp_path, start_z=1.0, axis="[0, 0, -1]")
     np.testing.assert_allclose(hold_point(handle), [0, 0, -2], atol=1e-9)
     sim, _ = build_simulation(handle, prepare=False)
     assert isinstance(sim.follow, FitHold)
