@@ -156,18 +156,19 @@ def small_scene(tmp_path_factory) -> Path:
     return d / "scene.toml"
 
 
-def _wait_until(qtbot, predicate, timeout_ms: int, what: str) -> None:
+def _wait_until(qtbot, predicate, timeout_ms: int, what) -> None:
     try:
         # bool(): waitUntil takes a callback returning None as an assertion that passed
         qtbot.waitUntil(lambda: bool(predicate()), timeout=timeout_ms)
     except Exception as exc:  # pytestqt's TimeoutError
-        raise AssertionError(f"timed out after {timeout_ms} ms waiting for {what}") from exc
+        said = what() if callable(what) else what
+        raise AssertionError(f"timed out after {timeout_ms} ms waiting for {said}") from exc
 
 
 @pytest.fixture
 def wait_until(qtbot):
     """``wait_until(predicate, timeout_ms, what)``: qtbot.waitUntil whose failure says what
-    did not happen.
+    did not happen (``what``: a string, or a callable giving one, read at the timeout).
     """
     return lambda predicate, timeout_ms, what: _wait_until(qtbot, predicate, timeout_ms, what)
 

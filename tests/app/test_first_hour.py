@@ -299,7 +299,16 @@ def test_the_pose_dialog_moves_the_ghost_and_places_the_part(make_window, wait_u
     # "Assembled" then "Place the part": part and proxy there at rest
     [b for b in dialog.findChildren(QtWidgets.QPushButton) if b.text() == "Assembled"][0].click()
     dialog.place_button.click()
-    wait_until(lambda: win.seat is not None and win.seat.seated, 10000, "the placed part seated")
+    wait_until(lambda: win.seat is not None and win.seat.seated, 10000,
+               lambda: _placed_state(win, dialog.pose()))
+
+
+def _placed_state(win, placed) -> str:
+    """What the window shows after Place: said when the part does not seat."""
+    f = win.latest_frame
+    return (f"the placed part seated; it says {win.seat_label.text()!r}; placed at "
+            f"{np.round(placed, 4)}, frame at t = {f.time:.3f} s: part {np.round(f.part_pose, 4)}, "
+            f"proxy {np.round(f.proxy_pose, 4)}, paused {f.paused}, energy {f.energy:.4g}")
 
 
 # ------------------------------------------------------------------ 6. the window and controls
