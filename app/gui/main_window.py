@@ -808,6 +808,10 @@ class MainWindow(QtWidgets.QMainWindow):
                   "unless the scene sets pivot):\nhow far the pivot moved, and the rotation "
                   "about it (the scene file's pose when not turned)")
             head, detail = quantities.seat_text(self.seat, u.length)
+            if self.tasks.get("descriptors") is not None:
+                # the coarse first field's rest can lie a cell off the seat (the peg in hole
+                # rests 1.1 degrees tilted there, 0.8 on its own grid)
+                detail += "; judged on a coarse first field until the scene's descriptors are ready"
             r.set("seat", f"{self.seat.distance:.3g} {u.length}, {self.seat.angle_deg:.2f}°",
                   "Distance of part 2's centre of mass from where it sits when assembled, and "
                   "the angle from the seated orientation, the fit's free axes left out")

@@ -299,6 +299,10 @@ def test_the_pose_dialog_moves_the_ghost_and_places_the_part(make_window, wait_u
     # "Assembled" then "Place the part": part and proxy there at rest
     [b for b in dialog.findChildren(QtWidgets.QPushButton) if b.text() == "Assembled"][0].click()
     dialog.place_button.click()
+    # judged on the scene's own field: on the coarse first field (the tests' descriptor cache
+    # starts empty) the peg's rest at its seat is 1.1 degrees tilted, the seat tolerance 1
+    wait_until(lambda: win.guidance_ready and win.tasks.get("descriptors") is None, 600000,
+               "the scene's own descriptors")
     wait_until(lambda: win.seat is not None and win.seat.seated, 10000,
                lambda: _placed_state(win, dialog.pose()))
 
@@ -512,5 +516,10 @@ def test_a_coarse_first_field_shows_the_scenes_descriptors_as_a_task(make_window
     win._handle_event(runtime.ReadyEvent(tuple(descriptors), "numba", "ready", coarse_grid=24))
     task = win.tasks.get("descriptors")
     assert task is not None and "coarse grid of 24" in task.label
+    # the seat readout says its judgement is the coarse field's until then
+    wait_until(lambda: "coarse first field" in win.seat_detail.text(), 5000,
+               "the seat readout naming the coarse field")
     win._handle_event(runtime.DescriptorsSwapped(tuple(descriptors), 0.5, 3.0, 1.0))
     assert win.tasks.get("descriptors") is None
+    wait_until(lambda: "coarse" not in win.seat_detail.text(), 5000,
+               "the seat readout without the coarse field")
