@@ -261,11 +261,24 @@ class MainWindow(QtWidgets.QMainWindow):
         self.addAction(action)  # shortcuts work while the menu bar is hidden or unfocused
         return action
 
+    def _menu(self, parent, title: str) -> QtWidgets.QMenu:
+        """A menu made here and added to ``parent`` (the menu bar or a menu).
+
+        Made in Python rather than taken from ``addMenu(title)``: a wrapper looked up by its
+        C++ address can come back as a stale wrapper of a deleted object at that address
+        (a QSurface from a closed 3D view, seen once on Python 3.10), while a menu made here
+        has its own.
+        """
+        menu = QtWidgets.QMenu(title, self)
+        parent.addMenu(menu)
+        return menu
+
     def _build_menus(self) -> None:
-        bar = self.menuBar()
-        file = bar.addMenu("&File")
+        bar = QtWidgets.QMenuBar(self)  # made here, for the reason given in _menu
+        self.setMenuBar(bar)
+        file = self._menu(bar, "&File")
         self._action(file, "&Open scene or part…", self.open_dialog, QtGui.QKeySequence.Open)
-        self.recent_menu = file.addMenu("Open &recent")
+        self.recent_menu = self._menu(file, "Open &recent")
         self._action(file, "&Save scene as…", self.save_dialog, QtGui.QKeySequence.Save)
         file.addSeparator()
         self._action(file, "Save screens&hot…", self.screenshot_dialog, "F12")
@@ -273,17 +286,17 @@ class MainWindow(QtWidgets.QMainWindow):
         self._action(file, "&Quit", self.close, QtGui.QKeySequence.Quit)
         self._update_recent_menu()
 
-        view = bar.addMenu("&View")
+        view = self._menu(bar, "&View")
         for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape):
             view.addAction(dock.toggleViewAction())
         view.addSeparator()
         self._action(view, "Reset &camera", self.reset_camera, "Ctrl+0")
-        views = view.addMenu("&Standard views")
+        views = self._menu(view, "&Standard views")
         self.view_actions: dict[str, QtGui.QAction] = {}
         for name, key in VIEW_KEYS:
             self.view_actions[name] = self._action(
                 views, VIEW_NAMES[name], lambda _c=False, n=name: self.set_view(n), key)
-        drag = bar.addMenu("&Drag")
+        drag = self._menu(bar, "&Drag")
         self.constraint_group = QtGui.QActionGroup(self)
         self.constraint_actions: dict[str, QtGui.QAction] = {}
         for name, key, text in CONSTRAINT_KEYS:
@@ -298,14 +311,14 @@ class MainWindow(QtWidgets.QMainWindow):
         drag.addSeparator()
         self._action(drag, "Type the &pose…", self.show_pose_dialog, "Ctrl+P")
 
-        sim = bar.addMenu("&Simulation")
+        sim = self._menu(bar, "&Simulation")
         self.pause_action = self._action(sim, "&Pause", self._toggle_pause, "Space",
                                          checkable=True)
         self._action(sim, "&Reset pose", lambda: self._command(runtime.Reset()), "Ctrl+R")
         self._action(sim, "&More modes", lambda: self._step_modes(+2), "]")
         self._action(sim, "&Fewer modes", lambda: self._step_modes(-2), "[")
 
-        help_menu = bar.addMenu("&Help")
+        help_menu = self._menu(bar, "&Help")
         self._action(help_menu, "&Controls", self._show_help, "F1")
         self._action(help_menu, "&About", self._about)
 
