@@ -232,19 +232,23 @@ def _box_corners(vertices: np.ndarray) -> np.ndarray:
     return np.where(pick, hi, lo)
 
 
-def _overlap(fixed_lo: np.ndarray, fixed_hi: np.ndarray, corners: np.ndarray,
-             rotation: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(lo, hi) where part 1's box meets the moving part's box placed at a pose.
+def _fit_middle(fixed: np.ndarray, moving: np.ndarray,
+               assembled_pose: np.ndarray) -> np.ndarray | None:
+    """(3,) the middle of the fit in the moving part's own frame, or None.
 
-    The moving part's box placed is the box of its rotated corners; both in part 1's frame.
-    None where the boxes do not meet.
+    The centre of the box where part 1's bounding box meets the moving part's (its box
+    rotated to the assembled pose, then boxed again), both in part 1's frame, mapped into
+    the moving part's frame. None where the boxes do not meet at the assembled pose.
     """
-    placed = corners @ rotation.T + origin
-    lo = np.maximum(fixed_lo, placed.min(axis=0))
-    hi = np.minimum(fixed_hi, placed.max(axis=0))
+    fixed = np.asarray(fixed, np.float64)
+    pose = np.asarray(assembled_pose, np.float64).reshape(6)
+    rot = rotation_matrix(pose[3:])
+    placed = _box_corners(moving) @ rot.T + pose[:3]
+    lo = np.maximum(fixed.min(axis=0), placed.min(axis=0))
+    hi = np.minimum(fixed.max(axis=0), placed.max(axis=0))
     if np.any(hi - lo <= 0):
         return None
-    return lo, hi
+    return np.asarray(rot.T @ (0.5 * (lo + hi) - pose[:3]), np.float64)
 
 
 class FitHold:
@@ -277,25 +281,22 @@ class FitHold:
 
     def __init__(self, fixed: np.ndarray, moving: np.ndarray, assembled_pose: np.ndarray,
                  axis: np.ndarray):
-        fixed = np.asarray(fixed, np.float64)
-        corners = _box_corners(moving)
+        rest = _fit_middle(fixed, moving, assembled_pose)
+        if rest is None:
+            raise ValueError("the parts' boxes do not meet at the assembled pose")
+        #: The hold point at and before the assembled pose, in the part's own frame.
+        self.rest = rest
         a = np.asarray(axis, np.float64).reshape(3)
         self.axis = a / np.linalg.norm(a)
         pose = np.asarray(assembled_pose, np.float64).reshape(6)
         rot = rotation_matrix(pose[3:])
-        box = _overlap(fixed.min(axis=0), fixed.max(axis=0), corners, rot, pose[:3])
-        if box is None:
-            raise ValueError("the parts' boxes do not meet at the assembled pose")
-        lo, hi = box
-        #: The hold point at and before the assembled pose, in the part's own frame.
-        self.rest = rot.T @ (0.5 * (lo + hi) - pose[:3])
         #: The part's origin at the assembled pose (part 1's frame).
         self.seat = pose[:3].copy()
         #: The insertion axis in the part's own frame, as it is at the assembled pose: the
         #: hold point slides along this line of the part.
         self.along = rot.T @ self.axis
         #: How far the hold point can slide back before it leaves the part's box.
-        self.reach = max(0.0, float(np.max((self.rest - corners) @ self.along)))
+        self.reach = max(0.0, float(np.max((self.rest - _box_corners(moving)) @ self.along)))
 
     def at(self, rotation: np.ndarray, origin: np.ndarray) -> np.ndarray:
         """(3,) the hold point in the part's own frame, the part at ``rotation``, ``origin``."""
@@ -335,15 +336,8 @@ def hold_point(handle: LoadedScene) -> np.ndarray | None:
     """
     if len(handle.parts) < 2:
         return None
-    pose = np.asarray(handle.scene.assembled_pose, np.float64).reshape(6)
-    rot = rotation_matrix(pose[3:])
-    fixed = np.asarray(handle.parts[0].vertices, np.float64)
-    box = _overlap(fixed.min(axis=0), fixed.max(axis=0),
-                   _box_corners(handle.parts[1].vertices), rot, pose[:3])
-    if box is None:
-        return None
-    lo, hi = box
-    return np.asarray(rot.T @ (0.5 * (lo + hi) - pose[:3]), np.float64)
+    return _fit_middle(handle.parts[0].vertices, handle.parts[1].vertices,
+                       handle.scene.assembled_pose)
 
 
 def rotational_stiffness(field: GeometricField, pose: np.ndarray) -> float | None:
