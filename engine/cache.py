@@ -151,6 +151,9 @@ DEFAULT_MAX_GB = 2.0
 #: The member of an entry's ``.npz`` that records how long its computation took (seconds);
 #: eviction reads it, :func:`load` never returns it.
 SECONDS_MEMBER = "__compute_seconds__"
+# Below this a computation's measured time is the scheduler's and the collector's, not its
+# own: such entries are all alike to eviction, whatever the timer read.
+TIMING_FLOOR_SECONDS = 0.05
 #: What reading an entry that is not a whole ``.npz`` raises (truncated, a flipped bit).
 _UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
 #: An entry's file name: the 64 hex digits of its key. Nothing else is ever evicted.
@@ -263,10 +266,12 @@ def cost_class(seconds: float | None, nbytes: int) -> int:
 
     :func:`evict` deletes the lower classes first: a spectrum table of 400 MiB that an FFT
     rebuilds in 5 s (class -2) goes before a 1.4 MiB descriptor that took 20 s (class 1).
+    Times under :data:`TIMING_FLOOR_SECONDS` count as that floor: they measure the machine's
+    noise, which must not order entries that are equally cheap.
     """
     if seconds is None:
         return 0
-    per_mib = max(seconds, 1e-6) / max(nbytes / 2**20, 1e-6)
+    per_mib = max(seconds, TIMING_FLOOR_SECONDS) / max(nbytes / 2**20, 1e-6)
     return math.floor(math.log10(per_mib))
 
 
