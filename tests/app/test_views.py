@@ -90,8 +90,9 @@ def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
     assert new_rho.shape == old[0].rho.shape and not np.allclose(new_rho, old[0].rho)
     assert not panel.cancel.isEnabled()
     # the event loop never stalled for long while the recompute ran: a timing check, so
-    # only where other work leaves the machine's cores free (no timing on a busy machine)
-    if os.getloadavg()[0] < (os.cpu_count() or 1):
+    # only where other work leaves the machine's cores free (the load guard of the slow
+    # timing tests: at most half the CPUs busy)
+    if os.getloadavg()[0] <= 0.5 * (os.cpu_count() or 1):
         assert np.max(np.diff(ticks)) < 0.5
 
 
