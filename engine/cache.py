@@ -151,8 +151,8 @@ DEFAULT_MAX_GB = 2.0
 #: The member of an entry's ``.npz`` that records how long its computation took (seconds);
 #: eviction reads it, :func:`load` never returns it.
 SECONDS_MEMBER = "__compute_seconds__"
-# Below this a computation's measured time is the scheduler's and the collector's, not its
-# own: such entries are all alike to eviction, whatever the timer read.
+#: Below this a computation's measured time is the scheduler's and the collector's, not its
+#: own: such entries are all alike to eviction, whatever the timer read.
 TIMING_FLOOR_SECONDS = 0.05
 #: What reading an entry that is not a whole ``.npz`` raises (truncated, a flipped bit).
 _UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
