@@ -100,22 +100,29 @@ def test_window_views_keep_none_alive(make_window, small_scene, wait_until, qtbo
     win.dock_slice.show()
     win.dock_landscape.show()
     qtbot.wait(500)
-    for widget in (win.slice_view, win.slice_view.canvas, win.landscape_view,
-                   win.landscape_view.canvas, win.chart):
-        assert none_references_lost(widget) < TOLERANCE, type(widget).__name__
     frames = win.frames_received
     # garbage of earlier tests (cycles holding None) must not be collected inside the
-    # window: that is a true release, not a lost reference, and it made this check fail
-    # after other window tests
+    # window: that is a true release, not a lost reference, and it made these checks fail
+    # after other window tests (30 "lost" over the chart's repaints once, in CI)
     gc.collect()
     gc.disable()
     try:
+        for widget in (win.slice_view, win.slice_view.canvas, win.landscape_view,
+                       win.landscape_view.canvas, win.chart):
+            lost = none_references_lost(widget)
+            assert lost < WINDOW_TOLERANCE, f"{type(widget).__name__}: {lost} lost"
         counts = none_counts_while_live(qtbot)
     finally:
         gc.enable()
     assert win.frames_received > frames
     lost = level_drop(counts)
     assert lost < LIVE_TOLERANCE, f"{lost:g} references to None lost; readings {counts}"
+
+
+#: Repaints inside the running window: the engine's threads make and free objects holding
+#: None meanwhile, so the count wanders by tens; a faulty binding loses at least one per
+#: ``repaint()`` call alone (``REPAINTS`` of them), and one per Qt call its painting makes.
+WINDOW_TOLERANCE = REPAINTS // 3
 
 
 #: Seconds the live window is watched, and how often its count of None is read.
