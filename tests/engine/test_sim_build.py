@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
+from engine.loading import Part
 from engine.params import Effects, MassSpec, SimConfig
 from engine.pose import rotation_matrix
 from engine.sim import mass_properties, resolve_physics
@@ -185,11 +186,10 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
     from engine.sim import build_simulation
     from engine.sim.build import hold_point
 
-    plate, peg = box((4.0, 4.0, 2.0))[0], box((1.0, 1.0, 6.0))[0]
+    plate, peg = Part("plate", *box((4.0, 4.0, 2.0))), Part("peg", *box((1.0, 1.0, 6.0)))
 
     def pair(pose):
-        return SimpleNamespace(parts=(SimpleNamespace(vertices=plate),
-                                      SimpleNamespace(vertices=peg)),
+        return SimpleNamespace(parts=(plate, peg),
                                scene=SimpleNamespace(assembled_pose=np.asarray(pose, float)))
 
     np.testing.assert_allclose(hold_point(pair([0, 0, 2, 0, 0, 0])), [0, 0, -2], atol=1e-12)
@@ -203,6 +203,86 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
     np.testing.assert_allclose(sim.body.center, 0.0, atol=1e-9)
 
 
+def housing_with_a_flange_hole(size=40.0, height=50.0, flange=5.0, hole=8.2, wall=3.0):
+    """An open-bottomed box housing (``size`` square, ``height`` tall, walls ``wall`` thick)
+    whose top is a ``flange`` thick plate with a square ``hole`` through its middle: a
+    closed mesh made with trimesh's booleans (manifold3d).
+    """
+    import trimesh
+
+    def block(lo, hi):
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        return trimesh.creation.box(extents=hi - lo,
+                                    transform=trimesh.transformations.translation_matrix(
+                                        (lo + hi) / 2))
+
+    h = size / 2
+    outer = block((-h, -h, 0.0), (h, h, height))
+    inside = block((-h + wall, -h + wall, -1.0), (h - wall, h - wall, height - flange))
+    through = block((-hole / 2, -hole / 2, height - flange - 1.0),
+                    (hole / 2, hole / 2, height + 1.0))
+    mesh = outer.difference(inside).difference(through)
+    assert mesh.is_watertight
+    return Part("housing", np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64))
+
+
+def test_the_fit_s_middle_is_where_part_one_s_walls_are():
+    """A pin 60 long (own z -30..30) seated 40 deep into a 50 tall open housing whose only
+    hole is in its 5 thick top flange (z 45..50): the boxes overlap over the pin's lower 40
+    (z 10..50), but part 1's surface near the pin is the flange's hole, so the pin is held
+    at the flange's middle (z 47.5, its own z 7.5), not 17.5 lower in the housing's empty
+    inside (its own z -10, the boxes' overlap alone). A plate whose surface reaches the
+    pin's box everywhere along it keeps the overlap's middle (the tests above).
+    """
+    from engine.sim.build import _fit_middle
+
+    housing = housing_with_a_flange_hole()
+    pin = box((8.0, 8.0, 60.0))[0]
+    np.testing.assert_allclose(_fit_middle(housing, pin, np.array([0, 0, 40.0, 0, 0, 0])),
+                               [0, 0, 7.5], atol=1e-9)
+    # turned half a turn about x, the same place is its own z = -7.5
+    np.testing.assert_allclose(
+        _fit_middle(housing, pin, np.array([0, 0, 40.0, math.pi, 0, 0])), [0, 0, -7.5],
+        atol=1e-9)
+
+
+def test_surface_box_is_the_box_of_the_surface_inside_it():
+    """Against brute force: the box of dense samples of each triangle that fall inside the
+    box agrees with the exact clipped box to the samples' spacing, on a closed mesh cut by
+    boxes that hold corners, edges and faces of it, and none of it.
+    """
+    from engine.sim.build import surface_box
+
+    housing = housing_with_a_flange_hole()
+    tri = housing.vertices[housing.faces]
+    n = 120
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    u, v = (i[keep] / n)[:, None], (j[keep] / n)[:, None]
+    samples = (tri[:, None, 0] + u * (tri[:, None, 1] - tri[:, None, 0])
+               + v * (tri[:, None, 2] - tri[:, None, 0])).reshape(-1, 3)
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(40):
+        centre = rng.uniform([-25, -25, -5], [25, 25, 55])
+        half = rng.uniform(2.0, 15.0, 3)
+        lo, hi = centre - half, centre + half
+        inside = samples[np.all((samples >= lo) & (samples <= hi), axis=1)]
+        found = surface_box(housing.vertices, housing.faces, lo, hi)
+        if len(inside) == 0:
+            continue
+        checked += 1
+        assert found is not None
+        step = 0.7  # the samples' spacing along the longest edge (64 / 120 = 0.53), and more
+        assert np.all(found[0] <= inside.min(axis=0) + 1e-9)
+        assert np.all(found[1] >= inside.max(axis=0) - 1e-9)
+        np.testing.assert_allclose(found[0], inside.min(axis=0), atol=step)
+        np.testing.assert_allclose(found[1], inside.max(axis=0), atol=step)
+    assert checked >= 20
+    assert surface_box(housing.vertices, housing.faces, np.array([100.0] * 3),
+                       np.array([101.0] * 3)) is None
+
+
 def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
     """The 6 long peg of the test above in its 2 thick plate (z -1..1), inserted along -z:
     seated (2 up) it is held at its own z = -2, the middle of the engaged length; pushed
@@ -214,7 +294,7 @@ def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
     from engine.sim import build_simulation
     from engine.sim.build import FitHold, hold_point
 
-    plate, peg = box((4.0, 4.0, 2.0))[0], box((1.0, 1.0, 6.0))[0]
+    plate, peg = Part("plate", *box((4.0, 4.0, 2.0))), box((1.0, 1.0, 6.0))[0]
     rule = FitHold(plate, peg, [0, 0, 2, 0, 0, 0], [0, 0, -1])
     eye = np.eye(3)
     np.testing.assert_allclose(rule.rest, [0, 0, -2], atol=1e-12)
@@ -305,7 +385,7 @@ def test_a_hold_point_that_follows_the_fit_gives_the_part_no_energy():
     from engine.sim import NullField, RigidBody, Simulation
     from engine.sim.build import FitHold
 
-    (plate, _), (peg, peg_faces) = box((4.0, 4.0, 2.0)), box((1.0, 1.0, 6.0))
+    plate, (peg, peg_faces) = Part("plate", *box((4.0, 4.0, 2.0))), box((1.0, 1.0, 6.0))
     rule = FitHold(plate, peg, [0, 0, 2, 0, 0, 0], [0, 0, -1])
     config = SimConfig()
     effects = replace(config.effects, damping=False, gravity=None)
