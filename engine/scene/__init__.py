@@ -14,7 +14,7 @@ A scene is a TOML file (the full format is in docs/scenes.md)::
     [effects]         # guidance, axes, damping, gravity, gravity_direction
     [device]          # kind, max_force, force_scale, per-kind options
     [[part]]          # first: fixed.  name, file, pose, fixed, body, tolerance, unit, pivot
-    [[part]]          # second: moving (plus mass, density, inertia, center_of_mass)
+    [[part]]          # second: moving (plus hold, mass, density, inertia, center_of_mass)
 
 :func:`load_scene` reads it (once, every table validated into the frozen types of
 ``engine.params``); :func:`save_scene` writes one that reads back the same;

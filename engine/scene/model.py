@@ -71,6 +71,10 @@ class PartSpec:
     pivot : (3,) float64 or None
         Point, in the part's file frame and scene units, that typed or dragged rotations
         turn about (None: the centre of the part's bounding box).
+    hold : (3,) float64 or None
+        The moving part only: point, in its file frame and scene units, where the coupling
+        holds it at and before its seat (None: the middle of the fit,
+        ``engine.sim.build.hold_point``).
     mass : MassSpec
         ``mass``, ``density``, ``inertia``, ``center_of_mass`` (None: from the mesh).
     """
@@ -83,6 +87,7 @@ class PartSpec:
     tolerance: float | None = None
     unit: str | None = None
     pivot: np.ndarray | None = None
+    hold: np.ndarray | None = None
     mass: MassSpec = field(default_factory=MassSpec)
 
     def __post_init__(self) -> None:
@@ -90,6 +95,8 @@ class PartSpec:
         object.__setattr__(self, "file", Path(self.file))
         if self.pivot is not None:
             object.__setattr__(self, "pivot", _readonly(self.pivot, 3))
+        if self.hold is not None:
+            object.__setattr__(self, "hold", _readonly(self.hold, 3))
 
 
 @dataclass(frozen=True, eq=False)

@@ -74,8 +74,8 @@ EFFECTS_KEYS = ("guidance", "axes", "damping", "gravity", "gravity_direction")
 #: Keys of ``[device]`` for every kind (plus ``DEVICE_OPTIONS[kind]``).
 DEVICE_KEYS = ("kind", "max_force", "force_scale")
 #: Keys of a ``[[part]]``.
-PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance", "unit", "pivot", "mass",
-             "density", "inertia", "center_of_mass")
+PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance", "unit", "pivot", "hold",
+             "mass", "density", "inertia", "center_of_mass")
 #: Words ``[effects] axes`` accepts besides a list of axes.
 AXES_WORDS = {"all": AXES, "translation": AXES[:3], "rotation": AXES[3:]}
 
@@ -523,7 +523,11 @@ def _parts(top: _Table, data: dict[str, object], p: Path
                             fix="write the unit the part's file is drawn in")
                   if "unit" in table else None),
             pivot=pc.vector("pivot", 3),
+            hold=pc.vector("hold", 3),
         ))
+        if i == 0 and parts[-1].hold is not None:
+            raise pc.fail("hold", "the fixed part is not held: `hold` names where the "
+                          "coupling holds the moving part", "move `hold` to the second [[part]]")
         inertia = pc.values.get("inertia")
         if inertia is not None and not isinstance(inertia, list):
             raise pc._bad("inertia", "3 principal moments or a 3x3 list", None)

@@ -120,6 +120,8 @@ def scene_to_toml(scene: Scene, folder: Path) -> TomlTable:
             part["unit"] = spec.unit
         if spec.pivot is not None:
             part["pivot"] = _floats(spec.pivot)
+        if spec.hold is not None:
+            part["hold"] = _floats(spec.hold)
         mass = config.mass_spec(i)
         if mass != MassSpec():
             if mass.mass is not None:

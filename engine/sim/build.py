@@ -368,11 +368,15 @@ class FitHold:
         Part 2 relative to part 1 at the seat.
     axis : (3,) float64
         The insertion axis, part 1's frame (the way part 2 travels to its seat).
+    rest : (3,) float64, optional
+        The hold point at and before the seat, in the part's own frame (the scene's
+        ``hold``); by default the middle of the fit.
     """
 
     def __init__(self, fixed: Part, moving: np.ndarray, assembled_pose: np.ndarray,
-                 axis: np.ndarray):
-        rest = _fit_middle(fixed, moving, assembled_pose)
+                 axis: np.ndarray, rest: np.ndarray | None = None):
+        if rest is None:
+            rest = _fit_middle(fixed, moving, assembled_pose)
         if rest is None:
             raise ValueError("the parts' boxes do not meet at the assembled pose")
         #: The hold point at and before the assembled pose, in the part's own frame.
@@ -407,7 +411,8 @@ def fit_hold(handle: LoadedScene) -> FitHold | None:
         return None
     try:
         return FitHold(handle.parts[0], handle.parts[1].vertices,
-                       handle.scene.assembled_pose, handle.scene.insertion_axis)
+                       handle.scene.assembled_pose, handle.scene.insertion_axis,
+                       rest=hold_point(handle))
     except ValueError:
         return None
 
@@ -423,11 +428,16 @@ def hold_point(handle: LoadedScene) -> np.ndarray | None:
     the translational spring times the square of the lever from the fit to the centre of
     mass (a 50 mm peg held at its centre of mass pivots 20 mm below it in a 9 mm plate).
     Where the scene names an insertion axis the point follows the fit past the seat
-    (:class:`FitHold`). None (hold at the centre of mass) for a single part or where the
-    boxes do not overlap at the assembled pose.
+    (:class:`FitHold`). The scene's ``hold`` for the moving part, where it names one,
+    replaces the middle of the fit (a part in several fits at once, whose boxes' middle
+    is not where it should pivot). None (hold at the centre of mass) for a single part or
+    where the boxes do not overlap at the assembled pose.
     """
     if len(handle.parts) < 2:
         return None
+    named = handle.scene.parts[1].hold
+    if named is not None:
+        return np.array(named, dtype=np.float64)
     return _fit_middle(handle.parts[0], handle.parts[1].vertices,
                        handle.scene.assembled_pose)
 

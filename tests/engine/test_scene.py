@@ -217,6 +217,7 @@ EVERY_TABLE = MINIMAL + textwrap.dedent("""\
     tolerance = 0.02
     unit = "cm"
     pivot = [1, 2, 3]
+    hold = [0, 0, -4]
     inertia = [[2, 0.1, 0], [0.1, 3, 0], [0, 0, 4]]
     center_of_mass = [0, 0, 1.5]
 
@@ -285,6 +286,7 @@ def test_save_and_reload_round_trip_keeps_every_field(scene_dir, tmp_path):
     assert scene.config.effects.gravity == pytest.approx((0, -9810.0, 0))
     assert scene.parts[1].unit == "cm" and scene.config.masses[1].inertia[0][1] == 0.1
     assert scene.correlation.modes == 12 and scene.config.device.option("port")
+    np.testing.assert_array_equal(scene.parts[1].hold, [0, 0, -4])
     out = tmp_path / "elsewhere" / "deeper" / "copy.toml"  # folders made by the writer
     again = load_scene(save_scene(scene, out))
     assert_same_scene(again, scene)
@@ -560,3 +562,24 @@ def test_part_pivot_is_the_centre_or_the_scene_named_point(tmp_path):
     np.testing.assert_array_equal(part_pivot(open_scene(named)), [75, 0, 0])
     with pytest.raises(SceneError, match="pivot in \\[\\[part\\]\\] #2 must be 3 numbers"):
         load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl", extra="pivot = [1, 2]\n"))
+
+
+def test_a_hold_point_belongs_to_the_moving_part(tmp_path):
+    box_stl(tmp_path, "base.stl", (20, 20, 5))
+    box_stl(tmp_path, "pin.stl", (4, 4, 10))
+    named = load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl", extra="hold = [0, 0, -3]\n"))
+    np.testing.assert_array_equal(named.parts[1].hold, [0, 0, -3])
+    assert named.parts[0].hold is None
+    on_fixed = write(tmp_path, """\
+units = "mm"
+assembled_pose = [0, 0, 0, 0, 0, 0]
+[[part]]
+file = "base.stl"
+hold = [0, 0, 1]
+[[part]]
+file = "pin.stl"
+""")
+    with pytest.raises(SceneError, match=r"scene.toml:5: the fixed part is not held.*second"):
+        load_scene(on_fixed)
+    with pytest.raises(SceneError, match="hold in \\[\\[part\\]\\] #2 must be 3 numbers"):
+        load_scene(two_part_scene(tmp_path, "base.stl", "pin.stl", extra="hold = [1, 2]\n"))

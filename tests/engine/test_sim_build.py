@@ -155,7 +155,7 @@ def test_fit_lowers_but_never_raises_the_rotational_coupling():
     assert soft_fit.c_rot == pytest.approx(math.sqrt(0.3) * stiff_fit.c_rot)
 
 
-def peg_in_plate(tmp_path, *, start_z: float, axis: str | None = None):
+def peg_in_plate(tmp_path, *, start_z: float, axis: str | None = None, peg_keys: str = ""):
     """A loaded scene: a 1 x 1 x 6 peg seated 2 up in a 4 x 4 x 2 plate, starting at z."""
     import trimesh
 
@@ -168,6 +168,7 @@ def peg_in_plate(tmp_path, *, start_z: float, axis: str | None = None):
         + ("" if axis is None else f"insertion_axis = {axis}\n") + "\n"
         '[[part]]\nname = "base"\nfile = "base.stl"\npose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n'
         f'[[part]]\nname = "peg"\nfile = "peg.stl"\npose = [0, 0, {start_z}, 0, 0, 0]\n'
+        + peg_keys
     )
     scene = load_scene(tmp_path / "scene.toml")
     return LoadedBoxes(scene, scene.config, tuple(load_scene_parts(scene)),
@@ -189,8 +190,10 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
     plate, peg = Part("plate", *box((4.0, 4.0, 2.0))), Part("peg", *box((1.0, 1.0, 6.0)))
 
     def pair(pose):
+        specs = (SimpleNamespace(hold=None), SimpleNamespace(hold=None))
         return SimpleNamespace(parts=(plate, peg),
-                               scene=SimpleNamespace(assembled_pose=np.asarray(pose, float)))
+                               scene=SimpleNamespace(assembled_pose=np.asarray(pose, float),
+                                                     parts=specs))
 
     np.testing.assert_allclose(hold_point(pair([0, 0, 2, 0, 0, 0])), [0, 0, -2], atol=1e-12)
     # turned half a turn about x and seated 2 up: its own z = +2 is the end in the plate
@@ -281,6 +284,24 @@ def test_surface_box_is_the_box_of_the_surface_inside_it():
     assert checked >= 20
     assert surface_box(housing.vertices, housing.faces, np.array([100.0] * 3),
                        np.array([101.0] * 3)) is None
+
+
+def test_a_scene_named_hold_point_replaces_the_middle_of_the_fit(tmp_path):
+    """The peg of the tests above with ``hold = [0, 0, 1]``: held there (not at the fit's
+    middle, its own z = -2) from the start, and past the seat the named point slides up the
+    part's own axis as the fit's middle would.
+    """
+    from engine.sim import build_simulation
+    from engine.sim.build import FitHold, fit_hold, hold_point
+
+    handle = peg_in_plate(tmp_path, start_z=8.0, axis="[0, 0, -1]", peg_keys="hold = [0, 0, 1]\n")
+    np.testing.assert_array_equal(hold_point(handle), [0, 0, 1])
+    rule = fit_hold(handle)
+    assert isinstance(rule, FitHold)
+    np.testing.assert_array_equal(rule.rest, [0, 0, 1])
+    np.testing.assert_allclose(rule.at(np.eye(3), np.array([0, 0, 1.5])), [0, 0, 1.5])
+    sim, _ = build_simulation(handle, prepare=False)
+    np.testing.assert_allclose(sim.hold, [0, 0, 1], atol=1e-12)
 
 
 def test_the_hold_point_follows_the_fit_along_the_insertion_axis(tmp_path):
