@@ -273,8 +273,7 @@ def surface_box(vertices: np.ndarray, faces: np.ndarray, lo: np.ndarray,
             ok = (t >= 0.0) & (t <= 1.0)
             points.append((a + np.where(ok, t, 0.0)[..., None] * d)[ok])
     # the box's twelve edges against the triangles
-    corners = np.where(np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], bool),
-                       hi, lo)
+    corners = _box_corners(np.stack([lo, hi]))
     p0, p1 = corners[_BOX_EDGES[:, 0]], corners[_BOX_EDGES[:, 1]]  # (12, 3)
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     normal = np.cross(e1, e2)  # (m, 3)
