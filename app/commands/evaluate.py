@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from engine.pose import rotation_matrix
     from engine.runtime import open_scene
     from engine.sim import mass_properties
+    from engine.sim.build import hold_point
     from engine.sim.joints import find_free_axes
 
     if args.modes is not None:
@@ -82,6 +83,13 @@ def run(args: argparse.Namespace) -> int:
     _, _, centre = mass_properties(moving.vertices, moving.faces, spec, scene.units)
     joint = find_free_axes(lambda r, tr: corr.evaluate(r, tr).energy, pose, centre,
                            float(np.linalg.norm(np.ptp(moving.vertices, axis=0))), corr.spacing)
+    held = hold_point(handle)  # where the simulation's coupling holds the part
+    if scene.parts[-1].hold is not None:
+        hold_source = "scene"
+    elif held is not None:
+        hold_source = "fit"
+    else:
+        held, hold_source = np.asarray(centre, dtype=float), "centre of mass"
     out = {
         "scene": str(scene.path),
         "pose": [float(x) for x in pose],
@@ -99,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
                                    else list(scene.seat.free_axes)),
                       "curvature": joint.curvature, "step": joint.step,
                       "angle_deg": float(np.degrees(joint.angle))},
+        "hold": {"point": [float(x) for x in held], "source": hold_source},
     }
     if args.json:
         print(json.dumps(out))
@@ -118,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"free axes  {', '.join(joint.free) or 'none'} at this pose{declared}: along them "
           f"the energy's curvature over one cell ({joint.step:.3g} {units.length}, or "
           f"{np.degrees(joint.angle):.2g} deg) is under 5 % of the largest of their kind")
+    where = {"scene": "named by the scene", "fit": "the middle of the fit",
+             "centre of mass": "its centre of mass"}[hold_source]
+    print(f"held at    {np.array2string(held, precision=4)} {units.length} in part 2's frame "
+          f"({where})")
     print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")

@@ -73,6 +73,16 @@ def test_evaluate_reports_the_simulations_energy(tmp_path, capsys):
     assert ev.energy != 0.0
     assert out["energy"] == pytest.approx(ev.energy, rel=1e-9)
     np.testing.assert_allclose(out["force"], ev.force, rtol=1e-9, atol=1e-12)
+    # where the simulation's coupling holds the part, and why
+    assert out["hold"]["source"] == "fit"
+    np.testing.assert_allclose(out["hold"]["point"], sim.hold, atol=1e-12)
+
+
+def test_evaluate_reports_a_hold_point_the_scene_names(tmp_path, capsys):
+    path = scene(tmp_path / "a")
+    path.write_text(path.read_text() + "hold = [0, 0, 0.5]\n")
+    out = evaluate(capsys, path)
+    assert out["hold"] == {"point": [0.0, 0.0, 0.5], "source": "scene"}
 
 
 def test_a_scene_kappa_scales_every_reported_quantity(tmp_path, capsys):
