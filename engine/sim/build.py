@@ -838,7 +838,9 @@ def build_simulation(
         field, _ = model.field(effects, physics.kappa, rotation_matrix(model.start_pose[3:]))
         physics = model.physics(effects)  # the rotational coupling scaled to the fit
     limits = HapticLimits.from_device(handle.config.device)
+    follow = fit_hold(handle)  # its rest point is hold_point's, found once
     sim = Simulation(rigid_body(physics), physics, effects, field, model.start_pose,
-                     dt=1.0 / rate, limits=limits, coupled=coupled, hold=hold_point(handle),
-                     follow=fit_hold(handle))
+                     dt=1.0 / rate, limits=limits, coupled=coupled,
+                     hold=hold_point(handle) if follow is None else follow.rest,
+                     follow=follow)
     return sim, model
