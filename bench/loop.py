@@ -17,6 +17,8 @@ interpreter:
   runs in this one;
 - ``--switch-interval S``: ``sys.setswitchinterval`` while the loop runs (Python's default
   5 ms lets another thread hold the GIL for that long);
+- ``--wait sleep|yield``: how the loop waits for its deadlines (default: ``yield`` at normal
+  priority, ``sleep`` in real time; ``engine.runtime.pacing``);
 - ``--modes-sweep K1,K2,...``: change K every ``--sweep-period`` seconds while measuring
   (the K slider): the new field is built by the engine's job worker, and the longest
   period shows whether the loop felt it.
@@ -68,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--realtime-priority", action="store_true",
                         help="thread engine: ask for real-time scheduling of the loop thread "
                              "(the process engine always asks)")
+    parser.add_argument("--wait", choices=("sleep", "yield"), default=None,
+                        help="thread engine: how the loop waits for its deadlines (default: "
+                             "yield at normal priority, sleep in real time)")
     parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
     parser.add_argument("--full-path", action="store_true",
                         help="thread engine, rotation free: the full per-pose path every step "
@@ -138,6 +143,10 @@ def run(args: argparse.Namespace) -> int:
         load = threading.Thread(target=target, args=(stop, counter), name="bench-load",
                                 daemon=True)
 
+    if args.wait is not None and (args.process or args.gui):
+        print("--wait applies to the thread engine (the process engine chooses by its "
+              "scheduling)", file=sys.stderr)
+        return 2
     if args.gui and args.thread and args.process:
         print("--thread and --process exclude each other", file=sys.stderr)
         return 2
@@ -213,6 +222,7 @@ def _handle(args: argparse.Namespace):
 def _run_thread(args, load):
     from engine.devices import TrajectoryDevice
     from engine.runtime import AnalyticWell, EngineLoop, bench_trajectory
+    from engine.runtime.pacing import WAIT_WORDS
     from engine.sim import CorrelatorField, RotationCacheField, build_simulation, evaluator_name
 
     handle = _handle(args)
@@ -225,7 +235,7 @@ def _run_thread(args, load):
     traj = TrajectoryDevice(bench_trajectory(sim, args.seconds + 2.0))
     loop = EngineLoop(sim, model=model, device=traj, realtime=True, keep_periods=True,
                       switch_interval=args.switch_interval,
-                      raise_priority=args.realtime_priority)
+                      raise_priority=args.realtime_priority, wait=args.wait)
     if load is not None:
         load.start()
     stop = threading.Event()
@@ -245,7 +255,7 @@ def _run_thread(args, load):
         "field": evaluator_name(sim.field),
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
         "eval_us": eval_us,
-        "scheduling": loop.scheduling,
+        "scheduling": f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}",
     }
 
 

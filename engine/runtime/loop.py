@@ -55,6 +55,8 @@ from engine.runtime.messages import (
     describe_error,
 )
 from engine.runtime.pacing import (
+    WAIT_WORDS,
+    WAITS,
     Pacer,
     PeriodWindow,
     current_native_id,
@@ -106,6 +108,10 @@ class EngineLoop:
         Ask the OS to run the loop thread ahead of other work
         (:func:`engine.runtime.pacing.raise_thread_priority`); what was granted is in
         :attr:`scheduling`.
+    wait : {"sleep", "yield"}, optional
+        How the loop waits for its deadlines (:class:`engine.runtime.pacing.Pacer`). None:
+        ``"sleep"`` when the loop thread got real-time scheduling, ``"yield"`` otherwise;
+        what is used is in :attr:`waiting` once the loop runs (``"none"``: unpaced).
     base_dir : Path, optional
         Where relative device files are found (the scene's folder).
     """
@@ -127,6 +133,7 @@ class EngineLoop:
         switch_interval: float | None = None,
         job_switch_interval: float | None = None,
         raise_priority: bool = False,
+        wait: str | None = None,
         base_dir: Path | None = None,
     ):
         self.sim = sim
@@ -154,6 +161,10 @@ class EngineLoop:
         self._base_interval = sys.getswitchinterval()
         self.raise_priority = raise_priority
         self.scheduling = "normal (not asked for)"
+        if wait is not None and wait not in WAITS:
+            raise ValueError(f"wait must be one of {WAITS} or None, got {wait!r}")
+        self.wait = wait
+        self.waiting = ""  # how the running loop waits ("sleep" or "yield")
         self.started = threading.Event()  # set once the loop runs (scheduling is known)
         self.native_id: int | None = None  # the loop thread's OS id once it runs
         self.overruns = 0
@@ -233,7 +244,11 @@ class EngineLoop:
         self.native_id = current_native_id()
         if self.raise_priority:
             self.scheduling = raise_thread_priority()
-        self.guidance.ready_message = f"engine ready; its loop thread: {self.scheduling}"
+        wait = self.wait or ("sleep" if self.scheduling.startswith("real-time") else "yield")
+        pacer = Pacer(self.sim.dt, realtime=self.realtime, wait=wait)
+        self.waiting = pacer.waiting
+        self.guidance.ready_message = (f"engine ready; its loop thread: {self.scheduling}, "
+                                       f"waiting by {WAIT_WORDS[self.waiting]}")
         self.started.set()
         if self.prepare and self.model is not None:
             self.prepare = False  # once, not at every run
@@ -245,7 +260,7 @@ class EngineLoop:
         self._announced = True
         reason = "stopped"
         steps = 0
-        pacer = Pacer(self.sim.dt, realtime=self.realtime)
+        pacer.deadline = time.perf_counter() + self.sim.dt
         self._base_interval = sys.getswitchinterval()
         self.window.restart()
         try:

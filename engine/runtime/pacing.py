@@ -3,9 +3,20 @@
 Data: periods are float seconds between the starts of two loop iterations (``perf_counter``);
 statistics are :class:`engine.runtime.messages.PeriodStats` in microseconds.
 
-Pacing (:class:`Pacer`): the loop targets deadlines ``next += dt``; it sleeps until
-:data:`SPIN_MARGIN` before a deadline (Python's sleep overshoots by 60-100 us) and spins the
-rest. Catch-up policy: after a short overrun the next deadlines are already due, so the loop
+Pacing (:class:`Pacer`): the loop targets deadlines ``next += dt`` and waits for each in one
+of two ways (:data:`WAITS`):
+
+- ``"sleep"``: sleep until :data:`SPIN_MARGIN` before the deadline (Python's sleep overshoots
+  by 60-100 us), then spin the rest. For a real-time (``SCHED_FIFO``) loop thread, whose
+  wake-up preempts ordinary work at once and which must not keep a core from it.
+- ``"yield"``: spin until the deadline with the interpreter lock released, yielding the CPU
+  to any thread that is ready at each turn (:func:`yield_until`). For a loop thread at
+  normal priority: its CPU never goes idle, so waking it costs nothing. A sleeping thread's
+  wake-up waits for its CPU to come out of idle, which on a virtual machine whose idle CPUs
+  halt (``cpuidle`` haltpoll, no guest polling) is the host's scheduling latency: a bare
+  1 kHz loop that sleeps missed 2 ms in most 3-second windows there, one that spins held it.
+
+Catch-up policy: after a short overrun the next deadlines are already due, so the loop
 runs them back to back and catches up (simulated time stays locked to the wall clock); after
 an overrun of more than :data:`RESYNC_PERIODS` periods it re-anchors the deadline at now
 instead of racing through the backlog (the simulation then lags the wall clock by the gap).
@@ -13,13 +24,15 @@ instead of racing through the backlog (the simulation then lags the wall clock b
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import threading
 import time
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import cast
 
 import numpy as np
 
@@ -29,12 +42,15 @@ __all__ = [
     "REALTIME_PRIORITY",
     "RESYNC_PERIODS",
     "SPIN_MARGIN",
+    "WAITS",
+    "WAIT_WORDS",
     "Pacer",
     "PeriodWindow",
     "drop_realtime_priority",
     "period_stats",
     "raise_thread_priority",
     "switch_interval",
+    "yield_until",
 ]
 
 #: Seconds before a deadline at which the loop stops sleeping and spins.
@@ -48,6 +64,11 @@ STATS_WINDOW = 1000
 #: Real-time priority asked for by :func:`raise_thread_priority` (1-99; low, so that the
 #: kernel's own real-time threads still come first).
 REALTIME_PRIORITY = 10
+#: How :class:`Pacer` waits for a deadline (see the module's docstring).
+WAITS = ("sleep", "yield")
+#: :attr:`Pacer.waiting` in words (an unpaced pacer does not wait: ``"none"``).
+WAIT_WORDS = {"sleep": "sleeping", "yield": "spinning (yielding the CPU)",
+              "none": "not waiting (unpaced)"}
 
 
 def period_stats(periods_s: np.ndarray) -> PeriodStats:
@@ -77,30 +98,98 @@ class Pacer:
         Target period in seconds.
     realtime : bool
         False: :meth:`wait` returns at once (as fast as possible).
+    wait : {"sleep", "yield"}
+        How to wait for a deadline (:data:`WAITS`). ``"yield"`` where :func:`yield_until`
+        is not available here falls back to ``"sleep"``; :attr:`waiting` says which is used.
+        An unpaced pacer (``realtime=False``) builds nothing.
     """
 
-    def __init__(self, dt: float, *, realtime: bool = True):
+    def __init__(self, dt: float, *, realtime: bool = True, wait: str = "sleep"):
+        if wait not in WAITS:
+            raise ValueError(f"wait must be one of {WAITS}, got {wait!r}")
         self.dt = float(dt)
         self.realtime = realtime
         self.overruns = 0  # times the deadline was re-anchored
+        self._yield = _yield_kernel() if wait == "yield" and realtime else None
+        #: The way this pacer waits: ``"sleep"``, ``"yield"``, or ``"none"`` (unpaced).
+        self.waiting = ("none" if not realtime
+                        else "yield" if self._yield is not None else "sleep")
+        self._clock = np.zeros(2, dtype=np.int64)  # the yield kernel's timespec
         self.deadline = time.perf_counter() + self.dt
 
     def wait(self) -> None:
-        """Sleep, then spin, until the current deadline; then move it on by ``dt``."""
+        """Wait until the current deadline (sleep then spin, or yield); then move it on."""
         if not self.realtime:
             return
         perf = time.perf_counter
         deadline = self.deadline
-        remaining = deadline - perf()
-        if remaining > SPIN_MARGIN:
-            time.sleep(remaining - SPIN_MARGIN)
-        while perf() < deadline:
-            pass
+        if self._yield is not None:
+            self._yield(int(deadline * 1e9), self._clock)
+        else:
+            remaining = deadline - perf()
+            if remaining > SPIN_MARGIN:
+                time.sleep(remaining - SPIN_MARGIN)
+            while perf() < deadline:
+                pass
         now = perf()
         if now - deadline > RESYNC_PERIODS * self.dt:
             self.overruns += 1
             deadline = now
         self.deadline = deadline + self.dt
+
+
+def yield_until(deadline_ns: int) -> bool:
+    """Spin until ``perf_counter_ns() >= deadline_ns``, interpreter lock released, yielding.
+
+    Each turn reads the clock and calls ``sched_yield``, so any thread that is ready runs
+    first; the calling thread keeps its CPU busy and is never woken from idle. Returns False
+    (without waiting) where this is not available: not Linux, ``perf_counter`` not on
+    ``CLOCK_MONOTONIC``, or the kernel not compiled.
+    """
+    kernel = _yield_kernel()
+    if kernel is None:
+        return False
+    kernel(int(deadline_ns), np.zeros(2, dtype=np.int64))
+    return True
+
+
+@functools.cache
+def _yield_kernel() -> Callable[[int, np.ndarray], None] | None:
+    """The compiled spin of :func:`yield_until` (numba, nogil), or None where unavailable.
+
+    It calls libc's ``clock_gettime(CLOCK_MONOTONIC)`` and ``sched_yield`` through ctypes,
+    so numba cannot cache it on disk: it is compiled once per process (about 0.5 s).
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    if time.get_clock_info("perf_counter").implementation != "clock_gettime(CLOCK_MONOTONIC)":
+        return None
+    try:
+        import ctypes
+
+        import numba
+
+        libc = ctypes.CDLL(None)
+        clock_gettime = libc.clock_gettime
+        clock_gettime.argtypes = [ctypes.c_int, ctypes.c_void_p]
+        clock_gettime.restype = ctypes.c_int
+        sched_yield = libc.sched_yield
+        sched_yield.argtypes = []
+        sched_yield.restype = ctypes.c_int
+        monotonic = int(time.CLOCK_MONOTONIC)
+
+        @numba.njit(nogil=True)
+        def spin(deadline_ns: int, timespec: np.ndarray) -> None:  # pragma: no cover (numba)
+            while True:
+                clock_gettime(monotonic, timespec.ctypes.data)
+                if timespec[0] * 1_000_000_000 + timespec[1] >= deadline_ns:
+                    return
+                sched_yield()
+
+        spin(0, np.zeros(2, dtype=np.int64))  # compile now, not in the loop's first period
+    except Exception:  # noqa: BLE001 -- no compiler or no libc symbol: the pacer sleeps
+        return None
+    return cast("Callable[[int, np.ndarray], None]", spin)
 
 
 class PeriodWindow:

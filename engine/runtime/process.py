@@ -50,7 +50,7 @@ from engine.runtime.messages import (
     StoppedEvent,
     describe_error,
 )
-from engine.runtime.pacing import drop_realtime_priority
+from engine.runtime.pacing import WAIT_WORDS, drop_realtime_priority
 from engine.runtime.scene_handle import SceneHandle
 from engine.sim import Simulation, build_simulation, evaluator_name
 
@@ -420,7 +420,8 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
             loop.join(EVENT_POLL)
         if options.keep_periods:
             eval_us = float(np.median(eval_log)) if eval_log else float("nan")
-            described = f"{evaluator_name(sim.field)}; engine thread scheduling: {loop.scheduling}"
+            described = (f"{evaluator_name(sim.field)}; engine thread scheduling: "
+                         f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}")
             send_message(events, _Result(loop.periods, eval_us, described))
     except (BrokenPipeError, EOFError):
         guard.lost("event pipe closed")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 
@@ -16,7 +17,7 @@ from engine.devices import Device, DeviceCapabilities, DeviceError
 from engine.errors import Cancelled
 from engine.grid import Grid
 from engine.params import DescriptorParams, Effects, SimConfig
-from engine.runtime.pacing import period_stats
+from engine.runtime.pacing import Pacer, period_stats, yield_until
 from engine.sim import CorrelatorField, LandscapeField, RigidBody, Simulation, resolve_physics
 
 
@@ -409,6 +410,75 @@ def test_loop_asks_for_priority_only_when_told(monkeypatch):
     asked, _, _ = make_loop(realtime=False, raise_priority=True)
     asked.run(max_steps=3)
     assert asked.scheduling == "normal (SKELASM_REALTIME=0)"
+
+
+def test_a_pacer_waits_in_one_of_two_ways():
+    with pytest.raises(ValueError, match="wait must be one of"):
+        Pacer(0.001, wait="busy")
+    assert Pacer(0.001, wait="sleep").waiting == "sleep"
+    assert Pacer(0.001, realtime=False, wait="yield").waiting == "none"  # builds nothing
+
+
+needs_yield = pytest.mark.skipif(not yield_until(0), reason="no yielding spin on this OS")
+
+
+@needs_yield
+def test_yield_until_returns_at_its_deadline_and_lets_other_threads_run():
+    # the spin runs with the interpreter lock released: with a switch interval of 0.2 s, a
+    # 50 ms spin holding the lock (a Python `while` loop, or the kernel without nogil) keeps
+    # the counting thread from running at all while it waits
+    count = [0]
+    stop = threading.Event()
+
+    def counting():
+        while not stop.is_set():
+            count[0] += 1
+
+    old = sys.getswitchinterval()
+    other = threading.Thread(target=counting)
+    sys.setswitchinterval(0.2)
+    try:
+        other.start()
+        time.sleep(0.01)  # the counting thread holds the lock; this thread waits to get it
+        before = count[0]
+        deadline = time.perf_counter_ns() + 50_000_000
+        assert yield_until(deadline)
+        after = time.perf_counter_ns()
+        counted = count[0] - before
+    finally:
+        stop.set()
+        sys.setswitchinterval(old)
+        other.join()
+    assert after >= deadline
+    assert counted > 1000
+
+
+@needs_yield
+def test_a_loop_at_normal_priority_yields_and_a_real_time_one_sleeps(monkeypatch):
+    # a sleeping thread at normal priority waits for its CPU to wake (the host's latency
+    # on a virtual machine); a real-time one is woken at once and must not hold a core
+    monkeypatch.setenv("SKELASM_REALTIME", "0")
+    loop, _, _ = make_loop(realtime=True)
+    loop.run(max_steps=3)
+    assert loop.waiting == "yield"
+    assert "waiting by spinning (yielding the CPU)" in loop.guidance.ready_message
+    told, _, _ = make_loop(realtime=True, wait="sleep")
+    told.run(max_steps=3)
+    assert told.waiting == "sleep"
+    unpaced, _, _ = make_loop(realtime=False)
+    unpaced.run(max_steps=3)
+    assert unpaced.waiting == "none"
+    with pytest.raises(ValueError, match="wait must be one of"):
+        make_loop(wait="busy")
+    monkeypatch.delenv("SKELASM_REALTIME")
+
+    def run_raised():
+        loop, _, _ = make_loop(realtime=True, raise_priority=True)
+        loop.run(max_steps=3)
+        return loop.scheduling, loop.waiting
+
+    scheduling, waiting = _in_thread(run_raised)
+    assert waiting == ("sleep" if scheduling.startswith("real-time") else "yield"), scheduling
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
