@@ -240,6 +240,10 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
     # loop --modes-sweep 12,6,8` measures the same with the full period distribution.
     # Two bounds: no stall beyond what the steady loop shows on this machine (asserted),
     # and the 2 ms goal (an expected failure where missed, with the figures).
+    # Both figures are the longest period of one statistics window (STATS_WINDOW periods):
+    # the steady loop's, then the one that holds the six K changes (sent as fast as the
+    # loop takes them, as a dragged slider does), so that the host's own stalls, which
+    # come at random, weigh the same in both.
     problem = _load_too_high()
     if problem:
         pytest.skip(problem)
@@ -249,33 +253,29 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
         handle = replace(handle, config=replace(handle.config, effects=effects))
     engine = rt.start_engine(handle, process=transport == "process", backend="numba")
     seen = Collector(engine)
+    window = STATS_WINDOW + STATS_EVERY  # steps until a frame's statistics are all new
     try:
         assert seen.wait(seen.ready)
-        time.sleep(1.5)  # a full statistics window of steady stepping
+        time.sleep(1.5)  # past the start's own periods
         seen.drain()
-        mark = len(seen.frames)
-        time.sleep(3.0)  # the steady loop alone, as long as the K changes below take
-        seen.drain()
-        steady = max(f.period.max_us for f in seen.frames[mark:])
-        # a frame's statistics cover the STATS_WINDOW periods before it: only frames whose
-        # window begins after the steady one ended are read for the K changes (read from
-        # all frames, the steady window's worst came back as the K changes' worst)
-        after = seen.frames[-1].step + STATS_WINDOW + STATS_EVERY
-        time.sleep(0.3)  # steady periods the K changes' first windows begin with
+        mark = seen.frames[-1].step
+        assert seen.wait(lambda: seen.frames[-1].step >= mark + window, 10.0)
+        steady = seen.frames[-1].period.max_us  # one window, no command
+        begun = seen.frames[-1].step
+        assert seen.wait(lambda: seen.frames[-1].step >= begun + STATS_EVERY, 10.0)
         for k in (12, 6, 10, 8, 12, 6):
             engine.send(rt.SetModes(k))
             assert seen.wait(lambda k=k: seen.frames[-1].modes == k, 30.0)
-            time.sleep(0.3)
-        time.sleep(1.2)  # until the window holds only periods after the last change
-        seen.drain()
-        longest = max(f.period.max_us for f in seen.frames if f.step >= after)
+        done = seen.frames[-1].step
+        # windows that begin after the steady one and, together, hold every K change
+        end = max(begun + window, done + STATS_EVERY)
+        assert seen.wait(lambda: seen.frames[-1].step >= end, 30.0)
+        longest = max(f.period.max_us for f in seen.frames if begun + window <= f.step <= end)
     finally:
         engine.stop()
     assert longest <= max(STALL_BOUND_US, 3.0 * steady), (
         f"longest period {longest:.0f} us while K changed, {steady:.0f} us steady")
     if longest >= 2000.0:
         pytest.xfail(f"the goal is 2 ms: longest period {longest:.0f} us while K changed, "
-                     f"{steady:.0f} us in the steady window before; on this shared 2-core "
-                     "machine the process engine holds it in most rounds, the thread engine "
-                     "(normal priority) in none of six measured, and in three of six with a "
-                     "K change that costs its worker nothing (docs/runtime.md)")
+                     f"{steady:.0f} us in the steady window before (docs/runtime.md: on this "
+                     "shared 2-core virtual machine the host alone stalls a loop at times)")
