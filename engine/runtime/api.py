@@ -129,7 +129,9 @@ def start_engine(
     rate_hz : float, optional
         Overrides ``[simulation] rate_hz``: the loop's period and the simulation's step.
     realtime : bool
-        Hold the rate on the wall clock (sleep-then-spin); False steps as fast as possible.
+        Hold the rate on the wall clock (``engine.runtime.pacing``: a loop thread at normal
+        priority spins, yielding the CPU; a real-time one sleeps, then spins); False steps
+        as fast as possible.
         A process engine also asks the OS to run its loop thread ahead of other work
         (``SCHED_FIFO``; ``SKELASM_REALTIME=0`` turns the request off). A thread engine does
         not: sharing the interpreter with the caller (a window), a real-time loop thread
