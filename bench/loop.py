@@ -20,8 +20,9 @@ interpreter:
 - ``--wait sleep|yield``: how the loop waits for its deadlines (default: ``yield`` at normal
   priority, ``sleep`` in real time; ``engine.runtime.pacing``);
 - ``--modes-sweep K1,K2,...``: change K every ``--sweep-period`` seconds while measuring
-  (the K slider): the new field is built by the engine's job worker, and the longest
-  period shows whether the loop felt it.
+  (the K slider): the new field is built by the engine's job worker; a second table counts
+  the periods over 2 ms that end within 100 ms after a change against those between
+  changes (the host's own stalls), which tells whether the loop felt the changes.
 
 Writes ``bench_loop.png`` (period histogram) unless ``--no-plot``.
 """
@@ -111,8 +112,16 @@ def sweep_modes(args: argparse.Namespace) -> list[int]:
     return [int(k) for k in args.modes_sweep.split(",") if k.strip()]
 
 
-def _sweeper(args: argparse.Namespace, send, stop: threading.Event) -> threading.Thread:
-    """A thread sending SetModes through ``send`` every ``--sweep-period`` seconds."""
+#: Seconds after a K change in which a period counts as the change's (``--modes-sweep``).
+AFTER_CHANGE_S = 0.1
+
+
+def _sweeper(args: argparse.Namespace, send, stop: threading.Event,
+             sent: list[float]) -> threading.Thread:
+    """A thread sending SetModes through ``send`` every ``--sweep-period`` seconds.
+
+    Appends the ``perf_counter`` of each send to ``sent``.
+    """
     from engine.runtime import SetModes
 
     ks = sweep_modes(args)
@@ -120,10 +129,54 @@ def _sweeper(args: argparse.Namespace, send, stop: threading.Event) -> threading
     def body() -> None:
         i = 0
         while not stop.wait(args.sweep_period):
+            sent.append(time.perf_counter())
             send(SetModes(ks[i % len(ks)]))
             i += 1
 
     return threading.Thread(target=body, name="bench-modes-sweep", daemon=True)
+
+
+def after_changes(periods: np.ndarray, ends: np.ndarray, sent: list[float],
+                  within: float = AFTER_CHANGE_S, late: float = 2e-3) -> dict[str, float]:
+    """Periods right after each K change against those between changes.
+
+    Parameters
+    ----------
+    periods, ends : (n,) float
+        Periods in seconds and the ``perf_counter`` at which each ended.
+    sent : list of float
+        ``perf_counter`` of each SetModes; those outside the measured periods are left out.
+    within : float
+        A period ending within this many seconds after a change is the change's.
+    late : float
+        Periods longer than this (seconds) are counted.
+
+    Returns
+    -------
+    dict
+        ``changes``; ``changes_late`` (changes followed by a late period); ``after_n``,
+        ``after_late``, ``after_max_us`` (the periods after changes); ``between_n``,
+        ``between_late``, ``between_max_us`` (the others, from the first change on).
+    """
+    periods, ends = np.asarray(periods, float), np.asarray(ends, float)
+    if len(ends):
+        sent = [t for t in sent if ends[0] - periods[0] <= t <= ends[-1]]
+    after = np.zeros(len(periods), bool)
+    changes_late = 0
+    for t in sent:
+        mine = (ends > t) & (ends <= t + within)
+        after |= mine
+        changes_late += int(bool(np.any(periods[mine] > late)))
+    between = ~after & (ends > (sent[0] if sent else np.inf))
+
+    def stats(mask: np.ndarray) -> tuple[int, int, float]:
+        p = periods[mask]
+        return len(p), int((p > late).sum()), float(p.max() * 1e6) if len(p) else float("nan")
+
+    a, b = stats(after), stats(between)
+    return {"changes": len(sent), "changes_late": changes_late,
+            "after_n": a[0], "after_late": a[1], "after_max_us": a[2],
+            "between_n": b[0], "between_late": b[1], "between_max_us": b[2]}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -192,6 +245,16 @@ def run(args: argparse.Namespace) -> int:
     print(f"| {len(periods)} | {periods.sum():.2f} | {stats.rate_hz:.1f} | {stats.median_us:.1f} "
           f"| {stats.p1_us:.1f} | {stats.p99_us:.1f} | {stats.max_us:.1f} | {late:.2f} % "
           f"| {info.get('eval_us', float('nan')):.1f} |")
+    if info.get("sent"):
+        c = after_changes(periods, info["ends"], info["sent"])
+        print(f"\nK changes: periods over 2 ms ending within {AFTER_CHANGE_S * 1e3:.0f} ms after "
+              "a change, and between changes\n")
+        print("| changes | changes followed by one | after: periods | over 2 ms | longest (us) "
+              "| between: periods | over 2 ms | longest (us) |")
+        print("|---|---|---|---|---|---|---|---|")
+        print(f"| {c['changes']} | {c['changes_late']} | {c['after_n']} | {c['after_late']} "
+              f"| {c['after_max_us']:.1f} | {c['between_n']} | {c['between_late']} "
+              f"| {c['between_max_us']:.1f} |")
     if load is not None:
         print(f"\nload thread iterations: {counter[0]}")
     for key in ("gui_fps", "gui_latency_ms"):
@@ -239,8 +302,9 @@ def _run_thread(args, load):
     if load is not None:
         load.start()
     stop = threading.Event()
+    sent: list[float] = []
     if sweep_modes(args):
-        _sweeper(args, loop.send, stop).start()
+        _sweeper(args, loop.send, stop, sent).start()
     warm = int(0.5 * args.rate)
     try:
         loop.run(max_steps=warm + int(args.seconds * args.rate))
@@ -251,6 +315,8 @@ def _run_thread(args, load):
     eval_us = float(np.median([f.eval_us for f in frames])) if frames else float("nan")
     counts = getattr(sim.field, "counts", None)
     return np.asarray(loop.periods)[warm:], {
+        "ends": loop.window.ends()[warm:],
+        "sent": sent,
         "what": f"{handle.scene.name} ({Path(args.scene).name})",
         "field": evaluator_name(sim.field),
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
@@ -301,17 +367,21 @@ def _run_process(args, load):
     if load is not None:
         load.start()
     stop = threading.Event()
+    sent: list[float] = []
     if sweep_modes(args):
-        _sweeper(args, engine.send, stop).start()
+        _sweeper(args, engine.send, stop, sent).start()
     time.sleep(args.seconds + 0.5)
     stop.set()
-    periods, eval_us, field = engine.stop_and_collect()
+    result = engine.stop_and_collect()
     if not ready:
         raise RuntimeError("the engine process did not get ready")
-    return periods[int(0.5 * args.rate):], {
+    warm = int(0.5 * args.rate)
+    return result.periods[warm:], {
+        "ends": result.ends[warm:],
+        "sent": sent,
         "what": Path(args.scene).name,
-        "field": field,
-        "eval_us": eval_us,
+        "field": result.described,
+        "eval_us": result.eval_us,
     }
 
 

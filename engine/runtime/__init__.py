@@ -46,7 +46,7 @@ from engine.runtime.messages import (
     StoppedEvent,
 )
 from engine.runtime.pacing import REALTIME_PRIORITY, period_stats, raise_thread_priority
-from engine.runtime.process import EngineOptions, ProcessEngine
+from engine.runtime.process import EngineOptions, LoopResult, ProcessEngine
 from engine.runtime.recorder import Recorder
 from engine.runtime.scene_handle import SceneHandle, open_scene
 
@@ -72,6 +72,7 @@ __all__ = [
     "LandscapeReady",
     "Pause",
     "PeriodStats",
+    "LoopResult",
     "ProcessEngine",
     "ProgressEvent",
     "ReadyEvent",

@@ -210,10 +210,22 @@ class PeriodWindow:
         self._window = np.zeros(STATS_WINDOW)
         self._n = 0
         self._last = time.perf_counter()
+        #: ``perf_counter`` when the first kept period began (:meth:`ends`).
+        self.started = self._last
 
     def restart(self) -> None:
         """The next period starts now (the loop begins)."""
         self._last = time.perf_counter()
+        if not self.periods:
+            self.started = self._last
+
+    def ends(self) -> np.ndarray:
+        """``perf_counter`` at the end of each kept period (with ``keep``).
+
+        ``perf_counter`` is ``CLOCK_MONOTONIC`` on Linux, one clock for every process, so a
+        parent can place a child's periods against its own times.
+        """
+        return self.started + np.cumsum(np.asarray(self.periods))
 
     def tick(self) -> None:
         """Record the period ending now."""

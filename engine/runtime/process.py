@@ -54,7 +54,8 @@ from engine.runtime.pacing import WAIT_WORDS, drop_realtime_priority
 from engine.runtime.scene_handle import SceneHandle
 from engine.sim import Simulation, build_simulation, evaluator_name
 
-__all__ = ["EngineOptions", "ParentGuard", "ProcessEngine", "recv_message", "send_message"]
+__all__ = ["EngineOptions", "LoopResult", "ParentGuard", "ProcessEngine", "recv_message",
+           "send_message"]
 
 #: Frame rows kept in shared memory.
 RING_ROWS = 64
@@ -85,10 +86,24 @@ class EngineOptions:
 
 
 @dataclass(frozen=True)
-class _Result:
-    """The child's benchmark result (periods in seconds, median eval us, field in words)."""
+class LoopResult:
+    """What an engine process measured (``EngineOptions(keep_periods=True)``).
+
+    Attributes
+    ----------
+    periods : (n,) float64
+        Every loop period in seconds.
+    ends : (n,) float64
+        ``perf_counter`` at the end of each period (the clock is shared between processes
+        on Linux: :meth:`engine.runtime.pacing.PeriodWindow.ends`).
+    eval_us : float
+        Median evaluation time in microseconds.
+    described : str
+        The field and the loop thread's scheduling, in words.
+    """
 
     periods: np.ndarray
+    ends: np.ndarray
     eval_us: float
     described: str
 
@@ -142,7 +157,7 @@ class ProcessEngine:
         self._send_lock = threading.Lock()
         self._pending: list[Event] = []
         self._said_stopped = False  # a StoppedEvent was delivered (real or made here)
-        self._result: _Result | None = None
+        self._result: LoopResult | None = None
         self._proc = ctx.Process(
             target=_child_main,
             args=(handle, self._shm.name, cmd_read, event_write,
@@ -210,7 +225,7 @@ class ProcessEngine:
             except (EOFError, OSError):
                 self._events.close()
                 return
-            if isinstance(message, _Result):
+            if isinstance(message, LoopResult):
                 self._result = message
             else:
                 self._pending.append(message)  # type: ignore[arg-type]  # only events come
@@ -278,14 +293,13 @@ class ProcessEngine:
         except FileNotFoundError:
             pass  # the child unlinked it (it lost us once)
 
-    def stop_and_collect(self) -> tuple[np.ndarray, float, str]:
-        """Stop; return (periods in seconds, median eval microseconds, field in words)."""
+    def stop_and_collect(self) -> LoopResult:
+        """Stop; return what the engine process measured."""
         self.stop()
         if self._result is None:
             errors = [e.message for e in self._pending if isinstance(e, ErrorEvent)]
             raise RuntimeError("the engine process returned no result: " + "; ".join(errors))
-        r = self._result
-        return r.periods, r.eval_us, r.described
+        return self._result
 
 
 _STOP = Stop()
@@ -422,7 +436,8 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
             eval_us = float(np.median(eval_log)) if eval_log else float("nan")
             described = (f"{evaluator_name(sim.field)}; engine thread scheduling: "
                          f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}")
-            send_message(events, _Result(loop.periods, eval_us, described))
+            send_message(events, LoopResult(loop.periods, loop.window.ends(), eval_us,
+                                            described))
     except (BrokenPipeError, EOFError):
         guard.lost("event pipe closed")
     except Exception as exc:  # noqa: BLE001 -- reported to the parent

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -42,6 +43,42 @@ def test_bench_loop_runs_in_real_time_on_a_quiet_machine():
     steps, seconds, rate, median = table_row(bench("--fake", "--seconds", "1", "--plot", ""))
     assert 0.9 < seconds < 2.0  # it ran in real time for about a second
     assert 200 < rate <= 1001 and abs(median - 1000.0) < 200  # periods near 1 ms
+
+
+def test_after_changes_counts_the_periods_that_follow_each_change():
+    # 1 ms periods; a 5 ms period 50 ms after the second change, a 3 ms one 300 ms after
+    # it (between changes), a 4 ms one before the first change (not counted at all)
+    from bench.loop import after_changes
+
+    periods = np.full(2000, 1e-3)
+    periods[[100, 1250, 1500]] = (4e-3, 5e-3, 3e-3)
+    ends = 10.0 + np.cumsum(periods)
+    sent = [float(ends[500]), float(ends[1200])]
+    c = after_changes(periods, ends, [9.0, *sent, 13.0])  # outside the periods: left out
+    after = ((ends > sent[0]) & (ends <= sent[0] + 0.1)) | ((ends > sent[1])
+                                                            & (ends <= sent[1] + 0.1))
+    between = ~after & (ends > sent[0])
+    assert c["changes"] == 2 and c["changes_late"] == 1
+    assert (c["after_n"], c["after_late"]) == (after.sum(), 1)
+    assert c["after_max_us"] == pytest.approx(5000.0)
+    assert (c["between_n"], c["between_late"]) == (between.sum(), 1)
+    assert c["between_max_us"] == pytest.approx(3000.0)
+
+
+@pytest.mark.parametrize("where", [[], ["--process"]])
+def test_bench_loop_counts_the_periods_after_k_changes(where):
+    # the process engine's periods come back with their end times on the parent's clock
+    out = bench("--fake", "--seconds", "2", "--modes-sweep", "12,8", "--sweep-period",
+                "0.4", "--plot", "", *where)
+    assert out.returncode == 0, out.stderr
+    rows = [line for line in out.stdout.splitlines() if re.match(r"\| \d+ \|", line)]
+    assert len(rows) == 2, out.stdout
+    changes, late, after_n, *_ = (float(x) for x in rows[1].strip("|").split("|"))
+    # sends outside the periods' times are left out: a clock not shared, or end times
+    # placed wrongly by seconds, leave none (a K change here builds a real field in the
+    # worker, which can stall this analytic loop, so the periods after each vary)
+    assert 3 <= changes <= 6 and 0 <= late <= changes
+    assert changes <= after_n <= 101 * changes
 
 
 def test_bench_loop_refuses_thread_and_process_together():

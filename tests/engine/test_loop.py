@@ -17,7 +17,7 @@ from engine.devices import Device, DeviceCapabilities, DeviceError
 from engine.errors import Cancelled
 from engine.grid import Grid
 from engine.params import DescriptorParams, Effects, SimConfig
-from engine.runtime.pacing import Pacer, period_stats, yield_until
+from engine.runtime.pacing import Pacer, PeriodWindow, period_stats, yield_until
 from engine.sim import CorrelatorField, LandscapeField, RigidBody, Simulation, resolve_physics
 
 
@@ -173,6 +173,22 @@ def test_period_stats_known_values():
     assert s.median_us == pytest.approx(1000.0)
     assert s.max_us == pytest.approx(5000.0)
     assert s.rate_hz == pytest.approx(1000 / (0.999 + 0.005))
+
+
+def test_a_period_window_says_when_each_period_ended():
+    window = PeriodWindow(keep=True)
+    window.restart()
+    before = time.perf_counter()
+    for _ in range(5):
+        time.sleep(0.002)
+        window.tick()
+    ends = window.ends()
+    assert len(ends) == 5
+    assert window.started <= before <= ends[0]
+    assert np.allclose(np.diff(ends), np.asarray(window.periods)[1:], rtol=0, atol=1e-12)
+    assert ends[-1] == pytest.approx(window._last, abs=1e-9)
+    window.restart()  # a loop run again keeps counting from its first start
+    assert window.ends()[0] == ends[0]
 
 
 def test_loop_publishes_frames_from_its_own_thread():
