@@ -164,7 +164,7 @@ class EngineLoop:
         if wait is not None and wait not in WAITS:
             raise ValueError(f"wait must be one of {WAITS} or None, got {wait!r}")
         self.wait = wait
-        self.waiting = ""  # how the running loop waits ("sleep" or "yield")
+        self.waiting = ""  # how the running loop waits ("sleep", "yield" or "none")
         self.started = threading.Event()  # set once the loop runs (scheduling is known)
         self.native_id: int | None = None  # the loop thread's OS id once it runs
         self.overruns = 0
