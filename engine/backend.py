@@ -19,9 +19,10 @@ whose cause (``__cause__``) is that original error; "auto" simply passes over it
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -311,6 +312,42 @@ def env_count(name: str, default: int) -> int:
         raise InputError(f"{name} = {text!r} is not a positive whole number: set it to 1 or "
                          "more, or unset it for the default")
     return value
+
+
+def cpu_cores() -> int:
+    """CPU cores this process may run on (its affinity where the OS tells it)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+_budget = threading.local()
+
+
+def thread_budget() -> int:
+    """Threads one numeric call made in the calling thread may use (transforms).
+
+    Every core, unless the thread is inside :func:`spare_cores`.
+    """
+    return int(getattr(_budget, "threads", 0)) or cpu_cores()
+
+
+@contextlib.contextmanager
+def spare_cores(count: int = 1) -> Iterator[int]:
+    """Within, the calling thread's numeric calls leave ``count`` cores free (at least one thread).
+
+    The runtime's job worker builds fields and landscapes this way beside a loop that must
+    step every millisecond: on two cores, a transform on both of them kept the loop thread
+    waiting for a CPU (docs/runtime.md, "K changes"). Other threads are not affected.
+    Yields the threads left.
+    """
+    before = getattr(_budget, "threads", 0)
+    _budget.threads = max(1, cpu_cores() - int(count))
+    try:
+        yield _budget.threads
+    finally:
+        _budget.threads = before
 
 
 def backend_problem(name: str, device: str | None = None) -> str | None:

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
+from engine.backend import thread_budget
 from engine.correlation.finishing import Evaluation, overlap_bounds
 from engine.correlation.interpolation import hermite
 from engine.correlation.reference import interpolate_rows
-from engine.correlation.spectrum import FFT_WORKERS, kept_indices
+from engine.correlation.spectrum import kept_indices
 from engine.correlation.tables import ModeTable, Spectra, cube_reach, largest_modes
 from engine.errors import Cancelled
 
@@ -284,7 +285,7 @@ def _landscape(
     spectrum = np.zeros((n, n, n), dtype=np.complex64)
     spectrum[sel] = coeff * values * np.float32(1.0 / g.n_h ** 3)
     scale = float(n) ** 3
-    field = scipy.fft.ifftn(spectrum, workers=FFT_WORKERS)
+    field = scipy.fft.ifftn(spectrum, workers=thread_budget())
     energy = np.fft.fftshift(-g.kappa * scale * field.real).astype(np.float32)
     del field
     step(0.55 if forces else 0.9)
@@ -296,7 +297,7 @@ def _landscape(
             shape = [1, 1, 1]
             shape[a] = n
             deriv = spectrum * (np.complex64(2j * np.pi) * freq.reshape(shape))
-            part = scipy.fft.ifftn(deriv, workers=FFT_WORKERS)
+            part = scipy.fft.ifftn(deriv, workers=thread_budget())
             force[a] = np.fft.fftshift(g.kappa * scale * part.real)
             step(0.55 + 0.15 * (a + 1))
     t0 = g.centre_fixed - rot @ g.centre_moving

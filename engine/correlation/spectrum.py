@@ -26,14 +26,11 @@ import numpy as np
 import scipy.fft
 
 from engine import cache
+from engine.backend import thread_budget
 from engine.grid import Grid, check_fft_memory
 
 #: Bumped whenever the stored layout or the definition of a spectrum changes.
 SPECTRUM_VERSION = 2
-
-#: Workers scipy.fft may use (the target machine has two cores).
-FFT_WORKERS = 2
-
 
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
@@ -103,7 +100,7 @@ def _padded_fft(field: np.ndarray, size: int, ramps: list[np.ndarray], scale: fl
     padded = np.zeros((size, size, size), dtype=np.complex64)
     nx, ny, nz = field.shape
     padded[:nx, :ny, :nz] = field
-    out = scipy.fft.fftn(padded, workers=FFT_WORKERS, overwrite_x=True)
+    out = scipy.fft.fftn(padded, workers=thread_budget(), overwrite_x=True)
     out *= ramps[0].astype(np.complex64)[:, None, None] * np.complex64(scale)
     out *= ramps[1].astype(np.complex64)[None, :, None]
     out *= ramps[2].astype(np.complex64)[None, None, :]

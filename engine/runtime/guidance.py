@@ -216,13 +216,21 @@ class Guidance:
         def run(cancelled: Callable[[], bool]) -> Response:
             try:
                 return build_field(model, request, progress=progress if report else None,
-                                   cancel=cancelled)
+                                   cancel=cancelled, rotation_now=self._rotation_now)
             except Cancelled:
                 raise
             except Exception as exc:  # delivered to the loop, never raised in the worker
                 return FieldResponse(request.id, request, error=exc)
 
         self.worker.submit("field", run)
+
+    def _rotation_now(self) -> np.ndarray:
+        """The part's rotation as the loop last stepped it (any thread).
+
+        The loop replaces the state's rotation matrix at each step rather than writing
+        into it, so the matrix read here is whole.
+        """
+        return self.sim.state.rotation
 
     def attach(self, fld: GeometricField) -> None:
         """Let a rotation-cache field refresh in the lane when the loop is paced."""

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
+from engine.backend import spare_cores
 from engine.correlation import Correlator
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics, SimConfig
@@ -209,8 +210,14 @@ def build_field(
     *,
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
+    rotation_now: Callable[[], np.ndarray] | None = None,
 ) -> FieldResponse:
-    """Run a :class:`FieldRequest` (in the worker): the field, warmed up, and its descriptors."""
+    """Run a :class:`FieldRequest` (in the worker): the field, warmed up, and its descriptors.
+
+    ``rotation_now`` reads the part's rotation as the loop steps it: a rotation-cache field
+    then rebuilds its first cache there before it is handed over
+    (:meth:`RotationCacheField.catch_up`), not at the rotation the request was made at.
+    """
     t0 = time.perf_counter()
     r = request
     coarse: int | None = None
@@ -239,6 +246,8 @@ def build_field(
         raise Cancelled("superseded")
     if not isinstance(fld, NullField):
         _warm(fld, r.locked_rotation)
+    if rotation_now is not None and isinstance(fld, RotationCacheField):
+        fld.catch_up(rotation_now)
     return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0,
                          coarse_grid=coarse)
 
@@ -316,7 +325,8 @@ class JobWorker:
                 if flag.is_set():
                     return
                 try:
-                    response = run(flag.is_set)
+                    with spare_cores(1):  # the loop steps on the core left
+                        response = run(flag.is_set)
                 except Cancelled:
                     return
                 self._done.put(response)

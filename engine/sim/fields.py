@@ -330,6 +330,26 @@ class RotationCacheField:
         """A cache of the current table at ``rotation`` (only reads; any thread)."""
         return self._build(self.cache.table, rotation)
 
+    def catch_up(self, rotation_now: Callable[[], np.ndarray], *, tries: int = 3) -> int:
+        """Rebuild the first cache at the part's rotation now; returns the rebuilds.
+
+        For the thread that built the field, before it is handed over. The first cache is
+        built at the rotation the part had when the field was asked for; a part that turned
+        meanwhile (a new K takes tens of milliseconds on a real grid) would be past the
+        limit angle when the field is swapped in, and the full path would serve until the
+        first background refresh arrived. Rebuilt until the part turns less than half the
+        refresh angle during a build, at most ``tries`` times.
+        """
+        rebuilt = 0
+        for _ in range(tries):
+            rot = np.array(rotation_now(), dtype=np.float64).reshape(3, 3)
+            if _angle_between(rot, self.cache.rotation) <= 0.5 * self.refresh_angle:
+                break
+            self.cache = self._build(self.cache.table, rot)
+            self._last = self.cache.rotation
+            rebuilt += 1
+        return rebuilt
+
     def install(self, request_id: int, cache: RotationCache) -> bool:
         """Swap in ``cache``, built for request ``request_id`` (the thread that evaluates).
 

@@ -9,6 +9,7 @@ import engine.correlation.correlator as correlator_module
 import engine.runtime as rt
 from engine.runtime.jobs import FieldRequest, build_field
 from engine.sim.build import SceneModel
+from engine.pose import rotation_matrix
 from engine.sim.fields import LandscapeField, RotationCacheField
 
 
@@ -62,3 +63,61 @@ def test_without_the_correlator_in_use_the_spectra_are_built(model, monkeypatch)
     build_field(model, FieldRequest(2, "field", effects, kappa, np.eye(3), 12,
                                     descriptors=descriptors))
     assert calls
+
+
+def test_a_rotation_cache_field_is_handed_over_at_the_rotation_the_part_has_now(model):
+    """The request is made at I; by the end of the build the part has turned 20 mrad. The
+    first cache is built where the part is then, so the loop's first poses are served by it
+    rather than by the full path (which costs milliseconds on a real grid)."""
+    effects = replace(model.config.effects, axes=("x", "y", "z", "rx", "ry", "rz"))
+    kappa = model.physics(effects).kappa
+    field, descriptors = model.field(effects, kappa, np.eye(3))
+    turned = rotation_matrix(np.array([0.0, 2e-2, 0.0]))
+    request = FieldRequest(3, "field", effects, kappa, np.eye(3), 12, descriptors=descriptors,
+                           correlator=field.correlator)
+    late = build_field(model, request, rotation_now=lambda: turned).field
+    assert isinstance(late, RotationCacheField)
+    np.testing.assert_array_equal(late.reference_rotation, turned)
+    asked = build_field(model, request).field  # without it: the request's rotation
+    np.testing.assert_array_equal(asked.reference_rotation, np.eye(3))
+
+
+def test_jobs_leave_a_core_to_the_loop(monkeypatch):
+    """A job's numeric calls may use every core but one; the caller's thread keeps them all."""
+    import engine.backend as backend
+    from engine.runtime.jobs import JobWorker, LandscapeResponse
+
+    monkeypatch.setattr(backend, "cpu_cores", lambda: 4)
+    worker = JobWorker()
+    try:
+        worker.submit("landscape", lambda cancelled: LandscapeResponse(
+            1, (backend.thread_budget(),)))
+        assert worker.wait_until_idle(10.0)
+        (response,) = worker.responses()
+    finally:
+        worker.shutdown()
+    assert response.rotvec == (3,)
+    assert backend.thread_budget() == 4
+
+
+def test_the_loop_asks_for_fields_at_the_rotation_it_steps(model, monkeypatch):
+    """Guidance gives the worker a reader of the simulation's rotation, read at call time."""
+    import collections
+
+    import engine.runtime.guidance as guidance_module
+    from engine.sim import build_simulation
+
+    sim, sim_model = build_simulation(model.handle, modes=8, backend="numba")
+    guidance = guidance_module.Guidance(sim, sim_model, collections.deque())
+    readers = []
+    monkeypatch.setattr(guidance_module, "build_field",
+                        lambda m, r, **kw: readers.append(kw["rotation_now"]) or
+                        guidance_module.FieldResponse(r.id, r, cancelled=True))
+    try:
+        guidance.set_modes(12)
+        assert guidance.worker.wait_until_idle(10.0)
+    finally:
+        guidance.close()
+    (read,) = readers
+    sim.state._R = turned = rotation_matrix(np.array([0.0, 0.0, 0.3]))
+    assert read() is turned

@@ -140,3 +140,25 @@ def test_far_from_overlap_is_zero(corr):
         t = np.array([x[idx[0]], y[idx[1]], z[idx[2]]])
         if not corr.boxes_overlap(rot, t):
             assert land.energy[idx] == 0.0
+
+
+def test_transforms_use_the_calling_threads_budget(corr, monkeypatch):
+    """Inside ``spare_cores`` (the runtime's job worker) the landscape's inverse FFTs leave
+    a core free; elsewhere they use every core."""
+    import engine.backend as backend
+    import engine.correlation.landscape as landscape_module
+
+    monkeypatch.setattr(backend, "cpu_cores", lambda: 4)
+    seen: list[int] = []
+    real = landscape_module.scipy.fft.ifftn
+    monkeypatch.setattr(landscape_module.scipy.fft, "ifftn",
+                        lambda x, workers=None: seen.append(workers) or real(x, workers=1))
+    corr.landscape(np.eye(3))
+    assert seen and set(seen) == {4}
+    seen.clear()
+    with backend.spare_cores(1) as threads:
+        corr.landscape(np.eye(3))
+    assert threads == 3 and seen and set(seen) == {3}
+    with backend.spare_cores(8):
+        assert backend.thread_budget() == 1  # never fewer than one
+    assert backend.thread_budget() == 4

@@ -233,6 +233,33 @@ def test_background_refresh_is_asked_for_and_the_full_path_runs_beyond_the_limit
     np.testing.assert_allclose(asked[1], step @ rot, atol=1e-12)
 
 
+def test_catch_up_rebuilds_the_first_cache_where_the_part_turned_to():
+    """A field built for the rotation at the request, handed over after the part turned
+    10 mrad: without catching up, its first pose runs the full path; caught up, the cache
+    (rebuilt at the rotation read at the end of the build) serves it."""
+    corr, ref = correlators(8)
+    t = np.array([0.3, -0.2, 0.4])
+    turned = rotation_matrix(1e-2 * AXIS)
+    stale = RotationCacheField(corr, 1.0, np.eye(3))
+    stale.refresh_in_background(lambda f, rot: 1)
+    stale.evaluate(turned, t)
+    assert stale.last_path == "full"
+
+    fld = RotationCacheField(corr, 1.0, np.eye(3))
+    reads = []
+    assert fld.catch_up(lambda: reads.append(1) or turned) == 1
+    assert len(reads) == 2  # rebuilt once, then found within half the refresh angle
+    np.testing.assert_array_equal(fld.reference_rotation, turned)
+    fld.refresh_in_background(lambda f, rot: 1)
+    ev = fld.evaluate(turned, t)
+    assert fld.last_path == "cached"
+    assert ev.energy == pytest.approx(ref.evaluate(turned, t).energy, rel=1e-5)
+    # a part that keeps turning: at most ``tries`` rebuilds, each at the latest rotation
+    angles = iter(np.arange(2, 10) * 1e-2)
+    assert fld.catch_up(lambda: rotation_matrix(next(angles) * AXIS), tries=3) == 3
+    np.testing.assert_allclose(fld.reference_rotation, rotation_matrix(4e-2 * AXIS), atol=1e-15)
+
+
 def test_field_for_effects_picks_the_cache_where_it_serves():
     from engine.params import Effects
 
