@@ -7,9 +7,9 @@ import pytest
 
 import engine.correlation.correlator as correlator_module
 import engine.runtime as rt
+from engine.pose import rotation_matrix
 from engine.runtime.jobs import FieldRequest, build_field
 from engine.sim.build import SceneModel
-from engine.pose import rotation_matrix
 from engine.sim.fields import LandscapeField, RotationCacheField
 
 
@@ -68,7 +68,8 @@ def test_without_the_correlator_in_use_the_spectra_are_built(model, monkeypatch)
 def test_a_rotation_cache_field_is_handed_over_at_the_rotation_the_part_has_now(model):
     """The request is made at I; by the end of the build the part has turned 20 mrad. The
     first cache is built where the part is then, so the loop's first poses are served by it
-    rather than by the full path (which costs milliseconds on a real grid)."""
+    rather than by the full path (which costs milliseconds on a real grid).
+    """
     effects = replace(model.config.effects, axes=("x", "y", "z", "rx", "ry", "rz"))
     kappa = model.physics(effects).kappa
     field, descriptors = model.field(effects, kappa, np.eye(3))

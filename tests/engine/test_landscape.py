@@ -144,7 +144,8 @@ def test_far_from_overlap_is_zero(corr):
 
 def test_transforms_use_the_calling_threads_budget(corr, monkeypatch):
     """Inside ``spare_cores`` (the runtime's job worker) the landscape's inverse FFTs leave
-    a core free; elsewhere they use every core."""
+    a core free; elsewhere they use every core.
+    """
     import engine.backend as backend
     import engine.correlation.landscape as landscape_module
 

@@ -236,7 +236,8 @@ def test_background_refresh_is_asked_for_and_the_full_path_runs_beyond_the_limit
 def test_catch_up_rebuilds_the_first_cache_where_the_part_turned_to():
     """A field built for the rotation at the request, handed over after the part turned
     10 mrad: without catching up, its first pose runs the full path; caught up, the cache
-    (rebuilt at the rotation read at the end of the build) serves it."""
+    (rebuilt at the rotation read at the end of the build) serves it.
+    """
     corr, ref = correlators(8)
     t = np.array([0.3, -0.2, 0.4])
     turned = rotation_matrix(1e-2 * AXIS)
