@@ -134,6 +134,22 @@ def _fake_correlator(monkeypatch):
     monkeypatch.setattr(jobs, "Correlator", fake_correlator)
 
 
+_LOOPS: list[rt.EngineLoop] = []
+
+
+@pytest.fixture(autouse=True)
+def _close_loops():
+    """Stop the job worker and refresh lane of every loop a test made.
+
+    A loop run in the test's own thread (``loop.run``) leaves them to its owner; left
+    running, an idle worker thread outlived the file and failed the GUI tests' end-of-session
+    check that every engine thread has stopped.
+    """
+    yield
+    while _LOOPS:
+        _LOOPS.pop().guidance.close()
+
+
 def make_loop(realtime=True, effects=None, **kw):
     model = FakeModel()
     effects = effects or Effects()
@@ -144,6 +160,7 @@ def make_loop(realtime=True, effects=None, **kw):
            else LandscapeField(corr, np.eye(3), phys.kappa))
     sim = Simulation(body, phys, effects, fld, np.zeros(6))
     loop = rt.EngineLoop(sim, model=model, realtime=realtime, **kw)
+    _LOOPS.append(loop)
     return loop, corr, model
 
 
