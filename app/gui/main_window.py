@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import shiboken6
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.gui import quantities
@@ -107,6 +108,26 @@ class LatencyMonitor(QtCore.QObject):
         """Forget the recorded lateness samples."""
         self.samples.clear()
 
+
+
+def toggle_view_action(dock: QtWidgets.QDockWidget) -> QtGui.QAction:
+    """The dock's own show/hide action, as a ``QAction``.
+
+    PySide6 keeps a map from C++ addresses to Python wrappers. When a C++ object dies
+    without the binding being told (a closed window's render surface) while Python still
+    holds its wrapper, a new object allocated at the same address is handed out as that old
+    wrapper, of the old type: once, after a window was closed and another opened, the
+    action came back as a ``QSurface`` and building the menu failed. The stale wrapper is
+    then invalidated, which drops it from the map, and the action asked for again.
+    """
+    action = dock.toggleViewAction()
+    if not isinstance(action, QtGui.QAction):
+        shiboken6.invalidate(action)
+        action = dock.toggleViewAction()
+    if not isinstance(action, QtGui.QAction):
+        raise TypeError(f"the {dock.windowTitle()!r} panel's show/hide action came back as "
+                        f"{type(action).__name__}: restart the application")
+    return action
 
 class MainWindow(QtWidgets.QMainWindow):
     """The skelasm desktop application's window.
@@ -288,7 +309,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
         view = self._menu(bar, "&View")
         for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape):
-            view.addAction(dock.toggleViewAction())
+            view.addAction(toggle_view_action(dock))
         view.addSeparator()
         self._action(view, "Reset &camera", self.reset_camera, "Ctrl+0")
         views = self._menu(view, "&Standard views")

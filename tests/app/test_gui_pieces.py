@@ -136,3 +136,32 @@ def test_strip_chart_range_does_not_magnify_jitter():
     # all zero (parts apart): still a non-empty range
     lo, hi = value_range(np.zeros(5))
     assert hi > lo
+
+
+def test_a_stale_wrapper_for_a_docks_action_is_dropped_and_asked_again(qtbot):
+    """PySide6 once handed back a dock's show/hide action as a dead object's wrapper of
+    another type (a ``QSurface``): the menu is built from the action asked for again.
+    """
+    import shiboken6
+    from PySide6 import QtCore, QtGui, QtWidgets
+
+    from app.gui.main_window import toggle_view_action
+
+    win = QtWidgets.QMainWindow()
+    qtbot.addWidget(win)
+    dock = QtWidgets.QDockWidget("Slice", win)
+    real = dock.toggleViewAction()
+    other = QtWidgets.QMainWindow()
+    qtbot.addWidget(other)
+    stale = other.statusBar()  # made by Qt, as the render surface's was: a wrapper that
+    answers = [stale, real]  # invalidating drops from the binding's map
+    dock.toggleViewAction = lambda: answers.pop(0)
+    action = toggle_view_action(dock)
+    assert action is real and isinstance(action, QtGui.QAction)
+    assert not shiboken6.isValid(stale) and not answers
+    fresh = other.statusBar()  # the next lookup at that address makes a new wrapper
+    assert fresh is not stale and shiboken6.isValid(fresh)
+
+    dock.toggleViewAction = QtCore.QObject  # always the wrong type: a clear error
+    with pytest.raises(TypeError, match="'Slice' panel's show/hide action came back as QObject"):
+        toggle_view_action(dock)
