@@ -283,7 +283,9 @@ class Guidance:
         req = r.request
         self.sim.set_field(r.field)
         self.attach(r.field)
-        self._physics_dirty = True  # the fit's stiffness, measured with the new field
+        if self.model is not None:  # the fit's stiffness is the new field's
+            self.model.geometric_rotation = r.stiffness
+        self._physics_dirty = True
         self.descriptors = r.descriptors
         self._in_use = (req.effects.guidance, req.sigma, req.penalty)
         if req.task == "correlator":

@@ -38,7 +38,13 @@ from engine.backend import spare_cores
 from engine.correlation import Correlator
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics, SimConfig
-from engine.sim import GeometricField, NullField, RotationCacheField, field_for_effects
+from engine.sim import (
+    GeometricField,
+    NullField,
+    RotationCacheField,
+    field_for_effects,
+    rotational_stiffness,
+)
 
 if TYPE_CHECKING:
     from engine.correlation import Landscape
@@ -77,8 +83,11 @@ class FieldModel(Protocol):
     backend: str
     modes: int
     config: SimConfig
-    #: Rotational stiffness of the field last built (part of what physics depends on).
+    #: Rotational stiffness of the field in use (part of what physics depends on); the loop
+    #: sets it when it swaps a field in (:attr:`FieldResponse.stiffness`).
     geometric_rotation: float | None
+    #: (6,) part 2 relative to part 1 when assembled: where a field's stiffness is measured.
+    assembled_pose: np.ndarray
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None,
@@ -170,6 +179,9 @@ class FieldResponse:
     error: BaseException | None = None
     cancelled: bool = False
     coarse_grid: int | None = None  # the coarse grid the field was built on, if any
+    #: The field's rotational stiffness at the assembled pose per unit kappa
+    #: (``engine.sim.rotational_stiffness``; None: no torque, or nothing constrained).
+    stiffness: float | None = None
 
 
 @dataclass(frozen=True)
@@ -234,6 +246,9 @@ def build_field(
         fld = field_for_effects(r.effects, make, kappa=r.kappa,
                                 locked_rotation=r.locked_rotation)
         descs: tuple[Descriptor, ...] = (d1, d2)
+        # the fit's stiffness changes with K (on the peg at grid 56: 3.9e3 at K = 8, 8.5e4
+        # at K = 24), and the default rotational coupling follows it
+        stiffness = rotational_stiffness(fld, model.assembled_pose)
     else:
         coarse = (model.first_grid(r.effects, sigma=r.sigma, penalty=r.penalty)
                   if r.coarse_first else None)
@@ -242,6 +257,7 @@ def build_field(
             modes=r.modes, progress=progress, cancel=cancel,
             **({} if coarse is None else {"grid": coarse}),
         )
+        stiffness = model.geometric_rotation  # measured by model.field, in this thread
     if cancel is not None and cancel():
         raise Cancelled("superseded")
     if not isinstance(fld, NullField):
@@ -249,7 +265,7 @@ def build_field(
     if rotation_now is not None and isinstance(fld, RotationCacheField):
         fld.catch_up(rotation_now)
     return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0,
-                         coarse_grid=coarse)
+                         coarse_grid=coarse, stiffness=stiffness)
 
 
 def compute_landscape(

@@ -9,7 +9,8 @@ out through a :class:`engine.runtime.frames.FrameRing` (read back as immutable
   are worthless to a viewer); one row per iteration, also while paused;
 - events: ``collections.deque`` (unbounded: progress, ready, errors are never dropped).
 
-Each iteration: apply commands, take finished background jobs, read the device, step
+Each iteration: apply commands, take finished background jobs, resolve the physics if
+either changed it, read the device, step
 (unless paused), render the force, pack the frame, wait for the next deadline
 (:class:`engine.runtime.pacing.Pacer`, which also states the catch-up policy). Everything
 that costs more than a step runs in the job worker (:mod:`engine.runtime.guidance`).
@@ -290,6 +291,7 @@ class EngineLoop:
         if not self.commands.empty():
             self._apply_commands()
         self.guidance.take_responses()
+        self.guidance.apply_physics()  # once per iteration, after commands and a new field
         if self.job_switch_interval is not None and self.guidance.worker.busy != self._jobs_running:
             self._jobs_running = not self._jobs_running
             interval = self.job_switch_interval if self._jobs_running else self.switch_interval
@@ -321,7 +323,6 @@ class EngineLoop:
                 self._apply(cmd)
             except Exception as exc:  # noqa: BLE001 -- a failed command is reported
                 self.events.append(ErrorEvent(describe_error(exc), type(exc).__name__))
-        self.guidance.apply_physics()
 
     def _apply(self, cmd: Command) -> None:
         g = self.guidance

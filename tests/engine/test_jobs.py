@@ -122,3 +122,50 @@ def test_the_loop_asks_for_fields_at_the_rotation_it_steps(model, monkeypatch):
     (read,) = readers
     sim.state._R = turned = rotation_matrix(np.array([0.0, 0.0, 0.3]))
     assert read() is turned
+
+
+def test_a_k_change_brings_the_new_fields_stiffness_into_the_physics(small_peg_scene):
+    """The fit's rotational stiffness changes with K, and the default rotational coupling
+    follows it: a K change measures it on the new field (in the worker), and the loop puts
+    it into the physics when it swaps the field in. Before, the physics kept the stiffness
+    of the last field built from descriptors.
+    """
+    import time
+
+    from engine.sim import build_simulation, rotational_stiffness
+    from engine.sim.build import ROTATION_AUTHORITY
+
+    handle = rt.open_scene(small_peg_scene)
+    sim, model = build_simulation(handle, modes=8, backend="numba")
+    at8 = model.geometric_rotation
+    assert at8 is not None
+    # a geometric gain at which the fit sets the rotational coupling (half the mass-based
+    # stiffness I (2 pi f)^2 at K = 8; at the default gain it sits at its floor here), so
+    # that the stiffness shows in it
+    physics = model.physics(sim.effects)
+    k_mass = np.trace(physics.inertia) / 3 * (2 * np.pi * model.config.coupling.frequency_hz) ** 2
+    kappa = 0.5 * k_mass * ROTATION_AUTHORITY / at8
+    loop = rt.EngineLoop(sim, model=model, realtime=False, prepare=True)
+    try:
+        end = time.monotonic() + 30.0
+        while not loop.guidance.descriptors and time.monotonic() < end:
+            loop.run(max_steps=20)  # the first field, built by the worker as the window's is
+        assert loop.guidance.descriptors  # so a K change reuses them
+        loop.send(rt.SetKappa(kappa))
+        loop.run(max_steps=1)
+        k_rot_at8 = sim.physics.k_rot
+        loop.send(rt.SetModes(12))
+        end = time.monotonic() + 30.0
+        while sim.field.modes != 12 and time.monotonic() < end:
+            loop.run(max_steps=20)
+        assert sim.field.modes == 12
+        loop.run(max_steps=1)  # the physics is resolved between two steps
+    finally:
+        loop.guidance.close()
+    in_use, k_rot = model.geometric_rotation, sim.physics.k_rot  # set by the loop at the swap
+    fresh, _ = model.field(sim.effects, 1.0, np.eye(3), modes=12)
+    at12 = rotational_stiffness(fresh, model.assembled_pose)
+    assert abs(at12 - at8) > 0.05 * at8  # K matters on this scene, so the check can fail
+    assert in_use == pytest.approx(at12, rel=1e-9)
+    assert k_rot == pytest.approx(kappa * at12 / ROTATION_AUTHORITY, rel=1e-9)
+    assert k_rot_at8 == pytest.approx(kappa * at8 / ROTATION_AUTHORITY, rel=1e-9)

@@ -83,6 +83,7 @@ class FakeModel:
     backend = "numpy"
     modes = 16
     geometric_rotation = None
+    assembled_pose = np.zeros(6)
     current: FakeModel | None = None
 
     def __init__(self, delay=0.2):
