@@ -191,7 +191,10 @@ def test_engine_without_guidance_answers_landscape_requests_with_a_typed_failure
         engine.send(rt.SetEffects(replace(handle.config.effects, guidance="none")))
         assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 0, 30.0)
         engine.send(rt.RequestLandscape())
-        assert seen.wait(lambda: seen.of(rt.LandscapeFailed), 10.0)
+        assert seen.wait(lambda: seen.of(rt.LandscapeFailed), 10.0), (
+            f"no LandscapeFailed within 10 s; engine running: {engine.running}, last frame "
+            f"step {seen.frames[-1].step} K {seen.frames[-1].modes}, events: "
+            f"{[(type(e).__name__, getattr(e, 'message', '')) for e in seen.events]}")
         assert "guidance is off" in seen.of(rt.LandscapeFailed)[0].message
         assert not seen.of(rt.ErrorEvent)
         assert np.allclose(seen.frames[-1].force, 0.0)
