@@ -32,6 +32,7 @@ from engine.grid import Grid, check_fft_memory
 #: Bumped whenever the stored layout or the definition of a spectrum changes.
 SPECTRUM_VERSION = 2
 
+
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
     """Digest of the code that shapes a cached spectrum (this package's folder)."""
