@@ -109,7 +109,6 @@ class LatencyMonitor(QtCore.QObject):
         self.samples.clear()
 
 
-
 def toggle_view_action(dock: QtWidgets.QDockWidget) -> QtGui.QAction:
     """The dock's own show/hide action, as a ``QAction``.
 
@@ -128,6 +127,7 @@ def toggle_view_action(dock: QtWidgets.QDockWidget) -> QtGui.QAction:
         raise TypeError(f"the {dock.windowTitle()!r} panel's show/hide action came back as "
                         f"{type(action).__name__}: restart the application")
     return action
+
 
 class MainWindow(QtWidgets.QMainWindow):
     """The skelasm desktop application's window.

@@ -345,7 +345,7 @@ class RotationCacheField:
             rot = np.array(rotation_now(), dtype=np.float64).reshape(3, 3)
             if _angle_between(rot, self.cache.rotation) <= 0.5 * self.refresh_angle:
                 break
-            self.cache = self._build(self.cache.table, rot)
+            self.cache = self.build_cache(rot)
             self._last = self.cache.rotation
             rebuilt += 1
         return rebuilt
