@@ -266,13 +266,20 @@ def raise_thread_priority() -> str:
     each period and the kernel caps real-time threads at 95 % of a CPU, so the rest of the
     machine keeps running. ``SKELASM_REALTIME=0`` turns this off. Returns what was granted,
     in words.
+
+    The request carries ``SCHED_RESET_ON_FORK``: a thread the loop thread starts (the job
+    worker, the refresh lane, a transform's helper threads) runs at ordinary priority.
+    Without it Linux hands the policy down, and a job thread in ``SCHED_FIFO`` at the
+    loop's own priority cannot be preempted by the waking loop: the loop waited out
+    whole transforms.
     """
     if os.environ.get("SKELASM_REALTIME", "1").strip() in ("0", "no", "off", "false"):
         return "normal (SKELASM_REALTIME=0)"
     if not hasattr(os, "sched_setscheduler"):
         return "normal (no real-time scheduling on this OS)"
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+        os.sched_setscheduler(0, policy, os.sched_param(REALTIME_PRIORITY))
     except OSError as exc:
         return (f"normal (real-time scheduling refused: {exc.strerror or exc}; allow it with "
                 "an rtprio limit or CAP_SYS_NICE)")

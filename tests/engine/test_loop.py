@@ -423,7 +423,7 @@ def test_raise_thread_priority_reports_what_the_os_granted(monkeypatch):
 
     said, (policy, priority), after = _in_thread(ask)  # only that thread changes
     if said.startswith("real-time"):
-        assert policy == os.SCHED_FIFO and priority == rt.REALTIME_PRIORITY
+        assert policy == os.SCHED_FIFO | RESET_ON_FORK and priority == rt.REALTIME_PRIORITY
     else:
         assert "refused" in said and policy == os.SCHED_OTHER
     assert after == os.SCHED_OTHER  # and it can give it up again
@@ -434,6 +434,55 @@ def test_raise_thread_priority_reports_what_the_os_granted(monkeypatch):
 
 
 raise_thread_priority = rt.raise_thread_priority
+RESET_ON_FORK = getattr(os, "SCHED_RESET_ON_FORK", 0)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_threads_the_loop_thread_starts_run_at_ordinary_priority(monkeypatch):
+    # Linux hands a thread's policy to the threads it starts: the job worker and the refresh
+    # lane, started by a real-time loop thread, ran in SCHED_FIFO at the loop's priority,
+    # where the waking loop could not preempt them and waited out whole transforms
+    from engine.runtime.pacing import drop_realtime_priority
+
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+
+    def raise_then_start_one():
+        said = raise_thread_priority()
+        child = _in_thread(lambda: (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+        own = os.sched_getscheduler(0)
+        drop_realtime_priority()
+        return said, own, child
+
+    said, own, (child_policy, child_priority) = _in_thread(raise_then_start_one)
+    if not said.startswith("real-time"):
+        pytest.skip(f"real-time scheduling not granted here: {said}")
+    assert own & ~RESET_ON_FORK == os.SCHED_FIFO
+    assert (child_policy, child_priority) == (os.SCHED_OTHER, 0)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_a_real_time_engine_loop_leaves_its_job_threads_at_ordinary_priority(monkeypatch):
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+    loop, _, model = make_loop(realtime=True, raise_priority=True)
+    model.delay = 0.3
+    seen = {}
+    real_field = model.field
+
+    def field_and_look(*args, **kwargs):
+        seen["job"] = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+        return real_field(*args, **kwargs)
+
+    model.field = field_and_look
+    loop.start()
+    try:
+        assert wait_for(lambda: loop.frames_published > 5)
+        loop.send(rt.SetDescriptorParams(sigma=0.7))
+        assert wait_for(lambda: "job" in seen, 5.0)
+    finally:
+        loop.stop()
+    if not loop.scheduling.startswith("real-time"):
+        pytest.skip(f"real-time scheduling not granted here: {loop.scheduling}")
+    assert seen["job"] == (os.SCHED_OTHER, 0)
 
 
 def test_loop_asks_for_priority_only_when_told(monkeypatch):
@@ -604,7 +653,7 @@ def test_another_thread_can_take_real_time_priority_away(monkeypatch):
         done.wait(0)
         dropped.set()
         pytest.skip(f"real-time scheduling not granted here: {seen['said']}")
-    assert seen["before"] == os.SCHED_FIFO
+    assert seen["before"] & ~RESET_ON_FORK == os.SCHED_FIFO
     drop_realtime_priority(seen["tid"])
     dropped.set()
     assert done.wait(5) and seen["after"] == os.SCHED_OTHER
