@@ -205,7 +205,9 @@ def test_engine_without_guidance_answers_landscape_requests_with_a_typed_failure
 def test_only_the_process_engine_asks_for_priority(small_scene, monkeypatch):
     # a real-time loop thread sharing the interpreter with a window slowed the window's
     # thread (a GUI test: 2.7-3.0 s at normal priority, 4.0-14.3 s with SCHED_FIFO, one
-    # CI failure): the thread engine stays at normal priority, the process engine asks
+    # CI failure; most of it was the job threads inheriting SCHED_FIFO, since fixed) and
+    # showed no gain on K changes: the thread engine stays at normal priority, the
+    # process engine asks
     monkeypatch.setenv("SKELASM_REALTIME", "0")  # ask, but let the OS answer "no" here
     # at normal priority both loops wait by spinning, yielding the CPU (engine.runtime.pacing)
     for transport, said in (("thread", "normal (not asked for)"),
