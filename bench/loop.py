@@ -22,7 +22,9 @@ interpreter:
 - ``--modes-sweep K1,K2,...``: change K every ``--sweep-period`` seconds while measuring
   (the K slider): the new field is built by the engine's job worker; a second table counts
   the periods over 2 ms that end within 100 ms after a change against those between
-  changes (the host's own stalls), which tells whether the loop felt the changes.
+  changes (the host's own stalls), which tells whether the loop felt the changes;
+- ``--sweep-control``: the same marks every ``--sweep-period`` seconds with no command sent
+  (the control for that table: the same windows, no K change).
 
 Writes ``bench_loop.png`` (period histogram) unless ``--no-plot``.
 """
@@ -68,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="comma-separated K values to cycle through while measuring")
     parser.add_argument("--sweep-period", type=float, default=0.5,
                         help="seconds between K changes of --modes-sweep")
+    parser.add_argument("--sweep-control", action="store_true",
+                        help="with --modes-sweep: mark the changes' times but send nothing "
+                             "(the same windows with no K change)")
     parser.add_argument("--realtime-priority", action="store_true",
                         help="thread engine: ask for real-time scheduling of the loop thread "
                              "(the process engine always asks)")
@@ -120,7 +125,8 @@ def _sweeper(args: argparse.Namespace, send, stop: threading.Event,
              sent: list[float]) -> threading.Thread:
     """A thread sending SetModes through ``send`` every ``--sweep-period`` seconds.
 
-    Appends the ``perf_counter`` of each send to ``sent``.
+    Appends the ``perf_counter`` of each send to ``sent``; with ``--sweep-control`` it
+    appends the times and sends nothing.
     """
     from engine.runtime import SetModes
 
@@ -130,7 +136,8 @@ def _sweeper(args: argparse.Namespace, send, stop: threading.Event,
         i = 0
         while not stop.wait(args.sweep_period):
             sent.append(time.perf_counter())
-            send(SetModes(ks[i % len(ks)]))
+            if not args.sweep_control:
+                send(SetModes(ks[i % len(ks)]))
             i += 1
 
     return threading.Thread(target=body, name="bench-modes-sweep", daemon=True)
@@ -233,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
           f"switch interval: {interval or sys.getswitchinterval()} s"
           + (", GUI running" if args.gui else "")
           + (f", K swept over {args.modes_sweep} every {args.sweep_period} s"
+             + (" (control: marked, not sent)" if args.sweep_control else "")
              if sweep_modes(args) else ""))
     if info.get("scheduling"):
         print(f"loop thread scheduling: {info['scheduling']}")
@@ -247,7 +255,8 @@ def run(args: argparse.Namespace) -> int:
           f"| {info.get('eval_us', float('nan')):.1f} |")
     if info.get("sent"):
         c = after_changes(periods, info["ends"], info["sent"])
-        print(f"\nK changes: periods over 2 ms ending within {AFTER_CHANGE_S * 1e3:.0f} ms after "
+        what = "marks (control: no K change sent)" if args.sweep_control else "K changes"
+        print(f"\n{what}: periods over 2 ms ending within {AFTER_CHANGE_S * 1e3:.0f} ms after "
               "a change, and between changes\n")
         print("| changes | changes followed by one | after: periods | over 2 ms | longest (us) "
               "| between: periods | over 2 ms | longest (us) |")

@@ -87,3 +87,28 @@ def test_bench_loop_refuses_thread_and_process_together():
     out = bench("--gui", "--thread", "--process", "--seconds", "1", "--plot", "")
     assert out.returncode == 2
     assert "--thread and --process exclude each other" in out.stderr
+
+
+@pytest.mark.parametrize("control", [False, True])
+def test_the_sweep_control_marks_the_same_times_and_sends_nothing(control):
+    import argparse
+    import threading
+    import time
+
+    from bench.loop import _sweeper
+    from engine.runtime import SetModes
+
+    args = argparse.Namespace(modes_sweep="12,8", sweep_period=0.02, sweep_control=control)
+    sent, commands, stop = [], [], threading.Event()
+    thread = _sweeper(args, commands.append, stop, sent)
+    thread.start()
+    deadline = time.monotonic() + 10.0
+    while len(sent) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    stop.set()
+    thread.join(5.0)
+    assert len(sent) >= 3 and sent == sorted(sent)
+    if control:
+        assert commands == []
+    else:
+        assert commands[:3] == [SetModes(12), SetModes(8), SetModes(12)]
