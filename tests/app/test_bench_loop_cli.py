@@ -31,6 +31,26 @@ def test_bench_loop_prints_rate_and_periods():
     steps, seconds, rate, median = table_row(out)
     assert steps >= 990 and seconds > 0 and rate > 0 and median > 0  # 1 s of 1 kHz steps
     assert "goal (rate >= 990 Hz, p99 <= 1200 us):" in out.stdout
+    # the thread engine as start_engine runs it: 0.5 ms, not Python's 5 ms
+    assert "mode: thread, load: none, switch interval: 0.0005 s" in out.stdout
+
+
+def test_bench_loop_gives_each_engine_its_own_switch_interval():
+    import argparse
+
+    from bench.loop import switch_interval
+    from engine.runtime import DEFAULT_SWITCH_INTERVAL
+
+    def args(**kw):
+        base = dict(switch_interval=None, process=False, gui=False, thread=False)
+        return argparse.Namespace(**{**base, **kw})
+
+    assert switch_interval(args()) == DEFAULT_SWITCH_INTERVAL  # start_engine's thread engine
+    assert switch_interval(args(gui=True, thread=True)) == DEFAULT_SWITCH_INTERVAL
+    assert switch_interval(args(process=True)) is None  # Python's, shortened during jobs
+    assert switch_interval(args(gui=True)) is None  # the window's engine process
+    assert switch_interval(args(switch_interval=0.005)) == 0.005
+    assert switch_interval(args(process=True, switch_interval=1e-3)) == 1e-3
 
 
 @pytest.mark.slow
