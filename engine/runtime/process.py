@@ -321,27 +321,40 @@ class ParentGuard:
     ``os.getppid()`` with the parent's pid every :data:`WATCH_PERIOD` seconds. On the first,
     ``on_lost`` runs (drop real-time priority, stop the loop); if the process still lives
     :data:`ORPHAN_GRACE` seconds later it exits at once.
+
+    The SIGTERM handler only notes the signal; the watchdog acts on it at its next look. A
+    handler runs in the main thread between two bytecodes, possibly inside a lock that
+    thread holds, and a second SIGTERM can arrive inside the first handler: a handler that
+    called :meth:`lost` itself deadlocked on the :class:`threading.Event`'s lock, and the
+    orphaned engine stepped on, real-time, until killed.
     """
 
     def __init__(self, parent_pid: int, on_lost: Callable[[], None]):
         self.parent_pid = parent_pid
         self.on_lost = on_lost
         self.gone = threading.Event()
+        self._once = threading.Lock()
+        self._signal: str | None = None  # set by the handler, read by the watchdog
         self.signalled = _set_parent_death_signal(signal.SIGTERM)
-        signal.signal(signal.SIGTERM, lambda signum, frame: self.lost("SIGTERM"))
+        signal.signal(signal.SIGTERM, self._note_signal)
         threading.Thread(target=self._watch, name="skelasm-parent-watch", daemon=True).start()
+
+    def _note_signal(self, signum: int, frame: object) -> None:
+        self._signal = signal.Signals(signum).name  # no lock, no call: see the class
 
     def _watch(self) -> None:
         while not self.gone.is_set():
-            if os.getppid() != self.parent_pid:
+            if self._signal is not None:
+                self.lost(self._signal)
+            elif os.getppid() != self.parent_pid:
                 self.lost("parent process gone")
             self.gone.wait(WATCH_PERIOD)
         time.sleep(ORPHAN_GRACE)
         os._exit(1)
 
     def lost(self, why: str) -> None:
-        """The parent is gone (or asked us to end): run ``on_lost`` once."""
-        if self.gone.is_set():
+        """The parent is gone (or asked us to end): run ``on_lost`` once, whichever thread asks."""
+        if not self._once.acquire(blocking=False):
             return
         self.gone.set()
         self.on_lost()

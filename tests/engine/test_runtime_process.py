@@ -105,6 +105,35 @@ def _kill_and_check(parent: subprocess.Popen, how: int) -> None:
     assert "leaked shared_memory" not in errors, errors
 
 
+GUARD = textwrap.dedent("""
+    import faulthandler, os, signal, threading
+    from engine.runtime.process import ParentGuard
+    faulthandler.dump_traceback_later(10, exit=True)  # a deadlock ends this with a traceback
+    calls, done = [], threading.Event()
+    guard = ParentGuard(os.getppid(), lambda: (calls.append(1), done.set()))
+    handler = signal.getsignal(signal.SIGTERM)
+    with guard.gone._cond:  # the lock the main thread may hold when a SIGTERM comes
+        handler(signal.SIGTERM, None)
+        handler(signal.SIGTERM, None)  # a second one inside the first handler
+    for _ in range(50):
+        os.kill(os.getpid(), signal.SIGTERM)
+    print("on_lost calls", len(calls) if done.wait(5) else "none", flush=True)
+    os._exit(0)  # before the guard's grace period ends the process
+""")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux signals")
+def test_a_sigterm_inside_a_lock_or_another_sigterm_does_not_deadlock_the_guard():
+    # an orphaned engine process was found running on, its loop still real-time: its main
+    # thread sat in five nested SIGTERM handlers, each waiting for the parent guard's Event
+    # lock that the one it interrupted held, so neither the loop's stop nor the guard's
+    # exit ever ran
+    out = subprocess.run([sys.executable, "-c", GUARD], capture_output=True, text=True,
+                         cwd=ROOT, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "on_lost calls 1", (out.stdout, out.stderr[-2000:])
+
+
 def test_messages_carry_large_arrays_out_of_band():
     import multiprocessing as mp
 
