@@ -282,5 +282,6 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
         f"longest period {longest:.0f} us while K changed, {steady:.0f} us steady")
     if longest >= 2000.0:
         pytest.xfail(f"the goal is 2 ms: longest period {longest:.0f} us while K changed, "
-                     f"{steady:.0f} us in the steady window before (docs/runtime.md: on this "
-                     "shared 2-core virtual machine the host alone stalls a loop at times)")
+                     f"{steady:.0f} us in the steady window before (docs/runtime.md, K "
+                     "changes: the jobs share the loop's interpreter and still lengthen some "
+                     "periods; the host alone stalls a loop at times too)")
