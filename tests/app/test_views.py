@@ -151,9 +151,14 @@ def test_landscape_view_shows_a_section_that_follows_the_pose(ready_window, wait
                "the part to move sideways")
     wait_until(lambda: not np.array_equal(view.canvas.field_rgb(), first), 5000,
                "the section to change")
-    cross = [m for m in view.canvas._markers if m.shape == "cross"][0]
-    assert cross.u == pytest.approx(float(win.latest_frame.part_pose[0]), abs=0.5)
-    assert cross.v == pytest.approx(float(win.latest_frame.part_pose[2]), abs=0.5)
+    # the cross is drawn at the pose of the last display tick, which may trail the newest
+    # frame while the part still moves: it must catch up with the part, not match at once
+    def cross_on_part():
+        cross = [m for m in view.canvas._markers if m.shape == "cross"][0]
+        pose = np.asarray(win.latest_frame.part_pose, float)
+        return abs(cross.u - pose[0]) <= 0.5 and abs(cross.v - pose[2]) <= 0.5
+
+    wait_until(cross_on_part, 5000, "the cross to follow the part")
 
 
 def test_engine_in_its_own_process_drives_the_same_views(make_window, small_scene,
