@@ -81,6 +81,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wait", choices=("sleep", "yield"), default=None,
                         help="thread engine: how the loop waits for its deadlines (default: "
                              "yield at normal priority, sleep in real time)")
+    parser.add_argument("--jobs", choices=("auto", "here", "process"), default="auto",
+                        help="where a K change's truncations and landscapes are computed: "
+                             "'auto' as the engine decides (a job process of their own when "
+                             "the loop thread runs real-time), 'here' in the loop's process, "
+                             "'process' in a job process (docs/runtime.md, K changes)")
     parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
     parser.add_argument("--full-path", action="store_true",
                         help="thread engine, rotation free: the full per-pose path every step "
@@ -112,6 +117,11 @@ def _vtk_load(stop: threading.Event, counter: list[int]) -> None:
         plotter.screenshot(return_img=True)  # a full render and read-back
         counter[0] += 1
     plotter.close()
+
+
+def job_process(args: argparse.Namespace) -> bool | None:
+    """``EngineLoop(job_process=)`` for ``--jobs``: None (the engine decides), False, True."""
+    return {"auto": None, "here": False, "process": True}[args.jobs]
 
 
 def switch_interval(args: argparse.Namespace) -> float | None:
@@ -253,7 +263,8 @@ def run(args: argparse.Namespace) -> int:
           + (", GUI running" if args.gui else "")
           + (f", K swept over {args.modes_sweep} every {args.sweep_period} s"
              + (" (control: marked, not sent)" if args.sweep_control else "")
-             if sweep_modes(args) else ""))
+             if sweep_modes(args) else "")
+          + f", spectral jobs: {args.jobs}")
     if info.get("scheduling"):
         print(f"loop thread scheduling: {info['scheduling']}")
     if info.get("paths"):
@@ -319,7 +330,8 @@ def _run_thread(args, load):
     traj = TrajectoryDevice(bench_trajectory(sim, args.seconds + 2.0))
     loop = EngineLoop(sim, model=model, device=traj, realtime=True, keep_periods=True,
                       switch_interval=switch_interval(args),
-                      raise_priority=args.realtime_priority, wait=args.wait)
+                      raise_priority=args.realtime_priority, wait=args.wait,
+                      job_process=job_process(args))
     if load is not None:
         load.start()
     stop = threading.Event()
@@ -381,6 +393,7 @@ def _run_process(args, load):
         switch_interval=args.switch_interval,
         raise_priority=True,  # as the GUI's engine process (SKELASM_REALTIME=0: off)
         keep_periods=True,
+        job_process=job_process(args),
     )
     engine = ProcessEngine(_handle(args), options)
     engine.start()

@@ -122,6 +122,19 @@ class Spectra:
     _lazy: dict[str, object] = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
+    def __getstate__(self) -> dict[str, object]:
+        """Pickled without the lock (spectra go to the runtime's job process whole)."""
+        state = dict(self.__dict__)
+        del state["_lock"]
+        with self._lock:
+            state["_lazy"] = dict(self._lazy)
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        """Unpickled with a lock of its own."""
+        self.__dict__.update(state)
+        self.__dict__["_lock"] = threading.Lock()
+
     @property
     def moving(self) -> Spectrum:
         """Part 2's centred spectrum and moment spectra on the ``q N`` lattice.

@@ -13,15 +13,18 @@ axes) apply between two steps. Events go to the loop's event queue.
 from __future__ import annotations
 
 import collections
+import logging
 from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from engine.correlation import Correlator
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics
 from engine.pose import rotation_matrix
+from engine.runtime.job_process import JobProcess, JobProcessGone
 from engine.runtime.jobs import (
     FieldModel,
     FieldRequest,
@@ -59,6 +62,8 @@ if TYPE_CHECKING:
 
 __all__ = ["Guidance"]
 
+_log = logging.getLogger(__name__)
+
 
 class Guidance:
     """Keeps a simulation's field and physics up to date with the user's commands.
@@ -84,6 +89,14 @@ class Guidance:
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
+        #: Compute truncations and landscapes in a process of their own
+        #: (:mod:`engine.runtime.job_process`), so that this work never holds the interpreter
+        #: lock the loop needs: the loop sets it when its thread runs real-time.
+        self.job_process = False
+        self.jobs: JobProcess | None = None
+        #: Why that work runs in this process after all (None: it does not, or was not
+        #: asked to run elsewhere).
+        self.jobs_problem: str | None = None
         self.effects = sim.effects
         self.coupling: CouplingParams | None = None
         self.kappa: float | None = None  # None: the scale-invariant default
@@ -112,6 +125,9 @@ class Guidance:
         DescriptorsSwapped), while the part can already be dragged.
         """
         self.modes = int(modes)
+        if self.job_process and self.jobs is None:
+            # started now, its imports run while the first field is built
+            self.jobs = JobProcess()
         self._request("correlator", coarse_first=True)
 
     def set_modes(self, modes: int) -> None:
@@ -283,6 +299,7 @@ class Guidance:
         req = r.request
         self.sim.set_field(r.field)
         self.attach(r.field)
+        self.offload(r.field)
         if self.model is not None:  # the fit's stiffness is the new field's
             self.model.geometric_rotation = r.stiffness
         self._physics_dirty = True
@@ -309,6 +326,30 @@ class Guidance:
                 self._deferred = False
                 self._request("field")
 
+    def offload(self, fld: GeometricField) -> None:
+        """Have the job process compute ``fld``'s correlator's spectral work from now on.
+
+        A job of the worker (the spectra are written to shared memory, megabytes); a
+        correlator made from one already offloaded (a new K) shares its job process.
+        Nothing when :attr:`job_process` is off.
+        """
+        corr = fld.correlator if isinstance(
+            fld, (CorrelatorField, LandscapeField, RotationCacheField)) else None
+        if (not self.job_process or not isinstance(corr, Correlator)
+                or corr.spectral is not None):
+            return
+
+        def run(cancelled: Callable[[], bool]) -> None:
+            try:
+                if self.jobs is None:
+                    self.jobs = JobProcess()
+                corr.offload(self.jobs.spectral(corr.spectra))
+            except JobProcessGone as exc:  # the work stays here: same results
+                self.jobs_problem = str(exc)
+                _log.warning("truncations and landscapes run in the loop's process: %s", exc)
+
+        self.worker.submit("offload", run)
+
     def _physics(self) -> Physics:
         if self.model is None:
             kappa = self.sim.physics.kappa if self.kappa is None else self.kappa
@@ -322,3 +363,5 @@ class Guidance:
         """Cancel the jobs and stop the worker and the refresh lane."""
         self.worker.shutdown()
         self.refresh_lane.shutdown()
+        if self.jobs is not None:
+            self.jobs.close()

@@ -324,12 +324,12 @@ class JobWorker:
         """True while a job is queued or running."""
         return self._queued > 0
 
-    def submit(self, kind: str, run: Callable[[Callable[[], bool]], Response]) -> None:
+    def submit(self, kind: str, run: Callable[[Callable[[], bool]], Response | None]) -> None:
         """Queue ``run(cancelled)`` as the newest job of ``kind``.
 
-        ``run`` returns a response, or raises ``engine.errors.Cancelled`` once
-        ``cancelled()`` turns True (then there is no response: the caller knows it
-        cancelled).
+        ``run`` returns a response (None: a job with nothing to answer), or raises
+        ``engine.errors.Cancelled`` once ``cancelled()`` turns True (then there is no
+        response: the caller knows it cancelled).
         """
         if self._closed:
             return
@@ -345,7 +345,8 @@ class JobWorker:
                         response = run(flag.is_set)
                 except Cancelled:
                     return
-                self._done.put(response)
+                if response is not None:
+                    self._done.put(response)
             finally:
                 self._queued -= 1
 

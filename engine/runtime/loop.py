@@ -115,6 +115,12 @@ class EngineLoop:
         what is used is in :attr:`waiting` once the loop runs (``"none"``: unpaced).
     base_dir : Path, optional
         Where relative device files are found (the scene's folder).
+    job_process : bool, optional
+        Compute a field's truncations and landscapes in a process of their own
+        (:mod:`engine.runtime.job_process`). None: when paced in real time with the loop
+        thread granted real-time scheduling (decided as the loop starts); a loop at normal
+        priority can lose its CPU to that process, and measured worse with it
+        (docs/runtime.md, "K changes").
     """
 
     def __init__(
@@ -136,6 +142,7 @@ class EngineLoop:
         raise_priority: bool = False,
         wait: str | None = None,
         base_dir: Path | None = None,
+        job_process: bool | None = None,
     ):
         self.sim = sim
         self.model = model
@@ -149,6 +156,8 @@ class EngineLoop:
         self.guidance = Guidance(sim, model, self.events)
         # paced: rotation caches refresh in their own lane, never in the step
         self.guidance.background_refresh = bool(realtime)
+        self.job_process = job_process
+        self.guidance.job_process = bool(job_process)  # None: decided in run()
         self.guidance.attach(sim.field)
         if model is not None:
             self.guidance.coupling = model.config.coupling
@@ -245,7 +254,10 @@ class EngineLoop:
         self.native_id = current_native_id()
         if self.raise_priority:
             self.scheduling = raise_thread_priority()
-        wait = self.wait or ("sleep" if self.scheduling.startswith("real-time") else "yield")
+        granted = self.scheduling.startswith("real-time")
+        wait = self.wait or ("sleep" if granted else "yield")
+        if self.job_process is None:
+            self.guidance.job_process = bool(self.realtime and granted)
         pacer = Pacer(self.sim.dt, realtime=self.realtime, wait=wait)
         self.waiting = pacer.waiting
         self.guidance.ready_message = (f"engine ready; its loop thread: {self.scheduling}, "
@@ -255,6 +267,7 @@ class EngineLoop:
             self.prepare = False  # once, not at every run
             self.guidance.prepare(self.model.modes)
         elif not self._announced:
+            self.guidance.offload(self.sim.field)  # a field built before the loop
             self.events.append(ReadyEvent(self.guidance.descriptors,
                                               evaluator_name(self.sim.field),
                                               self.guidance.ready_message))

@@ -83,6 +83,7 @@ class EngineOptions:
     raise_priority: bool = False
     analytic: bool = False  # benchmarks: an analytic field instead of the correlator
     keep_periods: bool = False  # benchmarks: return every period at the end
+    job_process: bool | None = None  # spectral work in a process of its own (None: realtime)
 
 
 @dataclass(frozen=True)
@@ -424,6 +425,7 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
             keep_periods=options.keep_periods, switch_interval=options.switch_interval,
             job_switch_interval=JOB_SWITCH_INTERVAL,
             raise_priority=options.raise_priority, base_dir=handle.path.parent,
+            job_process=options.job_process,
         )
         loop.events.extend(notices)
         holder.append(loop)

@@ -132,3 +132,17 @@ def test_the_sweep_control_marks_the_same_times_and_sends_nothing(control):
         assert commands == []
     else:
         assert commands[:3] == [SetModes(12), SetModes(8), SetModes(12)]
+
+
+def test_bench_loop_says_where_a_k_changes_jobs_run():
+    import argparse
+
+    from bench.loop import add_arguments, job_process
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert job_process(parser.parse_args([])) is None  # the engine decides
+    assert job_process(parser.parse_args(["--jobs", "here"])) is False
+    assert job_process(parser.parse_args(["--jobs", "process"])) is True
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--jobs", "elsewhere"])

@@ -202,6 +202,134 @@ def test_engine_without_guidance_answers_landscape_requests_with_a_typed_failure
         engine.stop()
 
 
+def _job_processes(parent: int) -> list[int]:
+    """Processes whose parent is ``parent`` and that run the job process's program."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                command = f.read()
+        except OSError:
+            continue
+        if (int(fields[1]) == parent and fields[0] != "Z"
+                and b"engine.runtime.job_process" in command):
+            found.append(int(entry))
+    return found
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="reads /proc (Linux)")
+def test_a_real_time_engine_computes_k_changes_in_a_job_process_that_ends_with_it(
+        small_scene):
+    # issue 10, bug 3: the jobs of a K change shared the loop's interpreter lock and
+    # lengthened its periods; an engine whose loop thread runs real-time (the process
+    # engine, where the OS grants it) computes them in a process of its own
+    engine = start(small_scene, "process")
+    seen = Collector(engine)
+    home = engine.transport.pid
+    try:
+        assert seen.wait(seen.ready)
+        if "real-time (SCHED_FIFO" not in seen.of(rt.ReadyEvent)[0].message:
+            pytest.skip("the OS did not grant the loop thread real-time scheduling here")
+        assert seen.wait(lambda: _job_processes(home), 60.0), \
+            "no job process under the engine's process"
+        (child,) = _job_processes(home)
+        for k in (6, 10):
+            engine.send(rt.SetModes(k))
+            assert seen.wait(lambda k=k: seen.frames and seen.frames[-1].modes == k, 60.0)
+        assert not [e for e in seen.of(rt.ErrorEvent)], seen.of(rt.ErrorEvent)
+        engine.send(rt.RequestLandscape())
+        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
+        assert seen.of(rt.LandscapeReady)[0].landscape.modes == 10
+        assert _job_processes(home) == [child]  # the same one served them all
+    finally:
+        engine.stop()
+    deadline = time.monotonic() + 10
+    while child in _job_processes(home) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert child not in _job_processes(home)
+
+
+def _thread_loop(scene: Path, **kw) -> rt.EngineLoop:
+    """A thread-engine loop on ``scene``, prepared in its thread (as start_engine's)."""
+    from engine.sim import build_simulation
+
+    handle = rt.open_scene(scene)
+    sim, model = build_simulation(handle, backend="numba", prepare=False)
+    loop = rt.EngineLoop(sim, model=model, prepare=True, base_dir=handle.path.parent, **kw)
+    loop.start()
+    return loop
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="reads /proc (Linux)")
+@pytest.mark.parametrize("paced", [True, False])
+def test_a_loop_at_normal_priority_keeps_its_spectral_work_in_its_own_process(
+        small_scene, paced):
+    # a loop thread at normal priority can lose its CPU to a job process (measured worse
+    # with one), and an unpaced run is headless: neither starts one
+    before = set(_job_processes(os.getpid()))
+    engine = rt.EngineHandle(_thread_loop(small_scene, realtime=paced))
+    seen = Collector(engine)
+    try:
+        assert seen.wait(seen.ready)
+        engine.send(rt.SetModes(6))
+        assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 6, 60.0)
+        assert engine.transport.sim.field.correlator.spectral is None
+        assert set(_job_processes(os.getpid())) == before
+    finally:
+        engine.stop()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="reads /proc (Linux)")
+def test_a_loop_told_so_offloads_its_correlator_to_one_job_process(small_scene):
+    from engine.runtime.job_process import RemoteSpectral
+
+    engine = rt.EngineHandle(_thread_loop(small_scene, job_process=True))
+    seen = Collector(engine)
+    try:
+        assert seen.wait(seen.ready)
+        for k in (6, 10):
+            engine.send(rt.SetModes(k))
+            assert seen.wait(lambda k=k: seen.frames and seen.frames[-1].modes == k, 60.0)
+        spectral = engine.transport.sim.field.correlator.spectral
+        assert isinstance(spectral, RemoteSpectral) and spectral.here == 0
+        assert _job_processes(os.getpid()) == [spectral.jobs.pid]
+        engine.send(rt.RequestLandscape())
+        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
+        assert seen.of(rt.LandscapeReady)[0].landscape.modes == 10
+        assert not seen.of(rt.ErrorEvent)
+        child = spectral.jobs.pid
+    finally:
+        engine.stop()
+    assert child not in _job_processes(os.getpid())  # closed with the engine
+
+
+def test_a_job_process_that_cannot_start_leaves_the_work_to_the_engine(small_scene,
+                                                                        monkeypatch):
+    from engine.runtime import guidance, job_process
+
+    monkeypatch.setattr(guidance, "JobProcess", lambda: job_process.JobProcess(
+        command=["/nonexistent/python-for-skelasm"]))
+    engine = rt.EngineHandle(_thread_loop(small_scene, job_process=True))
+    seen = Collector(engine)
+    try:
+        assert seen.wait(seen.ready)
+        engine.send(rt.SetModes(6))
+        assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 6, 60.0)
+        engine.send(rt.RequestLandscape())
+        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
+        assert seen.of(rt.LandscapeReady)[0].landscape.modes == 6
+        assert not seen.of(rt.ErrorEvent)
+        problem = engine.transport.guidance.jobs_problem
+        assert problem is not None and "could not be started" in problem
+        assert engine.transport.sim.field.correlator.spectral is None
+    finally:
+        engine.stop()
+
+
 def test_only_the_process_engine_asks_for_priority(small_scene, monkeypatch):
     # a real-time loop thread sharing the interpreter with a window slowed the window's
     # thread (a GUI test: 2.7-3.0 s at normal priority, 4.0-14.3 s with SCHED_FIFO, one
