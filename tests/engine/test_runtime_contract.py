@@ -411,5 +411,7 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
     if longest >= 2000.0:
         pytest.xfail(f"the goal is 2 ms: longest period {longest:.0f} us while K changed, "
                      f"{steady:.0f} us in the steady window before (docs/runtime.md, K "
-                     "changes: the jobs share the loop's interpreter and still lengthen some "
-                     "periods; the host alone stalls a loop at times too)")
+                     "changes: a K change's jobs still lengthen some periods, through the "
+                     "interpreter lock where they share the loop's process and through the "
+                     "loop's own step while a new cache catches up; the host alone stalls a "
+                     "loop at times too)")
