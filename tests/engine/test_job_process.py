@@ -13,35 +13,20 @@ import subprocess
 import sys
 import textwrap
 import time
-import types
 
 import numpy as np
 import pytest
+from gaussian_pair import pair
 
 from engine.correlation import Correlator, LandscapeError, compute_landscape
 from engine.correlation.tables import truncate
 from engine.errors import Cancelled
-from engine.grid import Grid
 from engine.pose import rotation_matrix
 from engine.runtime.job_process import JobProcess, RemoteSpectral, read_arrays, write_arrays
 
 pytest.importorskip("numba")
 
-H = 0.5
-GRID1 = Grid((-3.0, -3.0, -3.0), H, (13, 13, 13))
-GRID2 = Grid((-2.5, -2.0, -2.5), H, (11, 9, 11))
 ROT = rotation_matrix(np.array([0.3, -0.2, 0.4]))
-
-
-def gaussian(grid, mu, s, a):
-    p = grid.points()
-    return (a * np.exp(-np.sum((p - np.asarray(mu)) ** 2, -1) / (2 * s * s))).astype(np.complex64)
-
-
-def pair():
-    r1 = gaussian(GRID1, (0.2, -0.1, 0.3), 0.8, 1 + 1j) + gaussian(GRID1, (-1, 0.5, 0), 0.7, -1j)
-    r2 = gaussian(GRID2, (0.3, 0.2, -0.2), 0.7, 2 - 1j)
-    return (types.SimpleNamespace(rho=r1, grid=GRID1), types.SimpleNamespace(rho=r2, grid=GRID2))
 
 
 @pytest.fixture(scope="module")

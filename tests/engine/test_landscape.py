@@ -2,32 +2,18 @@
 
 from __future__ import annotations
 
-import types
-
 import numpy as np
 import pytest
+from gaussian_pair import GRID1, GRID2, H, gaussian, pair
 
 from engine.correlation import Correlator
-from engine.grid import Grid
 from engine.pose import rotation_matrix
-
-H = 0.5
-GRID1 = Grid((-3.0, -3.0, -3.0), H, (13, 13, 13))
-GRID2 = Grid((-2.5, -2.0, -2.5), H, (11, 9, 11))
-
-
-def gaussian(grid, mu, s, a):
-    p = grid.points()
-    return (a * np.exp(-np.sum((p - np.asarray(mu)) ** 2, -1) / (2 * s * s))).astype(np.complex64)
 
 
 @pytest.fixture(scope="module")
 def corr():
-    r1 = gaussian(GRID1, (0.2, -0.1, 0.3), 0.8, 1 + 1j) + gaussian(GRID1, (-1, 0.5, 0), 0.7, -1j)
-    r2 = gaussian(GRID2, (0.3, 0.2, -0.2), 0.7, 2 - 1j)
-    return Correlator(types.SimpleNamespace(rho=r1, grid=GRID1),
-                      types.SimpleNamespace(rho=r2, grid=GRID2),
-                      modes=10_000, backend="numpy", use_cache=False)
+    fixed, moving = pair()
+    return Correlator(fixed, moving, modes=10_000, backend="numpy", use_cache=False)
 
 
 def test_identity_full_modes_equals_brute_force(corr):

@@ -58,6 +58,18 @@ class Collector:
             time.sleep(0.01)
         return False
 
+    def change_modes(self, k: int, timeout: float = 60.0) -> bool:
+        """Send SetModes(k); True once a frame shows K = k."""
+        self.engine.send(rt.SetModes(k))
+        return self.wait(lambda: bool(self.frames) and self.frames[-1].modes == k, timeout)
+
+    def landscape(self, timeout: float = 60.0):
+        """Ask for a landscape; the first one that arrives (None: none in time)."""
+        self.engine.send(rt.RequestLandscape())
+        if not self.wait(lambda: self.of(rt.LandscapeReady), timeout):
+            return None
+        return self.of(rt.LandscapeReady)[0].landscape
+
     def of(self, kind):
         return [e for e in self.events if isinstance(e, kind)]
 
@@ -238,12 +250,10 @@ def test_a_real_time_engine_computes_k_changes_in_a_job_process_that_ends_with_i
             "no job process under the engine's process"
         (child,) = _job_processes(home)
         for k in (6, 10):
-            engine.send(rt.SetModes(k))
-            assert seen.wait(lambda k=k: seen.frames and seen.frames[-1].modes == k, 60.0)
+            assert seen.change_modes(k)
         assert not [e for e in seen.of(rt.ErrorEvent)], seen.of(rt.ErrorEvent)
-        engine.send(rt.RequestLandscape())
-        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
-        assert seen.of(rt.LandscapeReady)[0].landscape.modes == 10
+        landscape = seen.landscape()
+        assert landscape is not None and landscape.modes == 10
         assert _job_processes(home) == [child]  # the same one served them all
     finally:
         engine.stop()
@@ -275,8 +285,7 @@ def test_a_loop_at_normal_priority_keeps_its_spectral_work_in_its_own_process(
     seen = Collector(engine)
     try:
         assert seen.wait(seen.ready)
-        engine.send(rt.SetModes(6))
-        assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 6, 60.0)
+        assert seen.change_modes(6)
         assert engine.transport.sim.field.correlator.spectral is None
         assert set(_job_processes(os.getpid())) == before
     finally:
@@ -292,14 +301,12 @@ def test_a_loop_told_so_offloads_its_correlator_to_one_job_process(small_scene):
     try:
         assert seen.wait(seen.ready)
         for k in (6, 10):
-            engine.send(rt.SetModes(k))
-            assert seen.wait(lambda k=k: seen.frames and seen.frames[-1].modes == k, 60.0)
+            assert seen.change_modes(k)
         spectral = engine.transport.sim.field.correlator.spectral
         assert isinstance(spectral, RemoteSpectral) and spectral.here == 0
         assert _job_processes(os.getpid()) == [spectral.jobs.pid]
-        engine.send(rt.RequestLandscape())
-        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
-        assert seen.of(rt.LandscapeReady)[0].landscape.modes == 10
+        landscape = seen.landscape()
+        assert landscape is not None and landscape.modes == 10
         assert not seen.of(rt.ErrorEvent)
         child = spectral.jobs.pid
     finally:
@@ -317,11 +324,9 @@ def test_a_job_process_that_cannot_start_leaves_the_work_to_the_engine(small_sce
     seen = Collector(engine)
     try:
         assert seen.wait(seen.ready)
-        engine.send(rt.SetModes(6))
-        assert seen.wait(lambda: seen.frames and seen.frames[-1].modes == 6, 60.0)
-        engine.send(rt.RequestLandscape())
-        assert seen.wait(lambda: seen.of(rt.LandscapeReady), 60.0)
-        assert seen.of(rt.LandscapeReady)[0].landscape.modes == 6
+        assert seen.change_modes(6)
+        landscape = seen.landscape()
+        assert landscape is not None and landscape.modes == 6
         assert not seen.of(rt.ErrorEvent)
         problem = engine.transport.guidance.jobs_problem
         assert problem is not None and "could not be started" in problem
