@@ -22,7 +22,13 @@ spacing): part 1 fixed, part 2 moved by ``(R, t)``. Modules, bottom to top:
 docs/correlation.md gives the mathematics, the checks and the measurements.
 """
 
-from engine.correlation.correlator import BACKEND_CHOICES, Correlator, required_fft_size
+from engine.correlation.correlator import (
+    BACKEND_CHOICES,
+    Correlator,
+    LocalSpectral,
+    SpectralWork,
+    required_fft_size,
+)
 from engine.correlation.finishing import Evaluation
 from engine.correlation.from_scene import correlator_for_scene
 from engine.correlation.landscape import Landscape, LandscapeError, compute_landscape
@@ -35,8 +41,10 @@ __all__ = [
     "Evaluation",
     "Landscape",
     "LandscapeError",
+    "LocalSpectral",
     "ModeTable",
     "Spectra",
+    "SpectralWork",
     "Spectrum",
     "compute_landscape",
     "compute_spectrum",

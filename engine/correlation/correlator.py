@@ -75,11 +75,13 @@ class SampledField(Protocol):
 
 
 class SpectralWork(Protocol):
-    """Computes a pair's truncations and landscapes from its spectra.
+    """Computes a pair's truncations and landscapes from its spectra (:attr:`Correlator.spectral`).
 
-    What :meth:`Correlator.offload` takes. Each method returns what the in-process
-    function returns for the same arguments (:func:`~engine.correlation.tables.truncate`,
-    :func:`~engine.correlation.landscape.compute_landscape`).
+    Each method returns what the in-process function returns for the same arguments
+    (:func:`~engine.correlation.tables.truncate`,
+    :func:`~engine.correlation.landscape.compute_landscape`): :class:`LocalSpectral` calls
+    them; the runtime's job process (``engine.runtime.job_process.RemoteSpectral``) runs
+    them in a process of its own.
     """
 
     def truncate(self, modes: int) -> ModeTable:
@@ -91,6 +93,24 @@ class SpectralWork(Protocol):
                   cancel: Callable[[], bool] | None) -> Landscape:
         """The landscape at ``rotation`` with ``modes`` per axis."""
         ...
+
+
+class LocalSpectral:
+    """A pair's truncations and landscapes computed here, by the calling thread (the default)."""
+
+    def __init__(self, spectra: Spectra):
+        self.spectra = spectra
+
+    def truncate(self, modes: int) -> ModeTable:
+        """:func:`~engine.correlation.tables.truncate` of the spectra."""
+        return truncate(self.spectra, modes)
+
+    def landscape(self, rotation: np.ndarray, modes: int, *, forces: bool,
+                  table: ModeTable | None, progress: Callable[[float], None] | None,
+                  cancel: Callable[[], bool] | None) -> Landscape:
+        """:func:`~engine.correlation.landscape.compute_landscape` of the spectra."""
+        return compute_landscape(self.spectra, rotation, modes, forces=forces, table=table,
+                                 progress=progress, cancel=cancel)
 
 
 def required_fft_size(shape1: tuple[int, ...], shape2: tuple[int, ...]) -> int:
@@ -215,9 +235,10 @@ class Correlator:
         self.table: ModeTable = truncate(self.spectra, params.modes)
         kernels, active, why = per_pose.choose(backend, self.table, params.selection,
                                                bool(rotation), progress=stage(0.7, 1.0))
-        #: Where truncations and landscapes are computed (None: in this process, by the
-        #: calling thread; :meth:`offload`).
-        self.spectral: SpectralWork | None = None
+        #: Where truncations and landscapes are computed; the same results wherever (the
+        #: runtime may give a process of its own). Correlators made by :meth:`with_modes`
+        #: share it.
+        self.spectral: SpectralWork = LocalSpectral(self.spectra)
         self._kernels: dict[str, per_pose.Kernel] = kernels
         self._active: tuple[str, per_pose.Kernel | None] = (active, kernels.get(active))
         self.backend_name = why
@@ -226,12 +247,8 @@ class Correlator:
 
     # ------------------------------------------------------------------ truncation
     def truncate(self, modes: int) -> ModeTable:
-        """A new table keeping ``modes`` per axis (reads only the spectra; any thread).
-
-        Computed by :attr:`spectral` when one is set.
-        """
-        work = self.spectral
-        return truncate(self.spectra, modes) if work is None else work.truncate(int(modes))
+        """A new table keeping ``modes`` per axis (by :attr:`spectral`; any thread)."""
+        return self.spectral.truncate(int(modes))
 
     def with_modes(self, modes: int) -> Correlator:
         """A new Correlator with ``modes`` per axis, sharing the spectra and the kernels.
@@ -307,39 +324,23 @@ class Correlator:
         """Energy (and force) over every lattice translation at one rotation (any thread).
 
         See :func:`engine.correlation.landscape.compute_landscape`; ``modes`` defaults to
-        the current :attr:`modes`. Computed by :attr:`spectral` when one is set.
+        the current :attr:`modes`. Computed by :attr:`spectral`.
         """
         table = self.table
-        k = table.modes if modes is None else int(modes)
-        work = self.spectral
-        if work is not None:
-            return work.landscape(rotation, k, forces=forces, table=table, progress=progress,
-                                  cancel=cancel)
-        return compute_landscape(self.spectra, rotation, k, forces=forces, table=table,
-                                 progress=progress, cancel=cancel)
+        return self.spectral.landscape(
+            rotation, table.modes if modes is None else int(modes), forces=forces,
+            table=table, progress=progress, cancel=cancel)
 
     def rotation_cache(self, rotation: np.ndarray, *,
                        table: ModeTable | None = None) -> RotationCache:
         """Products kept at ``rotation`` for :meth:`evaluate_cached` (numba; any thread).
 
         ``table``: the truncation to build them for (default: the current one). Always
-        built here, never by :attr:`spectral`: a compiled kernel with the interpreter lock
-        released, asked for every few milliradians, whose answer must come back at once.
+        here, never by :attr:`spectral`: asked for every few milliradians, needed at once.
         """
-        table = self.table if table is None else table
         from engine.correlation.rotation_cache import build_rotation_cache  # needs numba
 
-        return build_rotation_cache(table, rotation)
-
-    def offload(self, work: SpectralWork | None) -> None:
-        """Have ``work`` compute this pair's truncations and landscapes.
-
-        Any thread. The results are the same arrays (the same code on the same spectra);
-        only where the work runs changes: the runtime hands it to a process of its own, so
-        that it never holds the loop's interpreter lock. None: in this process again.
-        Correlators made by :meth:`with_modes` share it.
-        """
-        self.spectral = work
+        return build_rotation_cache(self.table if table is None else table, rotation)
 
     def evaluate_cached(self, cache: RotationCache, rotation: np.ndarray,
                         translation: np.ndarray) -> Evaluation:

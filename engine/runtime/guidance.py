@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from engine.correlation import Correlator
+from engine.correlation import Correlator, LocalSpectral
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics
 from engine.pose import rotation_matrix
@@ -327,23 +327,22 @@ class Guidance:
                 self._request("field")
 
     def offload(self, fld: GeometricField) -> None:
-        """Have the job process compute ``fld``'s correlator's spectral work from now on.
+        """Have the job process compute ``fld``'s correlator's truncations and landscapes.
 
-        A job of the worker (the spectra are written to shared memory, megabytes); a
-        correlator made from one already offloaded (a new K) shares its job process.
-        Nothing when :attr:`job_process` is off.
+        A job of the worker (the spectra cross once, megabytes); correlators made from
+        it (a new K) share it. Nothing when :attr:`job_process` is off.
         """
         corr = fld.correlator if isinstance(
             fld, (CorrelatorField, LandscapeField, RotationCacheField)) else None
         if (not self.job_process or not isinstance(corr, Correlator)
-                or corr.spectral is not None):
+                or not isinstance(corr.spectral, LocalSpectral)):
             return
 
         def run(cancelled: Callable[[], bool]) -> None:
             try:
                 if self.jobs is None:
                     self.jobs = JobProcess()
-                corr.offload(self.jobs.spectral(corr.spectra))
+                corr.spectral = self.jobs.spectral(corr.spectra)  # one assignment
             except JobProcessGone as exc:  # the work stays here: same results
                 self.jobs_problem = str(exc)
                 _log.warning("truncations and landscapes run in the loop's process: %s", exc)

@@ -351,15 +351,17 @@ class JobProcess:
 
 
 class RemoteSpectral:
-    """A pair's spectral work done by a :class:`JobProcess` (``engine.correlation.SpectralWork``).
+    """A pair's truncations and landscapes done by a :class:`JobProcess` (a ``SpectralWork``).
 
     Where the child is not serving, each call computes here instead, with the same function
     on the same spectra (counted in :attr:`here`).
     """
 
     def __init__(self, jobs: JobProcess, spectra: Spectra, pair: int):
+        from engine.correlation import LocalSpectral
+
         self.jobs = jobs
-        self.spectra = spectra
+        self.local = LocalSpectral(spectra)  # where the child is gone
         self.pair = pair
         self.here = 0  # calls computed in this process because the child was gone
         weakref.finalize(self, jobs.forget, pair)
@@ -375,10 +377,8 @@ class RemoteSpectral:
         try:
             return self.jobs.call("truncate", self.pair, int(modes))  # type: ignore[return-value]
         except JobProcessGone:
-            from engine.correlation.tables import truncate
-
             self._here()
-            return truncate(self.spectra, modes)
+            return self.local.truncate(modes)
 
     def landscape(self, rotation: np.ndarray, modes: int, *, forces: bool,
                   table: ModeTable | None, progress: Callable[[float], None] | None,
@@ -390,11 +390,9 @@ class RemoteSpectral:
                 "landscape", self.pair, rot, int(modes), bool(forces),
                 progress=progress, cancel=cancel)
         except JobProcessGone:
-            from engine.correlation.landscape import compute_landscape
-
             self._here()
-            return compute_landscape(self.spectra, rot, modes, forces=forces, table=table,
-                                     progress=progress, cancel=cancel)
+            return self.local.landscape(rot, modes, forces=forces, table=table,
+                                        progress=progress, cancel=cancel)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -90,7 +90,7 @@ def test_results_equal_the_in_process_functions(correlator, jobs):
 def test_an_offloaded_correlator_gives_the_same_poses(correlator, jobs):
     d1, d2 = pair()
     corr = Correlator(d1, d2, modes=8, backend="numba", use_cache=False)
-    corr.offload(jobs.spectral(corr.spectra))
+    corr.spectral = jobs.spectral(corr.spectra)
     other = corr.with_modes(10)
     assert isinstance(other.spectral, RemoteSpectral) and other.spectral is corr.spectral
     t = np.array([0.4, 0.1, -0.2])

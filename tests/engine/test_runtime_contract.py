@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from engine import runtime as rt
+from engine.correlation import LocalSpectral
 from engine.descriptor import Descriptor
 from engine.runtime.pacing import STATS_EVERY, STATS_WINDOW
 
@@ -286,7 +287,7 @@ def test_a_loop_at_normal_priority_keeps_its_spectral_work_in_its_own_process(
     try:
         assert seen.wait(seen.ready)
         assert seen.change_modes(6)
-        assert engine.transport.sim.field.correlator.spectral is None
+        assert isinstance(engine.transport.sim.field.correlator.spectral, LocalSpectral)
         assert set(_job_processes(os.getpid())) == before
     finally:
         engine.stop()
@@ -330,7 +331,7 @@ def test_a_job_process_that_cannot_start_leaves_the_work_to_the_engine(small_sce
         assert not seen.of(rt.ErrorEvent)
         problem = engine.transport.guidance.jobs_problem
         assert problem is not None and "could not be started" in problem
-        assert engine.transport.sim.field.correlator.spectral is None
+        assert isinstance(engine.transport.sim.field.correlator.spectral, LocalSpectral)
     finally:
         engine.stop()
 
