@@ -343,7 +343,7 @@ class Guidance:
                 if self.jobs is None:
                     self.jobs = JobProcess()
                 corr.spectral = self.jobs.spectral(corr.spectra)  # one assignment
-            except JobProcessGone as exc:  # the work stays here: same results
+            except (JobProcessGone, OSError) as exc:  # the work stays here: same results
                 self.jobs_problem = str(exc)
                 _log.warning("truncations and landscapes run in the loop's process: %s", exc)
 

@@ -74,6 +74,8 @@ ALIGN = 64
 POLL = 0.02
 #: Tables the child keeps per pair (the K values asked for last).
 TABLES_KEPT = 4
+#: Free bytes ``/dev/shm`` must have to hold the transfer files.
+SHM_FREE = 2 << 30
 #: Seconds :meth:`JobProcess.close` waits for the child before killing it.
 CLOSE_WAIT = 2.0
 
@@ -97,8 +99,15 @@ class JobProcessGone(RuntimeError):
 
 
 def transfer_folder() -> str:
-    """A new private folder for transfer files (in ``/dev/shm`` where there is one)."""
-    base = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+    """A new private folder for transfer files.
+
+    In ``/dev/shm`` where there is one with :data:`SHM_FREE` bytes free (containers often
+    give it 64 MiB), else in the system's temporary folder.
+    """
+    base = None
+    with contextlib.suppress(OSError):
+        if os.access("/dev/shm", os.W_OK) and shutil.disk_usage("/dev/shm").free >= SHM_FREE:
+            base = "/dev/shm"
     return tempfile.mkdtemp(prefix="skelasm-jobs-", dir=base)
 
 
@@ -369,14 +378,14 @@ class RemoteSpectral:
     def _here(self) -> None:
         if not self.here:
             _log.warning("truncations and landscapes run in the loop's process: %s",
-                         self.jobs.problem)
+                         self.jobs.problem or "the job process could not pass them back")
         self.here += 1
 
     def truncate(self, modes: int) -> ModeTable:
         """The table keeping ``modes`` per axis, from the child."""
         try:
             return self.jobs.call("truncate", self.pair, int(modes))  # type: ignore[return-value]
-        except JobProcessGone:
+        except (JobProcessGone, OSError):  # no child, or no room for the transfer files
             self._here()
             return self.local.truncate(modes)
 
@@ -389,7 +398,7 @@ class RemoteSpectral:
             return self.jobs.call(  # type: ignore[return-value]
                 "landscape", self.pair, rot, int(modes), bool(forces),
                 progress=progress, cancel=cancel)
-        except JobProcessGone:
+        except (JobProcessGone, OSError):  # no child, or no room for the transfer files
             self._here()
             return self.local.landscape(rot, modes, forces=forces, table=table,
                                         progress=progress, cancel=cancel)

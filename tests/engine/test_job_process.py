@@ -8,6 +8,7 @@ that died, a parent that died) against what the module promises.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -187,3 +188,22 @@ def test_the_job_process_ends_with_its_parent(tmp_path):
         parent.kill()
         parent.wait()
         parent.stdout.close()
+
+
+def test_no_room_for_the_transfer_files_leaves_the_work_here(correlator, jobs):
+    remote = jobs.spectral(correlator.spectra)
+    shutil.rmtree(jobs.folder)  # as a full /dev/shm would: the child cannot write its answer
+    table = remote.truncate(7)
+    np.testing.assert_array_equal(table.moving, truncate(correlator.spectra, 7).moving)
+    assert remote.here == 1 and jobs.alive  # the child serves on; this call was done here
+
+
+def test_transfer_files_go_to_shared_memory_only_where_it_has_room(monkeypatch):
+    from engine.runtime import job_process
+
+    monkeypatch.setattr(job_process, "SHM_FREE", 1 << 62)  # more than any /dev/shm has
+    folder = job_process.transfer_folder()
+    try:
+        assert not folder.startswith("/dev/shm/") and os.path.isdir(folder)
+    finally:
+        os.rmdir(folder)
