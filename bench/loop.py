@@ -271,10 +271,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"rotation cache, poses per path and refreshes: {info['paths']}")
     print()
     print("| steps | seconds | rate (Hz) | median (us) | p1 (us) | p99 (us) | max (us) "
-          "| > 1.2 periods | eval median (us) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| > 1.2 periods | over 2 ms | eval median (us) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     print(f"| {len(periods)} | {periods.sum():.2f} | {stats.rate_hz:.1f} | {stats.median_us:.1f} "
           f"| {stats.p1_us:.1f} | {stats.p99_us:.1f} | {stats.max_us:.1f} | {late:.2f} % "
+          f"| {int(np.count_nonzero(periods > 2e-3))} "
           f"| {info.get('eval_us', float('nan')):.1f} |")
     if info.get("sent"):
         c = after_changes(periods, info["ends"], info["sent"])

@@ -167,6 +167,14 @@ REFRESH_ANGLE = 1e-3
 #: While a background refresh is pending, the cache serves up to this rotation from its
 #: reference; beyond it the full per-pose path runs.
 LIMIT_ANGLE = 4e-3
+#: Where the full per-pose path costs more than :data:`FULL_PATH_SHARE` of the loop's
+#: period (measured when the field is built), the cache serves on up to this rotation
+#: while a background refresh is pending: its torque error grows linearly with the angle
+#: (docs/correlation.md, "When the full path is too slow for the loop"), a late pose
+#: breaks the period.
+STALE_ANGLE = 12e-3
+#: The share of the loop's period a full per-pose evaluation may take on the loop thread.
+FULL_PATH_SHARE = 0.25
 #: A synchronous refresh costs about two full per-pose evaluations (measured at K = 16 to
 #: 64): the cache is refreshed only if, at the rate the part turned since the last pose, the
 #: new cache would serve at least this many poses; otherwise the full path runs.

@@ -22,7 +22,7 @@ import numpy as np
 
 from engine.correlation import Correlator, LocalSpectral
 from engine.errors import Cancelled
-from engine.params import CouplingParams, Effects, Physics
+from engine.params import FULL_PATH_SHARE, CouplingParams, Effects, Physics
 from engine.pose import rotation_matrix
 from engine.runtime.job_process import JobProcess, JobProcessGone
 from engine.runtime.jobs import (
@@ -249,10 +249,21 @@ class Guidance:
         return self.sim.state.rotation
 
     def attach(self, fld: GeometricField) -> None:
-        """Let a rotation-cache field refresh in the lane when the loop is paced."""
-        if isinstance(fld, RotationCacheField):
-            fld.refresh_in_background(self.refresh_lane.submit if self.background_refresh
-                                      else None)
+        """Let a rotation-cache field refresh in the lane when the loop is paced.
+
+        Its full path then gets a share of the period as its budget; a field the worker
+        did not build (one built before the loop) has its full path timed here, before the
+        loop runs.
+        """
+        if not isinstance(fld, RotationCacheField):
+            return
+        if not self.background_refresh:
+            fld.refresh_in_background(None)
+            return
+        if fld.full_us is None:
+            fld.measure_full_path()
+        fld.refresh_in_background(self.refresh_lane.submit,
+                                  budget_us=FULL_PATH_SHARE * self.sim.dt * 1e6)
 
     # -- between two steps (loop thread) --------------------------------------------------------
     def apply_physics(self) -> None:

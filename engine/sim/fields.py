@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from engine.correlation import Evaluation
-from engine.params import LIMIT_ANGLE, MIN_POSES_PER_CACHE, REFRESH_ANGLE
+from engine.params import LIMIT_ANGLE, MIN_POSES_PER_CACHE, REFRESH_ANGLE, STALE_ANGLE
 from engine.pose import rotation_matrix, rotation_vector
 
 if TYPE_CHECKING:
@@ -195,7 +195,10 @@ class RotationCacheField:
       at half the refresh angle, for the rotation the part will have when the cache
       arrives (extrapolated from its last turn over the poses the last refresh took);
       :meth:`install` swaps the new cache in between two steps, and meanwhile the old cache
-      serves up to ``limit_angle``, beyond which the full per-pose path runs.
+      serves up to ``limit_angle``, beyond which the full per-pose path runs; where that
+      path costs more than the lane's budget (:attr:`full_us` against the budget given
+      with the submitter), the old cache serves on up to ``stale_angle`` ("stale" poses),
+      so that no pose breaks the loop's period, and the full path runs only beyond.
 
     Each switch of model (a refresh, or the full path taking over) reports in
     ``Evaluation.switched`` the energy the first-order model gave the part over the stretch
@@ -204,19 +207,22 @@ class RotationCacheField:
 
     Built (its first cache included) wherever it is constructed: the runtime's worker.
     ``last_path`` says which path served the last pose (``"cached"``, ``"refreshed"``,
-    ``"full"``); ``counts`` counts them and the refreshes.
+    ``"stale"``, ``"full"``); ``counts`` counts them and the refreshes.
     """
 
     rotation = True
 
     def __init__(self, correlator: Correlator, kappa: float, rotation: np.ndarray, *,
                  refresh_angle: float = REFRESH_ANGLE, limit_angle: float = LIMIT_ANGLE,
-                 min_poses: float = MIN_POSES_PER_CACHE):
+                 stale_angle: float | None = None, min_poses: float = MIN_POSES_PER_CACHE):
         from engine.correlation.rotation_cache import build_rotation_cache, cached_pose
 
-        if not (0.0 < refresh_angle <= limit_angle):
-            raise ValueError(f"refresh angle {refresh_angle!r} must be positive and at most "
-                             f"the limit angle {limit_angle!r}")
+        if stale_angle is None:  # the default, or the limit angle where that is larger
+            stale_angle = max(STALE_ANGLE, limit_angle)
+        if not (0.0 < refresh_angle <= limit_angle <= stale_angle):
+            raise ValueError(f"the refresh, limit and stale angles ({refresh_angle!r}, "
+                             f"{limit_angle!r}, {stale_angle!r}) must be positive and "
+                             "in increasing order")
         self._build: Callable[[ModeTable, np.ndarray], RotationCache] = build_rotation_cache
         self._pose: Callable[..., np.ndarray] = cached_pose
         self.correlator = correlator
@@ -224,9 +230,14 @@ class RotationCacheField:
         self.modes = int(correlator.modes)
         self.refresh_angle = float(refresh_angle)
         self.limit_angle = float(limit_angle)
+        self.stale_angle = float(stale_angle)
         self.min_poses = float(min_poses)
         self.cache: RotationCache = self._build(correlator.table, rotation)
         self._submit: RefreshSubmitter | None = None
+        #: The most a full-path pose may cost on the evaluating thread (microseconds)
+        self.budget_us = math.inf
+        #: Microseconds of one full-path pose (:meth:`measure_full_path`; None: not measured)
+        self.full_us: float | None = None
         self._pending = 0  # id of the background refresh asked for; 0: none
         self._waited = 0  # poses since it was asked for
         self._lead = 0  # poses the last background refresh took to arrive
@@ -234,7 +245,7 @@ class RotationCacheField:
         self._last_t: np.ndarray | None = None  # and its translation (None: no pose yet)
         self._previous: RotationCache | None = None  # the cache a background refresh replaced
         self.last_path = "cached"
-        self.counts = {"cached": 0, "refreshed": 0, "full": 0, "refreshes": 0,
+        self.counts = {"cached": 0, "refreshed": 0, "stale": 0, "full": 0, "refreshes": 0,
                        "background_refreshes": 0}
 
     # -- the pose ---------------------------------------------------------------------------
@@ -272,7 +283,9 @@ class RotationCacheField:
                 path = "refreshed"
             elif not out[7] <= self.limit_angle:
                 self._ask(rot)
-                return self._full(rot, t, start, before, last)
+                if not (out[7] <= self.stale_angle and self._full_too_slow()):
+                    return self._full(rot, t, start, before, last)
+                path = "stale"
         if self._submit is not None and out[7] > 0.5 * self.refresh_angle:
             self._ask(rot)
         self.last_path = path
@@ -321,10 +334,39 @@ class RotationCacheField:
         """Id of the background refresh asked for and not installed yet (0: none)."""
         return self._pending
 
-    def refresh_in_background(self, submit: RefreshSubmitter | None) -> None:
-        """Refresh through ``submit`` from now on (None: synchronously, in :meth:`evaluate`)."""
+    def refresh_in_background(self, submit: RefreshSubmitter | None,
+                              budget_us: float = math.inf) -> None:
+        """Refresh through ``submit`` from now on (None: synchronously, in :meth:`evaluate`).
+
+        ``budget_us``: the most a full-path pose may cost on the thread that evaluates (a
+        share of the loop's period); beyond it, while a refresh is pending, the old cache
+        serves up to the stale angle instead.
+        """
         self._submit = submit
+        self.budget_us = float(budget_us)
         self._pending = 0
+
+    def measure_full_path(self, calls: int = 3) -> float:
+        """Time the full path (median of ``calls`` poses, microseconds); sets :attr:`full_us`.
+
+        At the cache's rotation with the two grid boxes centred on each other, so that the
+        boxes overlap and the whole sum runs. For the thread that builds the field (the
+        runtime's worker), before it is handed over.
+        """
+        g = self.correlator.table.geometry
+        rot = self.cache.rotation
+        t = g.centre_fixed - rot @ g.centre_moving
+        times = []
+        for _ in range(max(1, int(calls))):
+            begin = time.perf_counter()
+            self.correlator.evaluate(rot, t)
+            times.append((time.perf_counter() - begin) * 1e6)
+        self.full_us = float(np.median(times))
+        return self.full_us
+
+    def _full_too_slow(self) -> bool:
+        """Whether a full-path pose was measured to cost more than the budget."""
+        return self.full_us is not None and self.full_us > self.budget_us
 
     def build_cache(self, rotation: np.ndarray) -> RotationCache:
         """A cache of the current table at ``rotation`` (only reads; any thread)."""
@@ -388,8 +430,9 @@ class RotationCacheField:
     def describe(self) -> str:
         """The evaluator in words: the cache, how it is refreshed, the full path beneath."""
         how = ("in the background" if self._submit is not None else "synchronously")
+        beyond = self.stale_angle if self._full_too_slow() else self.limit_angle
         return (f"rotation cache (refreshed {how} every {self.refresh_angle * 1e3:g} mrad; "
-                f"full path beyond {self.limit_angle * 1e3:g} mrad while one is pending: "
+                f"full path beyond {beyond * 1e3:g} mrad while one is pending: "
                 f"{self.correlator.backend_name})")
 
 

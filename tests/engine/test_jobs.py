@@ -79,8 +79,11 @@ def test_a_rotation_cache_field_is_handed_over_at_the_rotation_the_part_has_now(
     late = build_field(model, request, rotation_now=lambda: turned).field
     assert isinstance(late, RotationCacheField)
     np.testing.assert_array_equal(late.reference_rotation, turned)
+    # its full path is timed here, in the worker, not at the loop's first slow pose
+    assert late.full_us is not None and late.full_us > 0
     asked = build_field(model, request).field  # without it: the request's rotation
     np.testing.assert_array_equal(asked.reference_rotation, np.eye(3))
+    assert asked.full_us is None
 
 
 def test_jobs_leave_a_core_to_the_loop(monkeypatch):

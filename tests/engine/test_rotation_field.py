@@ -233,6 +233,58 @@ def test_background_refresh_is_asked_for_and_the_full_path_runs_beyond_the_limit
     np.testing.assert_allclose(asked[1], step @ rot, atol=1e-12)
 
 
+def test_a_full_path_over_its_budget_leaves_the_pending_stretch_to_the_old_cache():
+    """Where the full path costs more than the loop's budget, the old cache serves on.
+
+    Between the limit and the stale angle while a refresh is pending ("stale" poses, the
+    correlator not called), with the cache's energy, force and torque; beyond the stale
+    angle, or within the budget, the full path runs as before.
+    """
+    corr, ref = correlators(8)
+    t = np.array([0.3, -0.2, 0.4])
+    fld = RotationCacheField(corr, 1.0, np.eye(3), limit_angle=4e-3, stale_angle=12e-3)
+    assert fld.full_us is None
+    assert fld.measure_full_path() == fld.full_us and fld.full_us > 0
+    asked: list[np.ndarray] = []
+    fld.refresh_in_background(lambda f, rot: asked.append(rot) or len(asked),
+                              budget_us=0.5 * fld.full_us)  # the full path is too slow
+    assert "full path beyond 12 mrad" in fld.describe()
+    calls = []
+    evaluate = corr.evaluate
+    corr.evaluate = lambda *a: calls.append(a) or evaluate(*a)  # type: ignore[method-assign]
+    rot = rotation_matrix(8e-3 * AXIS)
+    ev = fld.evaluate(rot, t)
+    assert fld.last_path == "stale" and not calls and len(asked) == 1
+    cached = fld.build_cache(np.eye(3))  # the old cache, at its own anchor: the same numbers
+    from engine.correlation.rotation_cache import cached_pose
+
+    expected = cached_pose(cached, rot, t, 1.0)
+    assert ev.energy == pytest.approx(expected[0], rel=1e-12)
+    np.testing.assert_allclose(ev.torque, expected[4:7], rtol=1e-12, atol=1e-15)
+    # a stale model, not the exact one: first order in the rotation, it is off the full path
+    assert ev.energy != pytest.approx(ref.evaluate(rot, t).energy, rel=1e-9)
+    rot = rotation_matrix(13e-3 * AXIS)  # beyond the stale angle: the full path
+    ev = fld.evaluate(rot, t)
+    assert fld.last_path == "full" and len(calls) == 1 and len(asked) == 1
+    assert ev.energy == pytest.approx(ref.evaluate(rot, t).energy, rel=1e-5)
+    assert fld.counts["stale"] == 1 and fld.counts["full"] == 1
+    # within its budget the full path serves beyond the limit angle, as before
+    fast = RotationCacheField(corr, 1.0, np.eye(3), limit_angle=4e-3, stale_angle=12e-3)
+    fast.measure_full_path()
+    fast.refresh_in_background(lambda f, rot: 1, budget_us=2.0 * fast.full_us)
+    fast.evaluate(rotation_matrix(8e-3 * AXIS), t)
+    assert fast.last_path == "full" and "full path beyond 4 mrad" in fast.describe()
+
+
+def test_the_angles_must_increase():
+    corr, _ = correlators(8)
+    with pytest.raises(ValueError, match="increasing order"):
+        RotationCacheField(corr, 1.0, np.eye(3), limit_angle=4e-3, stale_angle=2e-3)
+    # the default stale angle follows a limit angle set above it
+    fld = RotationCacheField(corr, 1.0, np.eye(3), limit_angle=0.05)
+    assert fld.stale_angle == 0.05
+
+
 def test_catch_up_rebuilds_the_first_cache_where_the_part_turned_to():
     """A field built for the rotation at the request, handed over after the part turned
     10 mrad: without catching up, its first pose runs the full path; caught up, the cache
@@ -336,9 +388,14 @@ def turning_loop(scene, realtime):
 
 
 def test_paced_refreshes_never_run_on_the_loop_thread(small_peg_scene):
+    from engine.params import FULL_PATH_SHARE
     from engine.runtime.messages import SetProxyPose
 
     loop, sim, builds = turning_loop(small_peg_scene, realtime=True)
+    # a field built before the loop: its full path timed before the loop runs, and given a
+    # share of the period
+    assert sim.field.full_us is not None and sim.field.full_us > 0
+    assert sim.field.budget_us == pytest.approx(FULL_PATH_SHARE * sim.dt * 1e6)
     start = sim.proxy_pose.copy()
     loop.start()
     try:
@@ -361,6 +418,7 @@ def test_unpaced_refreshes_run_in_the_step(small_peg_scene):
     from engine.runtime.messages import SetProxyPose
 
     loop, sim, builds = turning_loop(small_peg_scene, realtime=False)
+    assert sim.field.budget_us == np.inf and sim.field.full_us is None  # no budget, no timing
     pose = sim.proxy_pose.copy()
     for _ in range(30):
         pose[3] += 0.01
