@@ -115,6 +115,11 @@ class Guidance:
         # mesh's mass properties (milliseconds), so a K change must not do it on the loop
         self._resolved: tuple[tuple[object, ...], Physics] | None = None
         self._deferred = False  # a field change waits for the descriptors being computed
+        if model is not None and model.prepared is not None and model.prepared[0] is sim.field:
+            # a field built before the loop: a new K reuses its descriptors, as it reuses
+            # those of a field built in the loop
+            self.descriptors = model.prepared[1]
+            self._in_use = (self.effects.guidance, None, None)
 
     # -- requests -------------------------------------------------------------------------------
     def prepare(self, modes: int) -> None:

@@ -88,6 +88,9 @@ class FieldModel(Protocol):
     geometric_rotation: float | None
     #: (6,) part 2 relative to part 1 when assembled: where a field's stiffness is measured.
     assembled_pose: np.ndarray
+    #: The field built before any loop and its descriptors (None: none was), so that a loop
+    #: that starts with that field reuses them for a new K.
+    prepared: tuple[GeometricField, tuple[Descriptor, ...]] | None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None,

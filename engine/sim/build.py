@@ -610,6 +610,8 @@ class SceneModel:
         #: Rotational stiffness at the assembled pose, per unit kappa, of the field last
         #: built (None: no field, or rotation locked); sets the default rotational coupling.
         self.geometric_rotation: float | None = None
+        #: The field :func:`build_simulation` built (``prepare=True``) and its descriptors.
+        self.prepared: tuple[GeometricField, tuple[Descriptor, ...]] | None = None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None, kappa: float | None = None
@@ -835,7 +837,9 @@ def build_simulation(
     rate = handle.config.simulation.rate_hz if rate_hz is None else float(rate_hz)
     field: GeometricField = NullField()
     if prepare:
-        field, _ = model.field(effects, physics.kappa, rotation_matrix(model.start_pose[3:]))
+        field, descriptors = model.field(effects, physics.kappa,
+                                         rotation_matrix(model.start_pose[3:]))
+        model.prepared = (field, descriptors)
         physics = model.physics(effects)  # the rotational coupling scaled to the fit
     limits = HapticLimits.from_device(handle.config.device)
     follow = fit_hold(handle)  # its rest point is hold_point's, found once

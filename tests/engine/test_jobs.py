@@ -1,5 +1,6 @@
 """The job worker's field builds: a K change reuses the spectra in use (issue 10, bug 3)."""
 
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -172,3 +173,48 @@ def test_a_k_change_brings_the_new_fields_stiffness_into_the_physics(small_peg_s
     assert in_use == pytest.approx(at12, rel=1e-9)
     assert k_rot == pytest.approx(kappa * at12 / ROTATION_AUTHORITY, rel=1e-9)
     assert k_rot_at8 == pytest.approx(kappa * at8 / ROTATION_AUTHORITY, rel=1e-9)
+
+
+def test_a_field_built_before_the_loop_lends_its_descriptors_to_a_new_k(
+        small_peg_scene, monkeypatch):
+    """A simulation prepared before its loop (``build_simulation(prepare=True)``, as
+    ``skelasm bench loop`` and scripts do): a K change reuses the field's descriptors and
+    correlator, as for a field the loop built; before, it took the descriptor path (the
+    descriptors read again from the cache and a new correlator built, 0.6 s on the peg).
+    """
+    from engine.runtime import guidance as guidance_module
+    from engine.runtime.messages import DescriptorsSwapped, ProgressEvent
+    from engine.sim import build_simulation
+
+    handle = rt.open_scene(small_peg_scene)
+    sim, model = build_simulation(handle, modes=8, backend="numba")
+    assert model.prepared is not None and model.prepared[0] is sim.field
+    requests = []
+    real = guidance_module.build_field
+    monkeypatch.setattr(guidance_module, "build_field",
+                        lambda m, r, **kw: requests.append(r) or real(m, r, **kw))
+    loop = rt.EngineLoop(sim, model=model, realtime=False)
+    try:
+        assert loop.guidance.descriptors is model.prepared[1]
+        first = sim.field.correlator
+        loop.send(rt.SetModes(12))
+        end = time.monotonic() + 30.0
+        while sim.field.modes != 12 and time.monotonic() < end:
+            loop.run(max_steps=20)
+        assert sim.field.modes == 12
+        events = list(loop.events)
+    finally:
+        loop.guidance.close()
+    assert [r.task for r in requests] == ["field"]
+    assert requests[0].correlator is first and requests[0].descriptors == model.prepared[1]
+    assert not any(isinstance(e, DescriptorsSwapped) for e in events)
+    assert any(isinstance(e, ProgressEvent) and e.task == "field" and e.fraction == 1.0
+               for e in events)
+    # a loop given another field than the prepared one reuses nothing
+    other, _ = model.field(sim.effects, 1.0, np.eye(3), modes=8)
+    sim.set_field(other)
+    fresh = rt.EngineLoop(sim, model=model, realtime=False)
+    try:
+        assert fresh.guidance.descriptors == ()
+    finally:
+        fresh.guidance.close()

@@ -84,6 +84,7 @@ class FakeModel:
     modes = 16
     geometric_rotation = None
     assembled_pose = np.zeros(6)
+    prepared = None  # no field built before the loop
     current: FakeModel | None = None
 
     def __init__(self, delay=0.2):
