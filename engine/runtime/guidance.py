@@ -22,7 +22,7 @@ import numpy as np
 
 from engine.correlation import Correlator, LocalSpectral
 from engine.errors import Cancelled
-from engine.params import FULL_PATH_SHARE, CouplingParams, Effects, Physics
+from engine.params import CouplingParams, Effects, Physics
 from engine.pose import rotation_matrix
 from engine.runtime.job_process import JobProcess, JobProcessGone
 from engine.runtime.jobs import (
@@ -49,12 +49,11 @@ from engine.runtime.messages import (
     describe_error,
 )
 from engine.sim import (
-    CorrelatorField,
     GeometricField,
-    LandscapeField,
     RotationCacheField,
     Simulation,
     evaluator_name,
+    field_correlator,
 )
 
 if TYPE_CHECKING:
@@ -72,9 +71,9 @@ class Guidance:
     ----------
     sim : Simulation
     model : FieldModel or None
-        ``engine.sim.SceneModel`` of the scene.
-        Rebuilds physics and fields; None: a field handed in by the caller, which commands
-        that rebuild it (K, descriptors, guidance) cannot change (they answer ErrorEvent).
+        The scene's ``engine.sim.SceneModel``: rebuilds physics and fields. None: a field
+        handed in by the caller, which commands that rebuild it (K, descriptors, guidance)
+        cannot change (they answer ErrorEvent).
     events : deque
         Where events go.
     """
@@ -89,13 +88,11 @@ class Guidance:
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
-        #: Compute truncations and landscapes in a process of their own
-        #: (:mod:`engine.runtime.job_process`), so that this work never holds the interpreter
-        #: lock the loop needs: the loop sets it when its thread runs real-time.
+        #: Compute truncations and landscapes in a process of their own (never holding the
+        #: loop's interpreter lock; job_process.py): set when the loop thread runs real-time.
         self.job_process = False
         self.jobs: JobProcess | None = None
-        #: Why that work runs in this process after all (None: it does not, or was not
-        #: asked to run elsewhere).
+        #: Why that work runs in this process after all (None: it does not, or need not).
         self.jobs_problem: str | None = None
         self.effects = sim.effects
         self.coupling: CouplingParams | None = None
@@ -103,10 +100,13 @@ class Guidance:
         self.sigma: float | None = None
         self.penalty: float | None = None
         self.modes = int(sim.field.modes)
-        self.descriptors: tuple[Descriptor, ...] = ()
+        # a field built before the loop lends its descriptors to a new K, as one built in it
+        self.descriptors: tuple[Descriptor, ...] = (
+            () if model is None else model.descriptors_of(sim.field))
         self.recompute: float | None = None  # fraction done of a descriptor job
         self.ready_message = ""
-        self._in_use: tuple[str, float | None, float | None] = ("", None, None)
+        self._in_use: tuple[str, float | None, float | None] = (
+            self.effects.guidance if self.descriptors else "", None, None)
         self._field_id = 0  # newest field request
         self._field_task = ""
         self._landscape_id = 0
@@ -115,11 +115,6 @@ class Guidance:
         # mesh's mass properties (milliseconds), so a K change must not do it on the loop
         self._resolved: tuple[tuple[object, ...], Physics] | None = None
         self._deferred = False  # a field change waits for the descriptors being computed
-        if model is not None and model.prepared is not None and model.prepared[0] is sim.field:
-            # a field built before the loop: a new K reuses its descriptors, as it reuses
-            # those of a field built in the loop
-            self.descriptors = model.prepared[1]
-            self._in_use = (self.effects.guidance, None, None)
 
     # -- requests -------------------------------------------------------------------------------
     def prepare(self, modes: int) -> None:
@@ -142,10 +137,8 @@ class Guidance:
 
     def set_descriptor_params(self, sigma: float | None, penalty: float | None) -> None:
         """New descriptor parameters: recompute in the background."""
-        if sigma is not None:
-            self.sigma = float(sigma)
-        if penalty is not None:
-            self.penalty = float(penalty)
+        self.sigma = self.sigma if sigma is None else float(sigma)
+        self.penalty = self.penalty if penalty is None else float(penalty)
         self._request("descriptors")
 
     def set_effects(self, effects: Effects) -> None:
@@ -184,12 +177,12 @@ class Guidance:
 
     def request_landscape(self, rotvec: tuple[float, ...] | None) -> None:
         """Landscape at ``rotvec`` (default: the part's rotation), computed by the worker."""
-        fld = self.sim.field
-        if not isinstance(fld, (CorrelatorField, LandscapeField, RotationCacheField)):
+        corr = field_correlator(self.sim.field)
+        if corr is None:
             self.events.append(LandscapeFailed("no landscape: guidance is off", "ValueError"))
             return
         rv = tuple(float(v) for v in (self.sim.part_pose()[3:] if rotvec is None else rotvec))
-        request = LandscapeRequest(next_id(), fld.correlator, rotation_matrix(np.array(rv)), rv)
+        request = LandscapeRequest(next_id(), corr, rotation_matrix(np.array(rv)), rv)
         self._landscape_id = request.id
 
         def progress(fraction: float) -> None:
@@ -214,9 +207,7 @@ class Guidance:
         reuse = self.descriptors if key == self._in_use and task == "field" else ()
         if not reuse and task == "field" and self.effects.guidance != "none":
             task = "descriptors"  # no descriptors to reuse: they are computed (or loaded)
-        fld = self.sim.field
-        current = (fld.correlator if isinstance(
-            fld, (CorrelatorField, LandscapeField, RotationCacheField)) else None)
+        current = field_correlator(self.sim.field)
         rot = self.sim.state.rotation.copy()
         rot.setflags(write=False)
         request = FieldRequest(
@@ -256,19 +247,13 @@ class Guidance:
     def attach(self, fld: GeometricField) -> None:
         """Let a rotation-cache field refresh in the lane when the loop is paced.
 
-        Its full path then gets a share of the period as its budget; a field the worker
-        did not build (one built before the loop) has its full path timed here, before the
-        loop runs.
+        The period budgets its full path (timed there if the worker did not build it).
         """
-        if not isinstance(fld, RotationCacheField):
-            return
-        if not self.background_refresh:
-            fld.refresh_in_background(None)
-            return
-        if fld.full_us is None:
-            fld.measure_full_path()
-        fld.refresh_in_background(self.refresh_lane.submit,
-                                  budget_us=FULL_PATH_SHARE * self.sim.dt * 1e6)
+        if isinstance(fld, RotationCacheField):
+            if self.background_refresh:
+                fld.refresh_in_background(self.refresh_lane.submit, period=self.sim.dt)
+            else:
+                fld.refresh_in_background(None)
 
     # -- between two steps (loop thread) --------------------------------------------------------
     def apply_physics(self) -> None:
@@ -345,11 +330,10 @@ class Guidance:
     def offload(self, fld: GeometricField) -> None:
         """Have the job process compute ``fld``'s correlator's truncations and landscapes.
 
-        A job of the worker (the spectra cross once, megabytes); correlators made from
-        it (a new K) share it. Nothing when :attr:`job_process` is off.
+        A worker job (the spectra cross once); a new K's correlators share it. Nothing
+        when :attr:`job_process` is off.
         """
-        corr = fld.correlator if isinstance(
-            fld, (CorrelatorField, LandscapeField, RotationCacheField)) else None
+        corr = field_correlator(fld)
         if (not self.job_process or not isinstance(corr, Correlator)
                 or not isinstance(corr.spectral, LocalSpectral)):
             return

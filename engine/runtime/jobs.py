@@ -88,9 +88,6 @@ class FieldModel(Protocol):
     geometric_rotation: float | None
     #: (6,) part 2 relative to part 1 when assembled: where a field's stiffness is measured.
     assembled_pose: np.ndarray
-    #: The field built before any loop and its descriptors (None: none was), so that a loop
-    #: that starts with that field reuses them for a new K.
-    prepared: tuple[GeometricField, tuple[Descriptor, ...]] | None
 
     def physics(
         self, effects: Effects, coupling: CouplingParams | None = None,
@@ -113,6 +110,10 @@ class FieldModel(Protocol):
         cancel: Callable[[], bool] | None = None,
     ) -> tuple[GeometricField, tuple[Descriptor, ...]]:
         """(field, descriptors) for ``effects``."""
+        ...
+
+    def descriptors_of(self, fld: GeometricField) -> tuple[Descriptor, ...]:
+        """The descriptors of ``fld`` if this model built it before any loop, else ()."""
         ...
 
     def first_grid(self, effects: Effects, *, sigma: float | None = None,

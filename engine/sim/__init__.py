@@ -31,6 +31,7 @@ from engine.sim.fields import (
     NullField,
     RotationCacheField,
     evaluator_name,
+    field_correlator,
     field_for_effects,
 )
 from engine.sim.simulation import Simulation
@@ -44,6 +45,7 @@ __all__ = [
     "RigidBody",
     "RotationCacheField",
     "evaluator_name",
+    "field_correlator",
     "SceneModel",
     "Simulation",
     "build_simulation",

@@ -707,6 +707,15 @@ class SceneModel:
 
         return descriptors_cached(self._scene_with(sigma, penalty, None), list(self.parts))
 
+    def descriptors_of(self, fld: GeometricField) -> tuple[Descriptor, ...]:
+        """The descriptors of ``fld`` if :func:`build_simulation` built it here, else ().
+
+        A loop that starts with that field reuses them for a new K.
+        """
+        if self.prepared is not None and self.prepared[0] is fld:
+            return self.prepared[1]
+        return ()
+
     def first_grid(self, effects: Effects, *, sigma: float | None = None,
                    penalty: float | None = None) -> int | None:
         """The grid of a scene's first field (None: the scene's own, at once).

@@ -30,7 +30,13 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from engine.correlation import Evaluation
-from engine.params import LIMIT_ANGLE, MIN_POSES_PER_CACHE, REFRESH_ANGLE, STALE_ANGLE
+from engine.params import (
+    FULL_PATH_SHARE,
+    LIMIT_ANGLE,
+    MIN_POSES_PER_CACHE,
+    REFRESH_ANGLE,
+    STALE_ANGLE,
+)
 from engine.pose import rotation_matrix, rotation_vector
 
 if TYPE_CHECKING:
@@ -335,15 +341,21 @@ class RotationCacheField:
         return self._pending
 
     def refresh_in_background(self, submit: RefreshSubmitter | None,
-                              budget_us: float = math.inf) -> None:
+                              period: float | None = None) -> None:
         """Refresh through ``submit`` from now on (None: synchronously, in :meth:`evaluate`).
 
-        ``budget_us``: the most a full-path pose may cost on the thread that evaluates (a
-        share of the loop's period); beyond it, while a refresh is pending, the old cache
-        serves up to the stale angle instead.
+        ``period``: the loop's period (seconds). A full-path pose then has
+        :data:`~engine.params.FULL_PATH_SHARE` of it as its budget (:attr:`budget_us`);
+        beyond it, while a refresh is pending, the old cache serves up to the stale angle
+        instead. A field whose full path was not timed yet (one the runtime's worker did
+        not build) is timed here: call this before the loop runs.
         """
         self._submit = submit
-        self.budget_us = float(budget_us)
+        self.budget_us = math.inf
+        if submit is not None and period is not None:
+            if self.full_us is None:
+                self.measure_full_path()
+            self.budget_us = FULL_PATH_SHARE * float(period) * 1e6
         self._pending = 0
 
     def measure_full_path(self, calls: int = 3) -> float:
@@ -454,6 +466,13 @@ def cache_serves(correlator: Correlator) -> bool:
     from engine.correlation.rotation_cache import serves
 
     return bool(correlator.rotation) and serves(correlator.table)
+
+
+def field_correlator(fld: GeometricField) -> Correlator | None:
+    """The correlator behind a field (None: a field without one, guidance off)."""
+    if isinstance(fld, (CorrelatorField, LandscapeField, RotationCacheField)):
+        return fld.correlator
+    return None
 
 
 def evaluator_name(fld: GeometricField) -> str:

@@ -84,7 +84,6 @@ class FakeModel:
     modes = 16
     geometric_rotation = None
     assembled_pose = np.zeros(6)
-    prepared = None  # no field built before the loop
     current: FakeModel | None = None
 
     def __init__(self, delay=0.2):
@@ -96,6 +95,9 @@ class FakeModel:
     def physics(self, effects, coupling=None, kappa=None):
         v, f = tetra()
         return resolve_physics(self.config, v, f, effects=effects, kappa=kappa)
+
+    def descriptors_of(self, fld):
+        return ()  # no field built before the loop
 
     coarse = None  # the grid first_grid answers (None: the scene's descriptors are cached)
 

@@ -23,7 +23,7 @@ from engine.pose import rotation_matrix
 
 numba = pytest.importorskip("numba")
 
-from engine.params import REFRESH_ANGLE  # noqa: E402 -- after the numba check
+from engine.params import FULL_PATH_SHARE, REFRESH_ANGLE  # noqa: E402 -- after the numba check
 from engine.sim.fields import (  # noqa: E402 -- after the numba check
     CorrelatorField,
     RotationCacheField,
@@ -246,8 +246,10 @@ def test_a_full_path_over_its_budget_leaves_the_pending_stretch_to_the_old_cache
     assert fld.full_us is None
     assert fld.measure_full_path() == fld.full_us and fld.full_us > 0
     asked: list[np.ndarray] = []
-    fld.refresh_in_background(lambda f, rot: asked.append(rot) or len(asked),
-                              budget_us=0.5 * fld.full_us)  # the full path is too slow
+    # a period whose share is half the full path's cost: the full path is too slow
+    period = 0.5 * fld.full_us * 1e-6 / FULL_PATH_SHARE
+    fld.refresh_in_background(lambda f, rot: asked.append(rot) or len(asked), period=period)
+    assert fld.budget_us == pytest.approx(0.5 * fld.full_us)
     assert "full path beyond 12 mrad" in fld.describe()
     calls = []
     evaluate = corr.evaluate
@@ -270,10 +272,12 @@ def test_a_full_path_over_its_budget_leaves_the_pending_stretch_to_the_old_cache
     assert fld.counts["stale"] == 1 and fld.counts["full"] == 1
     # within its budget the full path serves beyond the limit angle, as before
     fast = RotationCacheField(corr, 1.0, np.eye(3), limit_angle=4e-3, stale_angle=12e-3)
-    fast.measure_full_path()
-    fast.refresh_in_background(lambda f, rot: 1, budget_us=2.0 * fast.full_us)
+    fast.refresh_in_background(lambda f, rot: 1, period=1.0)  # timed here: it was not yet
+    assert fast.full_us is not None and fast.budget_us == pytest.approx(FULL_PATH_SHARE * 1e6)
     fast.evaluate(rotation_matrix(8e-3 * AXIS), t)
     assert fast.last_path == "full" and "full path beyond 4 mrad" in fast.describe()
+    fast.refresh_in_background(None)  # synchronous again: no budget
+    assert fast.budget_us == np.inf
 
 
 def test_the_angles_must_increase():
@@ -388,7 +392,6 @@ def turning_loop(scene, realtime):
 
 
 def test_paced_refreshes_never_run_on_the_loop_thread(small_peg_scene):
-    from engine.params import FULL_PATH_SHARE
     from engine.runtime.messages import SetProxyPose
 
     loop, sim, builds = turning_loop(small_peg_scene, realtime=True)
