@@ -268,8 +268,10 @@ def build_field(
     if not isinstance(fld, NullField):
         _warm(fld, r.locked_rotation)
     if rotation_now is not None and isinstance(fld, RotationCacheField):
+        # what the full path would cost the loop, timed here; before the catch-up, so that
+        # the part does not turn on while it is timed
+        fld.measure_full_path()
         fld.catch_up(rotation_now)
-        fld.measure_full_path()  # what the full path would cost the loop, measured here
     return FieldResponse(r.id, r, fld, tuple(descs), time.perf_counter() - t0,
                          coarse_grid=coarse, stiffness=stiffness)
 
