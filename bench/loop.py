@@ -269,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"loop thread scheduling: {info['scheduling']}")
     if info.get("paths"):
         print(f"rotation cache, poses per path and refreshes: {info['paths']}")
+    if info.get("handover") and sweep_modes(args):
+        print(f"new fields held back until a cache served the part: {info['handover']}")
     print()
     print("| steps | seconds | rate (Hz) | median (us) | p1 (us) | p99 (us) | max (us) "
           "| > 1.2 periods | over 2 ms | eval median (us) |")
@@ -354,6 +356,7 @@ def _run_thread(args, load):
         "what": f"{handle.scene.name} ({Path(args.scene).name})",
         "field": evaluator_name(sim.field),
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
+        "handover": ", ".join(f"{k} {v}" for k, v in loop.guidance.handover.counts.items()),
         "eval_us": eval_us,
         "scheduling": f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}",
     }

@@ -175,6 +175,12 @@ LIMIT_ANGLE = 4e-3
 STALE_ANGLE = 12e-3
 #: The share of the loop's period a full per-pose evaluation may take on the loop thread.
 FULL_PATH_SHARE = 0.25
+#: A new field (a new K, new descriptors) that the runtime built while the part turned is
+#: handed over once a first cache serves the part's rotation; the lane builds one, at most
+#: this many times, while the field in use serves on (engine.runtime.handover)...
+HANDOVER_TRIES = 4
+#: ...and for at most this long (seconds): then it is handed over as it is.
+HANDOVER_SECONDS = 0.1
 #: A synchronous refresh costs about two full per-pose evaluations (measured at K = 16 to
 #: 64): the cache is refreshed only if, at the rate the part turned since the last pose, the
 #: new cache would serve at least this many poses; otherwise the full path runs.

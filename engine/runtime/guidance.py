@@ -23,27 +23,24 @@ import numpy as np
 from engine.correlation import Correlator, LocalSpectral
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics
-from engine.pose import rotation_matrix
+from engine.runtime.handover import Handover
 from engine.runtime.job_process import JobProcess, JobProcessGone
 from engine.runtime.jobs import (
     FieldModel,
     FieldRequest,
     FieldResponse,
     JobWorker,
-    LandscapeRequest,
     LandscapeResponse,
     RefreshLane,
     Response,
     build_field,
-    compute_landscape,
     next_id,
 )
+from engine.runtime.landscapes import Landscapes
 from engine.runtime.messages import (
     DescriptorsSwapped,
     ErrorEvent,
     Event,
-    LandscapeFailed,
-    LandscapeReady,
     ProgressEvent,
     ReadyEvent,
     describe_error,
@@ -85,6 +82,8 @@ class Guidance:
         self.events = events
         self.worker = JobWorker()
         self.refresh_lane = RefreshLane()
+        self.handover = Handover(self.attach)  # a new field waits for a cache that serves
+        self.landscapes = Landscapes(self.worker, events)
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
@@ -109,7 +108,6 @@ class Guidance:
             self.effects.guidance if self.descriptors else "", None, None)
         self._field_id = 0  # newest field request
         self._field_task = ""
-        self._landscape_id = 0
         self._physics_dirty = False
         # the last physics resolved and what it was resolved from: resolving reads the
         # mesh's mass properties (milliseconds), so a K change must not do it on the loop
@@ -169,6 +167,7 @@ class Guidance:
         if self.worker.cancel("field"):
             self.events.append(ProgressEvent(self._field_task, 1.0, "cancelled"))
         self._field_id = 0
+        self.handover.drop()
         self.recompute = None
         _, self.sigma, self.penalty = self._in_use
         if self._deferred:  # a K or rotation change waited for the cancelled job
@@ -177,20 +176,8 @@ class Guidance:
 
     def request_landscape(self, rotvec: tuple[float, ...] | None) -> None:
         """Landscape at ``rotvec`` (default: the part's rotation), computed by the worker."""
-        corr = field_correlator(self.sim.field)
-        if corr is None:
-            self.events.append(LandscapeFailed("no landscape: guidance is off", "ValueError"))
-            return
-        rv = tuple(float(v) for v in (self.sim.part_pose()[3:] if rotvec is None else rotvec))
-        request = LandscapeRequest(next_id(), corr, rotation_matrix(np.array(rv)), rv)
-        self._landscape_id = request.id
-
-        def progress(fraction: float) -> None:
-            if request.id == self._landscape_id:
-                self.events.append(ProgressEvent("landscape", float(fraction)))
-
-        self.worker.submit("landscape", lambda cancelled: compute_landscape(
-            request, progress=progress, cancel=cancelled))
+        pose = self.sim.part_pose()[3:] if rotvec is None else rotvec
+        self.landscapes.request(self.sim.field, tuple(float(v) for v in pose))
 
     def _request(self, task: str, *, coarse_first: bool = False) -> None:
         model = self.model
@@ -216,6 +203,7 @@ class Guidance:
             correlator=current if reuse else None, coarse_first=coarse_first,
         )
         self._field_id, self._field_task = request.id, task
+        self.handover.drop()  # a field held back is superseded
         report = task != "field"
         self.recompute = 0.0 if task == "descriptors" else None
 
@@ -227,8 +215,10 @@ class Guidance:
 
         def run(cancelled: Callable[[], bool]) -> Response:
             try:
+                # the part turns on while the field is built only where the loop is paced
                 return build_field(model, request, progress=progress if report else None,
-                                   cancel=cancelled, rotation_now=self._rotation_now)
+                                   cancel=cancelled, rotation_now=(
+                                       self._rotation_now if self.background_refresh else None))
             except Cancelled:
                 raise
             except Exception as exc:  # delivered to the loop, never raised in the worker
@@ -265,29 +255,25 @@ class Guidance:
     def take_responses(self) -> None:
         """Swap in finished fields and rotation caches, deliver landscapes.
 
-        Superseded answers are dropped.
+        Superseded answers are dropped. With the lane on, a new field is handed over once a
+        cache of its own serves the part's rotation (:mod:`engine.runtime.handover`).
         """
         fld = self.sim.field
         for done in self.refresh_lane.responses():
-            if done.field is fld:
-                if done.cache is None:
-                    fld.refresh_failed(done.id)
-                else:
-                    fld.install(done.id, done.cache)
+            if done.field is not fld:
+                self.handover.refreshed(done)
+            elif done.cache is None:
+                fld.refresh_failed(done.id)
+            else:
+                fld.install(done.id, done.cache)
         for response in self.worker.responses():
             if isinstance(response, LandscapeResponse):
-                self._landscape(response)
+                self.landscapes.deliver(response)
             else:
                 self._field(response)
-
-    def _landscape(self, r: LandscapeResponse) -> None:
-        if r.id != self._landscape_id:
-            return
-        if r.error is not None or r.landscape is None:
-            err = r.error or RuntimeError("no landscape")
-            self.events.append(LandscapeFailed(describe_error(err), type(err).__name__))
-        else:
-            self.events.append(LandscapeReady(r.landscape, r.rotvec))
+        held = self.handover.due(self.sim.state.rotation)
+        if held is not None:
+            self._swap(held, attached=True)
 
     def _field(self, r: FieldResponse) -> None:
         if r.id != self._field_id:
@@ -296,10 +282,18 @@ class Guidance:
         if r.error is not None or r.field is None:
             err = r.error or RuntimeError("no field")
             self.events.append(ErrorEvent(describe_error(err), type(err).__name__))
-            return
-        req = r.request
+        elif not (self.background_refresh
+                  and self.handover.hold(r, self.sim.state.rotation, self.sim.dt)):
+            self._swap(r)
+
+    def _swap(self, r: FieldResponse, *, attached: bool = False) -> None:
+        assert r.field is not None
+        req, old = r.request, self.sim.field
+        if isinstance(old, RotationCacheField):
+            self.refresh_lane.forget(old)
         self.sim.set_field(r.field)
-        self.attach(r.field)
+        if not attached:
+            self.attach(r.field)
         self.offload(r.field)
         if self.model is not None:  # the fit's stiffness is the new field's
             self.model.geometric_rotation = r.stiffness

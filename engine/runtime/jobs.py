@@ -17,8 +17,9 @@ the loop thread; the loop only collects finished responses between two steps.
 Rotation-cache refreshes (:class:`RefreshRequest`: a field and the part's rotation) have a
 lane of their own (:class:`RefreshLane`, one thread): they take milliseconds and are asked
 for every few milliradians of rotation, so they must not queue behind a descriptor job of
-minutes. A newer request supersedes one not started yet; the field installs only the
-response whose id it is waiting for.
+minutes. A newer request for the same field supersedes one not started yet; requests for
+two fields (the one in use and a new K's waiting to be handed over) are built in the order
+they were asked; the field installs only the response whose id it is waiting for.
 """
 
 from __future__ import annotations
@@ -431,13 +432,15 @@ class RefreshLane:
     """One thread of its own for rotation-cache refreshes (started on a request, ending idle).
 
     :meth:`submit` is a :data:`engine.sim.fields.RefreshSubmitter`: it queues the request
-    (superseding one not started yet) and returns its id at once; the loop collects the
-    finished ones with :meth:`responses` between two steps and hands them to the field.
+    (superseding one for the same field not started yet) and returns its id at once; the
+    loop collects the finished ones with :meth:`responses` between two steps and hands them
+    to the field.
     """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._next: RefreshRequest | None = None
+        # the request not started yet, per field (by identity), oldest first
+        self._next: dict[int, RefreshRequest] = {}
         self._done: queue.SimpleQueue[RefreshResponse] = queue.SimpleQueue()
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -449,9 +452,9 @@ class RefreshLane:
         with self._cond:
             if self._closed:
                 return request.id
-            if self._next is not None:
+            if self._next.pop(id(fld), None) is not None:
                 self.superseded += 1
-            self._next = request
+            self._next[id(fld)] = request
             if self._thread is None:
                 self._thread = threading.Thread(target=self._main, name="skelasm-refresh",
                                                  daemon=True)
@@ -459,19 +462,23 @@ class RefreshLane:
             self._cond.notify()
         return request.id
 
+    def forget(self, fld: RotationCacheField) -> None:
+        """Drop ``fld``'s request not started yet (a field the loop no longer uses)."""
+        with self._cond:
+            self._next.pop(id(fld), None)
+
     def _main(self) -> None:
         name = threading.current_thread().name
         while True:
             with self._cond:
-                if self._next is None and not self._closed:
+                if not self._next and not self._closed:
                     self._cond.wait(IDLE_SECONDS)
-                if self._closed or self._next is None:
+                if self._closed or not self._next:
                     # closed, or idle: the thread ends (the next request starts another), so
                     # a lane whose owner was never closed leaves no thread behind
                     self._thread = None
                     return
-                request, self._next = self._next, None
-            assert request is not None
+                request = self._next.pop(next(iter(self._next)))
             start = time.perf_counter()
             try:
                 cache = request.field.build_cache(request.rotation)
@@ -490,7 +497,7 @@ class RefreshLane:
         """Drop the request not started and stop the thread (waits for a running build)."""
         with self._cond:
             self._closed = True
-            self._next = None
+            self._next.clear()
             self._cond.notify()
             thread = self._thread
         if thread is not None and thread is not threading.current_thread():

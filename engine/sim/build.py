@@ -51,7 +51,7 @@ from engine.params import (
 )
 from engine.pose import rotation_matrix
 from engine.sim.body import RigidBody
-from engine.sim.fields import GeometricField, NullField, field_for_effects
+from engine.sim.fields import GeometricField, NullField, field_correlator, field_for_effects
 from engine.sim.simulation import Simulation
 
 if TYPE_CHECKING:
@@ -464,14 +464,18 @@ def rotational_stiffness(field: GeometricField, pose: np.ndarray) -> float | Non
     """
     if not field.rotation or field.kappa <= 0:
         return None
+    # a correlator's field is probed through the correlator: the full model, and the
+    # field's own state (a rotation cache, its counts) is left as it is
+    corr = field_correlator(field)
+    probe: GeometricField | Correlator = field if corr is None else corr
     p = np.asarray(pose, np.float64).reshape(6)
     a = STIFFNESS_STEP_RAD
     hessian = np.zeros((3, 3))
     for i in range(3):
         d = np.zeros(3)
         d[i] = a
-        plus = field.evaluate(rotation_matrix(p[3:] + d), p[:3]).torque
-        minus = field.evaluate(rotation_matrix(p[3:] - d), p[:3]).torque
+        plus = probe.evaluate(rotation_matrix(p[3:] + d), p[:3]).torque
+        minus = probe.evaluate(rotation_matrix(p[3:] - d), p[:3]).torque
         if plus is None or minus is None:
             return None
         hessian[:, i] = -(np.asarray(plus) - np.asarray(minus)) / (2 * a)
@@ -479,7 +483,7 @@ def rotational_stiffness(field: GeometricField, pose: np.ndarray) -> float | Non
     positive = eig[eig > 0]
     if len(positive) == 0:
         return None
-    return float(np.mean(positive)) / field.kappa
+    return float(np.mean(positive)) / (field.kappa if corr is None else corr.kappa)
 
 
 def resolve_physics(

@@ -199,7 +199,8 @@ class RotationCacheField:
     - in the background once :meth:`refresh_in_background` attached a submitter (the
       runtime's refresh lane, when the loop is paced in real time): the request goes out
       at half the refresh angle, for the rotation the part will have when the cache
-      arrives (extrapolated from its last turn over the poses the last refresh took);
+      arrives (extrapolated from its last turn over the poses the last refresh took, as far
+      as the old cache serves);
       :meth:`install` swaps the new cache in between two steps, and meanwhile the old cache
       serves up to ``limit_angle``, beyond which the full per-pose path runs; where that
       path costs more than the lane's budget (:attr:`full_us` against the budget given
@@ -301,22 +302,53 @@ class RotationCacheField:
         return Evaluation(float(out[0]), out[1:4], out[4:7],
                           (time.perf_counter() - start) * 1e6, cache.table.modes, gain)
 
-    def _ask(self, rot: np.ndarray) -> None:
+    def _ask(self, rot: np.ndarray, reach: float | None = None) -> None:
         """Ask the background lane for a cache, unless one is pending.
 
         Asked for at half the refresh angle, at the rotation the part will have when it
         arrives: this one carried on by the last pose's turn for as many poses as the last
-        background refresh took. The old cache serves meanwhile.
+        background refresh took, if that is less than ``reach``: by default the angle up to
+        which the old cache serves meanwhile (the stale angle where the full path is over
+        its budget, else the limit angle).
         """
         if self._pending or self._submit is None:
             return
         ahead = rot
         if self._lead > 0:
             turn = rotation_vector(rot @ self._last.T)
-            if np.linalg.norm(turn) * self._lead < self.limit_angle:
+            if reach is None:  # where stale poses serve, so may a cache asked for further ahead
+                reach = self.stale_angle if self._full_too_slow() else self.limit_angle
+            if np.linalg.norm(turn) * self._lead < reach:
                 ahead = rotation_matrix(turn * self._lead) @ rot
         self._waited = 0
         self._pending = self._submit(self, np.array(ahead))
+
+    def ask_ahead(self, rotation: np.ndarray, previous: np.ndarray, lead: int) -> int:
+        """Ask the lane for a cache where the part will be ``lead`` poses from now.
+
+        For a field built and not in use yet (the runtime's hand-over,
+        ``engine.runtime.handover``): the part turned from ``previous`` to ``rotation`` over
+        its last pose, and is assumed to go on turning so, up to the stale angle. Returns
+        the request's id (0: no lane attached).
+        """
+        rot = np.array(rotation, dtype=np.float64).reshape(3, 3)
+        self._last = np.array(previous, dtype=np.float64).reshape(3, 3)
+        self._lead, self._pending = max(0, int(lead)), 0
+        self._ask(rot, reach=self.stale_angle)
+        self._last = rot
+        return self._pending
+
+    def take_up(self, previous: np.ndarray, lead: int) -> None:
+        """Start where the field in use leaves off: its last pose's rotation was ``previous``.
+
+        ``lead``: the poses a background refresh took, the first request's extrapolation.
+        """
+        self._last = np.array(previous, dtype=np.float64).reshape(3, 3)
+        self._lead = max(0, int(lead))
+
+    def serves_at(self, rotation: np.ndarray) -> bool:
+        """Whether the cache in use serves ``rotation`` without the full path (limit angle)."""
+        return _angle_between(np.asarray(rotation), self.cache.rotation) <= self.limit_angle
 
     def _full(self, rot: np.ndarray, t: np.ndarray, start: float,
               before: np.ndarray | None, last: tuple[np.ndarray, np.ndarray]) -> Evaluation:

@@ -35,6 +35,7 @@ class SpringCorrelator:
         self.a = np.broadcast_to(np.asarray(stiffness, float), (len(self.points),)).copy()
         self.rotation = rotation
         self.modes = modes
+        self.kappa = 1.0  # its energy scale, as Correlator.kappa
         self.delay_s = delay_s
         self.evaluations = 0
         self.torque_sums = 0

@@ -119,11 +119,15 @@ def test_the_loop_asks_for_fields_at_the_rotation_it_steps(model, monkeypatch):
                         lambda m, r, **kw: readers.append(kw["rotation_now"]) or
                         guidance_module.FieldResponse(r.id, r, cancelled=True))
     try:
-        guidance.set_modes(12)
+        guidance.set_modes(12)  # unpaced: refreshed in the step, no catch-up, no timing
+        assert guidance.worker.wait_until_idle(10.0)
+        guidance.background_refresh = True  # paced
+        guidance.set_modes(16)
         assert guidance.worker.wait_until_idle(10.0)
     finally:
         guidance.close()
-    (read,) = readers
+    unpaced, read = readers
+    assert unpaced is None
     sim.state._R = turned = rotation_matrix(np.array([0.0, 0.0, 0.3]))
     assert read() is turned
 

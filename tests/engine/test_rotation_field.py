@@ -280,6 +280,29 @@ def test_a_full_path_over_its_budget_leaves_the_pending_stretch_to_the_old_cache
     assert fast.budget_us == np.inf
 
 
+@pytest.mark.parametrize("over_budget", [True, False])
+def test_a_request_is_carried_ahead_as_far_as_stale_poses_serve(over_budget):
+    """The part turns 2 mrad a pose and the last refresh took three poses: 6 mrad ahead,
+    beyond the limit angle. Where the full path is over its budget (stale poses serve up to
+    12 mrad), the request is carried that far; within it, it is asked where the part is.
+    """
+    corr, _ = correlators(8)
+    fld = RotationCacheField(corr, 1.0, np.eye(3))
+    asked: list[np.ndarray] = []
+    fld.refresh_in_background(lambda f, rot: asked.append(rot) or len(asked))
+    fld.full_us, fld.budget_us = (500.0, 250.0) if over_budget else (100.0, 250.0)
+    t = np.array([0.3, -0.2, 0.4])
+    fld.evaluate(rotation_matrix(1e-3 * AXIS), t)  # asked, at the first pose: no lead yet
+    np.testing.assert_allclose(asked[0], rotation_matrix(1e-3 * AXIS), atol=1e-12)
+    for angle in (3e-3, 5e-3, 7e-3):  # the cache arrives three poses after the request
+        fld.evaluate(rotation_matrix(angle * AXIS), t)
+    assert fld.install(1, fld.build_cache(asked[0]))
+    fld.evaluate(rotation_matrix(9e-3 * AXIS), t)  # 8 mrad from the new anchor: asks again
+    assert len(asked) == 2
+    ahead = 15e-3 if over_budget else 9e-3
+    np.testing.assert_allclose(asked[1], rotation_matrix(ahead * AXIS), atol=1e-9)
+
+
 def test_the_angles_must_increase():
     corr, _ = correlators(8)
     with pytest.raises(ValueError, match="increasing order"):
@@ -315,6 +338,25 @@ def test_catch_up_rebuilds_the_first_cache_where_the_part_turned_to():
     angles = iter(np.arange(2, 10) * 1e-2)
     assert fld.catch_up(lambda: rotation_matrix(next(angles) * AXIS), tries=3) == 3
     np.testing.assert_allclose(fld.reference_rotation, rotation_matrix(4e-2 * AXIS), atol=1e-15)
+
+
+def test_the_stiffness_probe_leaves_a_rotation_cache_as_it_was():
+    """The fit's stiffness is measured on the correlator: the full path's figure, and the
+    field's cache, anchor and counts untouched (it used to count six full-path poses and
+    leave its last pose at the assembled one).
+    """
+    from engine.sim import rotational_stiffness
+
+    corr, _ = correlators(8)
+    fld = RotationCacheField(corr, 2.0, np.eye(3))
+    pose = np.array([0.2, -0.1, 0.1, 0.3, 0.0, 0.0])
+    counts, anchor = dict(fld.counts), fld.reference_rotation.copy()
+    stiffness = rotational_stiffness(fld, pose)
+    assert stiffness is not None and stiffness > 0
+    assert stiffness == pytest.approx(
+        rotational_stiffness(CorrelatorField(corr, 2.0), pose), rel=1e-9)
+    assert fld.counts == counts
+    np.testing.assert_array_equal(fld.reference_rotation, anchor)
 
 
 def test_field_for_effects_picks_the_cache_where_it_serves():
