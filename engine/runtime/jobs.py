@@ -252,9 +252,6 @@ def build_field(
         fld = field_for_effects(r.effects, make, kappa=r.kappa,
                                 locked_rotation=r.locked_rotation)
         descs: tuple[Descriptor, ...] = (d1, d2)
-        # the fit's stiffness changes with K (on the peg at grid 56: 3.9e3 at K = 8, 8.5e4
-        # at K = 24), and the default rotational coupling follows it
-        stiffness = rotational_stiffness(fld, model.assembled_pose)
     else:
         coarse = (model.first_grid(r.effects, sigma=r.sigma, penalty=r.penalty)
                   if r.coarse_first else None)
@@ -263,9 +260,12 @@ def build_field(
             modes=r.modes, progress=progress, cancel=cancel,
             **({} if coarse is None else {"grid": coarse}),
         )
-        stiffness = model.geometric_rotation  # measured by model.field, in this thread
     if cancel is not None and cancel():
         raise Cancelled("superseded")
+    # the fit's stiffness changes with K (on the peg at grid 56: 3.9e3 at K = 8, 8.5e4 at
+    # K = 24), and the default rotational coupling follows it: the loop puts it in use with
+    # the field (the model's is the field's in use, until then)
+    stiffness = rotational_stiffness(fld, model.assembled_pose)
     if not isinstance(fld, NullField):
         _warm(fld, r.locked_rotation)
     if rotation_now is not None and isinstance(fld, RotationCacheField):

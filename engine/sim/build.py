@@ -763,8 +763,9 @@ class SceneModel:
     ) -> tuple[GeometricField, tuple[Descriptor, ...]]:
         """(field, descriptors) for ``effects``; nothing is built that effects switch off.
 
-        Also measures the field's rotational stiffness at the assembled pose
-        (:attr:`geometric_rotation`), which the physics resolved after this call uses.
+        Only reads the model (the runtime's worker calls it while the loop resolves physics
+        from :attr:`geometric_rotation`): the field's stiffness is the caller's to measure
+        (:func:`rotational_stiffness`) and to put in use.
 
         Parameters
         ----------
@@ -783,7 +784,6 @@ class SceneModel:
             Fraction done 0..1; True to stop (raises ``engine.errors.Cancelled``).
         """
         if effects.guidance == "none" or not self.has_pair:
-            self.geometric_rotation = None
             return NullField(), ()
         from engine.correlation import Correlator
 
@@ -805,7 +805,6 @@ class SceneModel:
             return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend, kappa=1.0)
 
         field = field_for_effects(effects, make, kappa=kappa, locked_rotation=locked_rotation)
-        self.geometric_rotation = rotational_stiffness(field, self.assembled_pose)
         if progress is not None:
             progress(1.0)
         return field, (d1, d2)
@@ -853,6 +852,7 @@ def build_simulation(
         field, descriptors = model.field(effects, physics.kappa,
                                          rotation_matrix(model.start_pose[3:]))
         model.prepared = (field, descriptors)
+        model.geometric_rotation = rotational_stiffness(field, model.assembled_pose)
         physics = model.physics(effects)  # the rotational coupling scaled to the fit
     limits = HapticLimits.from_device(handle.config.device)
     follow = fit_hold(handle)  # its rest point is hold_point's, found once

@@ -179,6 +179,30 @@ def test_a_k_change_brings_the_new_fields_stiffness_into_the_physics(small_peg_s
     assert k_rot_at8 == pytest.approx(kappa * at8 / ROTATION_AUTHORITY, rel=1e-9)
 
 
+def test_a_descriptor_job_leaves_the_stiffness_in_use_alone(model):
+    """The worker's descriptor path used to write the new field's stiffness into the model
+    while the loop resolved physics from it: a gain changed during a recompute then scaled
+    the rotational coupling to a field not yet in use. The response carries it; only the
+    loop puts it in use, at the swap.
+    """
+    from engine.sim import rotational_stiffness
+
+    effects = replace(model.config.effects, axes=("x", "y", "z", "rx", "ry", "rz"))
+    kappa = model.physics(effects).kappa
+    before = model.geometric_rotation
+    model.geometric_rotation = in_use = 123.0
+    try:
+        response = build_field(model, FieldRequest(4, "descriptors", effects, kappa,
+                                                   np.eye(3), 12))
+        assert model.geometric_rotation == in_use
+    finally:
+        model.geometric_rotation = before
+    assert response.error is None and response.stiffness is not None
+    assert response.stiffness == pytest.approx(
+        rotational_stiffness(response.field, model.assembled_pose), rel=1e-12)
+    assert response.stiffness != pytest.approx(in_use)
+
+
 def test_a_field_built_before_the_loop_lends_its_descriptors_to_a_new_k(
         small_peg_scene, monkeypatch):
     """A simulation prepared before its loop (``build_simulation(prepare=True)``, as
