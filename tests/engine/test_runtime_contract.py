@@ -416,8 +416,7 @@ def test_changing_k_never_stalls_the_loop(small_scene, transport, rotation):
         f"longest period {longest:.0f} us while K changed, {steady:.0f} us steady")
     if longest >= 2000.0:
         pytest.xfail(f"the goal is 2 ms: longest period {longest:.0f} us while K changed, "
-                     f"{steady:.0f} us in the steady window before (docs/runtime.md, K "
-                     "changes: a K change's jobs still lengthen some periods, through the "
-                     "interpreter lock where they share the loop's process and through the "
-                     "loop's own step while a new cache catches up; the host alone stalls a "
-                     "loop at times too)")
+                     f"{steady:.0f} us in the steady window before (docs/runtime.md, "
+                     "'Handing a new field over': a K change's jobs still lengthen some "
+                     "periods, through the interpreter lock and the cores they share with "
+                     "the loop's process; the host alone stalls a loop at times too)")
