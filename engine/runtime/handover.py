@@ -99,7 +99,8 @@ class Handover:
 
         Asks the lane again where the cache that arrived no longer serves the part.
         """
-        previous, self._previous = self._previous, np.array(rotation)
+        # kept, not copied: the loop replaces the state's rotation at each step (a hot path)
+        previous, self._previous = self._previous, rotation
         fld = self._field
         if fld is None or self.held is None:
             return None
