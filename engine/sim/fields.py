@@ -332,8 +332,8 @@ class RotationCacheField:
         the request's id (0: no lane attached).
         """
         rot = np.array(rotation, dtype=np.float64).reshape(3, 3)
-        self._last = np.array(previous, dtype=np.float64).reshape(3, 3)
-        self._lead, self._pending = max(0, int(lead)), 0
+        self.take_up(previous, lead)
+        self._pending = 0
         self._ask(rot, reach=self.stale_angle)
         self._last = rot
         return self._pending
