@@ -274,6 +274,9 @@ class Guidance:
         held = self.handover.due(self.sim.state.rotation)
         if held is not None:
             self._swap(held, attached=True)
+        fld = self.sim.field  # the loop waits for the lane while its poses are not cached
+        self.refresh_lane.hurry(isinstance(fld, RotationCacheField) and fld.pending != 0
+                                and fld.last_path in ("stale", "full"))
 
     def _field(self, r: FieldResponse) -> None:
         if r.id != self._field_id:

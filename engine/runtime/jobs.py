@@ -39,6 +39,7 @@ from engine.backend import spare_cores
 from engine.correlation import Correlator
 from engine.errors import Cancelled
 from engine.params import CouplingParams, Effects, Physics, SimConfig
+from engine.runtime.pacing import drop_realtime_priority, raise_thread_priority
 from engine.sim import (
     GeometricField,
     NullField,
@@ -445,6 +446,14 @@ class RefreshLane:
         self._thread: threading.Thread | None = None
         self._closed = False
         self.superseded = 0  # requests replaced before they started
+        #: ``SCHED_FIFO`` priority of the lane's thread while :meth:`hurry` is on (None: it
+        #: stays at ordinary priority); a real-time loop sets it
+        #: (``engine.runtime.pacing.LANE_PRIORITY``)
+        self.priority: int | None = None
+        #: What the lane's thread was granted when it was last hurried, in words
+        self.scheduling = "normal (not asked for)"
+        self.hurried = False
+        self._native_id: int | None = None  # the lane's thread, while it runs
 
     def submit(self, fld: RotationCacheField, rotation: np.ndarray) -> int:
         """Queue a refresh of ``fld`` at ``rotation``; returns the request's id."""
@@ -462,6 +471,26 @@ class RefreshLane:
             self._cond.notify()
         return request.id
 
+    def hurry(self, on: bool) -> None:
+        """Run the lane's thread at :attr:`priority` (on) or at ordinary priority (off).
+
+        The loop turns it on while it waits for a cache (its poses are stale, or on the
+        full path) and off once one serves: a real-time lane all the time took a fifth to a
+        third of a software-rendered window's frames on two cores (docs/runtime.md).
+        """
+        if self.priority is None or on == self.hurried:
+            return
+        with self._cond:
+            self.hurried = on
+            if self._native_id is not None:
+                self._set_priority(self._native_id)
+
+    def _set_priority(self, native_id: int) -> None:
+        if self.hurried and self.priority is not None:
+            self.scheduling = raise_thread_priority(self.priority, native_id)
+        else:
+            drop_realtime_priority(native_id)
+
     def forget(self, fld: RotationCacheField) -> None:
         """Drop ``fld``'s request not started yet (a field the loop no longer uses)."""
         with self._cond:
@@ -469,6 +498,10 @@ class RefreshLane:
 
     def _main(self) -> None:
         name = threading.current_thread().name
+        with self._cond:
+            self._native_id = threading.get_native_id()
+            if self.hurried:
+                self._set_priority(self._native_id)
         while True:
             with self._cond:
                 if not self._next and not self._closed:
@@ -476,7 +509,7 @@ class RefreshLane:
                 if self._closed or not self._next:
                     # closed, or idle: the thread ends (the next request starts another), so
                     # a lane whose owner was never closed leaves no thread behind
-                    self._thread = None
+                    self._thread = self._native_id = None
                     return
                 request = self._next.pop(next(iter(self._next)))
             start = time.perf_counter()

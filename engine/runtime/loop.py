@@ -56,6 +56,7 @@ from engine.runtime.messages import (
     describe_error,
 )
 from engine.runtime.pacing import (
+    LANE_PRIORITY,
     WAIT_WORDS,
     WAITS,
     Pacer,
@@ -255,6 +256,9 @@ class EngineLoop:
         if self.raise_priority:
             self.scheduling = raise_thread_priority()
         granted = self.scheduling.startswith("real-time")
+        # while the loop waits for the lane's cache, beside a real-time loop the lane runs
+        # ahead of ordinary threads too, below the loop (Guidance.take_responses)
+        self.guidance.refresh_lane.priority = LANE_PRIORITY if granted else None
         wait = self.wait or ("sleep" if granted else "yield")
         if self.job_process is None:
             self.guidance.job_process = bool(self.realtime and granted)

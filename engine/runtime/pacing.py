@@ -39,6 +39,7 @@ import numpy as np
 from engine.runtime.messages import PeriodStats
 
 __all__ = [
+    "LANE_PRIORITY",
     "REALTIME_PRIORITY",
     "RESYNC_PERIODS",
     "SPIN_MARGIN",
@@ -64,6 +65,10 @@ STATS_WINDOW = 1000
 #: Real-time priority asked for by :func:`raise_thread_priority` (1-99; low, so that the
 #: kernel's own real-time threads still come first).
 REALTIME_PRIORITY = 10
+#: Real-time priority of the refresh lane while a real-time loop waits for its cache: below
+#: the loop's, so that the waking loop preempts it, and above every ordinary thread (the
+#: window's, the job worker's), so that the cache is not held up behind them.
+LANE_PRIORITY = 5
 #: How :class:`Pacer` waits for a deadline (see the module's docstring).
 WAITS = ("sleep", "yield")
 #: :attr:`Pacer.waiting` in words (an unpaced pacer does not wait: ``"none"``).
@@ -257,21 +262,23 @@ def switch_interval(seconds: float | None) -> Iterator[None]:
             sys.setswitchinterval(old)
 
 
-def raise_thread_priority() -> str:
-    """Run the calling thread ahead of ordinary work, as far as the OS allows.
+def raise_thread_priority(priority: int = REALTIME_PRIORITY,
+                          native_thread_id: int | None = None) -> str:
+    """Run a thread (default: the calling one) ahead of ordinary work, as far as the OS allows.
 
-    Tries ``SCHED_FIFO`` at :data:`REALTIME_PRIORITY` (Linux: root, ``CAP_SYS_NICE`` or an
-    ``rtprio`` limit in ``/etc/security/limits.conf``); a woken FIFO thread preempts the
-    GUI's render threads at once instead of waiting for its turn. The loop sleeps most of
-    each period and the kernel caps real-time threads at 95 % of a CPU, so the rest of the
-    machine keeps running. ``SKELASM_REALTIME=0`` turns this off. Returns what was granted,
-    in words.
+    Tries ``SCHED_FIFO`` at ``priority`` (default :data:`REALTIME_PRIORITY`; Linux: root,
+    ``CAP_SYS_NICE`` or an ``rtprio`` limit in ``/etc/security/limits.conf``); a woken FIFO
+    thread preempts the GUI's render threads at once instead of waiting for its turn. The
+    loop sleeps most of each period and the kernel caps real-time threads at 95 % of a CPU,
+    so the rest of the machine keeps running. ``SKELASM_REALTIME=0`` turns this off.
+    Returns what was granted, in words.
 
     The request carries ``SCHED_RESET_ON_FORK``: a thread the loop thread starts (the job
     worker, the refresh lane, a transform's helper threads) runs at ordinary priority.
     Without it Linux hands the policy down, and a job thread in ``SCHED_FIFO`` at the
     loop's own priority cannot be preempted by the waking loop: the loop waited out
-    whole transforms.
+    whole transforms. The refresh lane is raised to its own, lower priority
+    (:data:`LANE_PRIORITY`) only while the loop waits for it.
     """
     if os.environ.get("SKELASM_REALTIME", "1").strip() in ("0", "no", "off", "false"):
         return "normal (SKELASM_REALTIME=0)"
@@ -279,11 +286,12 @@ def raise_thread_priority() -> str:
         return "normal (no real-time scheduling on this OS)"
     try:
         policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
-        os.sched_setscheduler(0, policy, os.sched_param(REALTIME_PRIORITY))
+        tid = 0 if native_thread_id is None else int(native_thread_id)
+        os.sched_setscheduler(tid, policy, os.sched_param(priority))
     except OSError as exc:
         return (f"normal (real-time scheduling refused: {exc.strerror or exc}; allow it with "
                 "an rtprio limit or CAP_SYS_NICE)")
-    return f"real-time (SCHED_FIFO {REALTIME_PRIORITY})"
+    return f"real-time (SCHED_FIFO {priority})"
 
 
 def drop_realtime_priority(native_thread_id: int | None = None) -> None:

@@ -250,3 +250,58 @@ def test_a_k_change_while_the_part_turns_is_handed_over_where_the_part_is(small_
     assert guidance.handover.counts["served"] == 1
     new.evaluate(sim.state.rotation, sim.state.origin(sim.body))
     assert new.last_path == "cached"
+
+
+class HeldLane(RefreshLane):
+    """A lane that keeps its requests until the test answers them, and records hurries."""
+
+    def __init__(self):
+        super().__init__()
+        self.asked: list[tuple[int, RotationCacheField, np.ndarray]] = []
+        self.answers: list[RefreshResponse] = []
+        self.hurries: list[bool] = []
+
+    def submit(self, fld, rotation):
+        self.asked.append((len(self.asked) + 1, fld, np.array(rotation)))
+        return len(self.asked)
+
+    def responses(self):
+        out, self.answers = self.answers, []
+        return out
+
+    def hurry(self, on):
+        self.hurries.append(on)
+
+
+def test_the_loop_hurries_the_lane_only_while_it_waits_for_a_cache(small_peg_scene):
+    """Guidance, once per iteration: the lane is hurried (engine.runtime.pacing's
+    LANE_PRIORITY beside a real-time loop) while the field in use has a refresh pending and
+    its last pose was not served by a cache of its own (stale, or the full path); let go
+    once a cache is installed.
+    """
+    from engine.runtime.guidance import Guidance
+    from engine.sim import build_simulation
+
+    sim, model = build_simulation(rt.open_scene(small_peg_scene), modes=8, backend="numba")
+    guidance = Guidance(sim, model, collections.deque())
+    guidance.background_refresh = True
+    guidance.refresh_lane = lane = HeldLane()
+    try:
+        fld = sim.field
+        assert isinstance(fld, RotationCacheField)
+        guidance.attach(fld)
+        origin = sim.state.origin(sim.body)
+        fld.evaluate(fld.reference_rotation, origin)
+        guidance.take_responses()
+        assert lane.hurries == [False] and not fld.pending  # served by the cache
+        rot = rotation_matrix(3e-2 * AXIS) @ fld.reference_rotation
+        fld.evaluate(rot, origin)  # past the limit angle: a refresh asked for
+        assert fld.pending == 1 and fld.last_path in ("stale", "full")
+        guidance.take_responses()
+        assert lane.hurries[-1] is True
+        rid, asked_for, at = lane.asked[-1]
+        lane.answers.append(RefreshResponse(rid, asked_for, asked_for.build_cache(at)))
+        guidance.take_responses()  # installed: the next pose is served by it
+        assert lane.hurries[-1] is False and not fld.pending
+    finally:
+        guidance.close()

@@ -17,7 +17,15 @@ from engine.devices import Device, DeviceCapabilities, DeviceError
 from engine.errors import Cancelled
 from engine.grid import Grid
 from engine.params import DescriptorParams, Effects, SimConfig
-from engine.runtime.pacing import Pacer, PeriodWindow, period_stats, yield_until
+from engine.runtime.jobs import RefreshLane
+from engine.runtime.pacing import (
+    LANE_PRIORITY,
+    REALTIME_PRIORITY,
+    Pacer,
+    PeriodWindow,
+    period_stats,
+    yield_until,
+)
 from engine.sim import CorrelatorField, LandscapeField, RigidBody, Simulation, resolve_physics
 
 
@@ -486,6 +494,76 @@ def test_a_real_time_engine_loop_leaves_its_job_threads_at_ordinary_priority(mon
     if not loop.scheduling.startswith("real-time"):
         pytest.skip(f"real-time scheduling not granted here: {loop.scheduling}")
     assert seen["job"] == (os.SCHED_OTHER, 0)
+
+
+def _lane_scheduling(priority, hurry):
+    """What the lane's thread ran at while it built: (policy, priority), those of a thread it
+    started, and what it was granted; ``hurry(lane)`` is called while the build waits.
+    """
+    seen = {}
+    go = threading.Event()
+    lane = RefreshLane()
+    lane.priority = priority
+
+    class Probe:  # a field whose cache build looks at the lane's thread
+        def build_cache(self, rotation):
+            assert go.wait(5.0)
+            seen["lane"] = (os.sched_getscheduler(0) & ~RESET_ON_FORK,
+                            os.sched_getparam(0).sched_priority)
+            seen["child"] = _in_thread(lambda: (os.sched_getscheduler(0),
+                                                os.sched_getparam(0).sched_priority))
+            return None
+
+    try:
+        asked = lane.submit(Probe(), np.eye(3))
+        assert wait_for(lambda: lane._native_id is not None)
+        hurry(lane)
+        go.set()
+        assert wait_for(lambda: [r.id for r in lane.responses()] == [asked])
+    finally:
+        lane.shutdown()
+    return seen["lane"], seen["child"], lane.scheduling
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_a_hurried_refresh_lane_runs_below_the_loop_and_above_ordinary_threads(monkeypatch):
+    # the lane's caches decide whether the loop runs the full path (milliseconds at K = 24):
+    # behind a window's render thread at ordinary priority, a cache took 5 ms instead of 2.
+    # Hurried only while the loop waits for it: real-time all the time, it cost a software-
+    # rendered window a fifth to a third of its frames
+    from engine.runtime.pacing import drop_realtime_priority
+
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+    can = _in_thread(lambda: (raise_thread_priority(LANE_PRIORITY), drop_realtime_priority())[0])
+    if not can.startswith("real-time"):
+        pytest.skip(f"real-time scheduling not granted here: {can}")
+    assert 0 < LANE_PRIORITY < REALTIME_PRIORITY  # the waking loop preempts it
+    lane, child, said = _lane_scheduling(LANE_PRIORITY, lambda lane: lane.hurry(True))
+    assert lane == (os.SCHED_FIFO, LANE_PRIORITY)
+    assert said == f"real-time (SCHED_FIFO {LANE_PRIORITY})"
+    assert child == (os.SCHED_OTHER, 0)  # a transform's helper threads do not inherit it
+    # hurried and let go again, not hurried, or without a priority to run at: ordinary
+    for hurry in (lambda lane: (lane.hurry(True), lane.hurry(False)),
+                  lambda lane: None):
+        assert _lane_scheduling(LANE_PRIORITY, hurry)[0] == (os.SCHED_OTHER, 0)
+    assert _lane_scheduling(None, lambda lane: lane.hurry(True))[0] == (os.SCHED_OTHER, 0)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_a_loop_gives_its_refresh_lane_a_priority_only_when_it_got_one(monkeypatch):
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+    loop, _, _ = make_loop(realtime=True, raise_priority=True)
+    _in_thread(lambda: loop.run(max_steps=3))
+    granted = loop.scheduling.startswith("real-time")
+    assert loop.guidance.refresh_lane.priority == (LANE_PRIORITY if granted else None)
+    monkeypatch.setenv("SKELASM_REALTIME", "0")
+    loop, _, _ = make_loop(realtime=True, raise_priority=True)
+    _in_thread(lambda: loop.run(max_steps=3))
+    assert loop.scheduling == "normal (SKELASM_REALTIME=0)"
+    assert loop.guidance.refresh_lane.priority is None
+    plain, _, _ = make_loop(realtime=True)  # a thread engine does not ask
+    _in_thread(lambda: plain.run(max_steps=3))
+    assert plain.guidance.refresh_lane.priority is None
 
 
 def test_loop_asks_for_priority_only_when_told(monkeypatch):
