@@ -358,7 +358,8 @@ def _run_thread(args, load):
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
         "handover": ", ".join(f"{k} {v}" for k, v in loop.guidance.handover.counts.items()),
         "eval_us": eval_us,
-        "scheduling": f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}",
+        "scheduling": (f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}; "
+                       f"refresh lane: {loop.guidance.refresh_lane.describe()}"),
     }
 
 

@@ -453,6 +453,7 @@ class RefreshLane:
         #: What the lane's thread was granted when it was last hurried, in words
         self.scheduling = "normal (not asked for)"
         self.hurried = False
+        self.hurries = 0  # times hurried
         self._native_id: int | None = None  # the lane's thread, while it runs
 
     def submit(self, fld: RotationCacheField, rotation: np.ndarray) -> int:
@@ -482,8 +483,17 @@ class RefreshLane:
             return
         with self._cond:
             self.hurried = on
+            self.hurries += 1 if on else 0
             if self._native_id is not None:
                 self._set_priority(self._native_id)
+
+    def describe(self) -> str:
+        """The lane's priority in words, for reports."""
+        if self.priority is None:
+            return "ordinary priority"
+        if not self.hurries:
+            return f"not hurried (would run at SCHED_FIFO {self.priority})"
+        return f"hurried {self.hurries} times, to {self.scheduling}"
 
     def _set_priority(self, native_id: int) -> None:
         if self.hurried and self.priority is not None:

@@ -450,7 +450,8 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
         if options.keep_periods:
             eval_us = float(np.median(eval_log)) if eval_log else float("nan")
             described = (f"{evaluator_name(sim.field)}; engine thread scheduling: "
-                         f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}")
+                         f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}; "
+                         f"refresh lane: {loop.guidance.refresh_lane.describe()}")
             send_message(events, LoopResult(loop.periods, loop.window.ends(), eval_us,
                                             described))
     except (BrokenPipeError, EOFError):

@@ -33,6 +33,9 @@ def test_bench_loop_prints_rate_and_periods():
     assert "goal (rate >= 990 Hz, p99 <= 1200 us):" in out.stdout
     # the thread engine as start_engine runs it: 0.5 ms, not Python's 5 ms
     assert "mode: thread, load: none, switch interval: 0.0005 s" in out.stdout
+    # a thread engine's loop at ordinary priority gives its refresh lane none either
+    assert ("loop thread scheduling: normal (not asked for), waiting by spinning (yielding "
+            "the CPU); refresh lane: ordinary priority") in out.stdout
 
 
 def test_bench_loop_gives_each_engine_its_own_switch_interval():

@@ -498,7 +498,7 @@ def test_a_real_time_engine_loop_leaves_its_job_threads_at_ordinary_priority(mon
 
 def _lane_scheduling(priority, hurry):
     """What the lane's thread ran at while it built: (policy, priority), those of a thread it
-    started, and what it was granted; ``hurry(lane)`` is called while the build waits.
+    started, and the lane; ``hurry(lane)`` is called while the build waits.
     """
     seen = {}
     go = threading.Event()
@@ -522,7 +522,7 @@ def _lane_scheduling(priority, hurry):
         assert wait_for(lambda: [r.id for r in lane.responses()] == [asked])
     finally:
         lane.shutdown()
-    return seen["lane"], seen["child"], lane.scheduling
+    return seen["lane"], seen["child"], lane
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
@@ -538,15 +538,19 @@ def test_a_hurried_refresh_lane_runs_below_the_loop_and_above_ordinary_threads(m
     if not can.startswith("real-time"):
         pytest.skip(f"real-time scheduling not granted here: {can}")
     assert 0 < LANE_PRIORITY < REALTIME_PRIORITY  # the waking loop preempts it
-    lane, child, said = _lane_scheduling(LANE_PRIORITY, lambda lane: lane.hurry(True))
-    assert lane == (os.SCHED_FIFO, LANE_PRIORITY)
-    assert said == f"real-time (SCHED_FIFO {LANE_PRIORITY})"
+    ran, child, lane = _lane_scheduling(LANE_PRIORITY, lambda lane: lane.hurry(True))
+    assert ran == (os.SCHED_FIFO, LANE_PRIORITY)
+    assert lane.scheduling == f"real-time (SCHED_FIFO {LANE_PRIORITY})"
+    assert lane.describe() == f"hurried 1 times, to real-time (SCHED_FIFO {LANE_PRIORITY})"
     assert child == (os.SCHED_OTHER, 0)  # a transform's helper threads do not inherit it
     # hurried and let go again, not hurried, or without a priority to run at: ordinary
-    for hurry in (lambda lane: (lane.hurry(True), lane.hurry(False)),
-                  lambda lane: None):
-        assert _lane_scheduling(LANE_PRIORITY, hurry)[0] == (os.SCHED_OTHER, 0)
-    assert _lane_scheduling(None, lambda lane: lane.hurry(True))[0] == (os.SCHED_OTHER, 0)
+    ran, _, lane = _lane_scheduling(LANE_PRIORITY, lambda lane: (lane.hurry(True),
+                                                                 lane.hurry(False)))
+    assert ran == (os.SCHED_OTHER, 0) and lane.hurries == 1
+    ran, _, lane = _lane_scheduling(LANE_PRIORITY, lambda lane: None)
+    assert ran == (os.SCHED_OTHER, 0) and lane.describe().startswith("not hurried")
+    ran, _, lane = _lane_scheduling(None, lambda lane: lane.hurry(True))
+    assert ran == (os.SCHED_OTHER, 0) and lane.describe() == "ordinary priority"
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
