@@ -294,6 +294,7 @@ class EngineLoop:
         finally:
             if self.raise_priority:
                 drop_realtime_priority()  # the calling thread may live on (run() called directly)
+            self.guidance.refresh_lane.hurry(False)  # nobody waits for it now
             self.overruns += pacer.overruns
             if self._jobs_running:
                 self._jobs_running = False

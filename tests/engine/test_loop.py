@@ -570,6 +570,22 @@ def test_a_loop_gives_its_refresh_lane_a_priority_only_when_it_got_one(monkeypat
     assert plain.guidance.refresh_lane.priority is None
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux scheduling API")
+def test_a_loop_that_returns_lets_its_refresh_lane_go(monkeypatch):
+    monkeypatch.delenv("SKELASM_REALTIME", raising=False)
+    loop, _, _ = make_loop(realtime=True, raise_priority=True)
+    lane = loop.guidance.refresh_lane
+
+    def waiting():  # every iteration waits for a cache, the last one too
+        lane.hurry(True)
+
+    loop.guidance.take_responses = waiting
+    _in_thread(lambda: loop.run(max_steps=3))
+    if not loop.scheduling.startswith("real-time"):
+        pytest.skip(f"real-time scheduling not granted here: {loop.scheduling}")
+    assert lane.hurries == 1 and not lane.hurried
+
+
 def test_loop_asks_for_priority_only_when_told(monkeypatch):
     monkeypatch.setenv("SKELASM_REALTIME", "0")
     plain, _, _ = make_loop(realtime=False)
