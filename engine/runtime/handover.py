@@ -52,8 +52,9 @@ class Handover:
         self._poses = 0  # iterations since the last request
         self._lead = 0  # poses the last request took (0: none arrived yet)
         self._previous: np.ndarray | None = None  # the part's rotation one iteration ago
-        #: Fields held, handed over once their cache served, and handed over as they were
-        self.counts = {"held": 0, "served": 0, "gave_up": 0}
+        #: Fields held, handed over once their cache served, handed over as they were, and
+        #: dropped while held (a newer field or request superseded them, or a cancel)
+        self.counts = {"held": 0, "served": 0, "gave_up": 0, "dropped": 0}
 
     def hold(self, response: FieldResponse, rotation: np.ndarray, period: float) -> bool:
         """Hold ``response``'s field back if its cache does not serve ``rotation``.
@@ -120,4 +121,6 @@ class Handover:
 
     def drop(self) -> None:
         """Forget the held field (superseded, or cancelled)."""
+        if self.held is not None:
+            self.counts["dropped"] += 1
         self.held, self._field, self._asked = None, None, 0

@@ -101,7 +101,8 @@ def test_a_field_is_held_until_a_cache_serves_where_the_part_turned_to(correlato
     lane.deliver(handover)
     np.testing.assert_allclose(fld.reference_rotation, turned(24.0), atol=1e-12)
     assert handover.due(turned(22.0)) is response
-    assert handover.held is None and handover.counts == {"held": 1, "served": 1, "gave_up": 0}
+    assert handover.held is None
+    assert handover.counts == {"held": 1, "served": 1, "gave_up": 0, "dropped": 0}
     fld.evaluate(turned(23.0), T)
     assert fld.last_path == "cached"
     # the counterpart: the same field swapped in at once takes the full path
@@ -175,6 +176,11 @@ def test_a_superseded_field_is_dropped(correlator):
     lane.deliver(handover)  # its cache arrives: nothing is installed
     np.testing.assert_array_equal(fld.reference_rotation, np.eye(3))
     assert handover.due(turned(20.0)) is None and handover.held is None
+    handover.drop()  # nothing held: nothing more to count
+    # a newer field arriving while one is held supersedes it too
+    assert handover.hold(held_field(correlator)[1], turned(20.0), PERIOD)
+    assert handover.hold(held_field(correlator)[1], turned(20.0), PERIOD)
+    assert handover.counts == {"held": 3, "served": 0, "gave_up": 0, "dropped": 2}
 
 
 def test_the_lane_answers_two_fields_and_supersedes_within_one(correlator):
