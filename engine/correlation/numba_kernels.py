@@ -27,7 +27,7 @@ import numpy as np
 import engine.correlation.finishing as finishing
 import engine.correlation.interpolation as interpolation
 from engine.backend import env_count
-from engine.correlation.tables import ModeTable
+from engine.correlation.tables import ModeTable, PerTable
 
 # The functions below call the interpolation and finishing helpers by these names; numba
 # resolves them, compiled, from the namespace :func:`_compiled` gives each function.
@@ -294,8 +294,8 @@ class NumbaKernel:
         if self._parallel is not None:
             numba.set_num_threads(self.threads)
         self.parallel = False
-        self._bound: ModeTable | None = None
-        self._args: tuple[Any, ...] = ()
+        #: Each table's kernel arguments, made on its first use (safe across threads).
+        self.per_table: PerTable[tuple[Any, ...]] = PerTable(_arguments)
 
     @property
     def can_parallel(self) -> bool:
@@ -312,14 +312,12 @@ class NumbaKernel:
 
     def pose(self, table: ModeTable, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(7,) float64 ``[E, F (3), T (3)]`` at one pose."""
-        if table is not self._bound:
-            self._args = _arguments(table)
-            self._bound = table
+        args = self.per_table.get(table)
         rot = _plain(rot)
         t = _plain(t)
         if self.parallel and self._parallel is not None:
-            return self._parallel(rot, t, *self._args)
-        return self._serial(rot, t, *self._args)
+            return self._parallel(rot, t, *args)
+        return self._serial(rot, t, *args)
 
 
 def _plain(a: np.ndarray) -> np.ndarray:

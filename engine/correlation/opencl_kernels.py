@@ -21,6 +21,7 @@ against numba and keeps the faster.
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
 import pyopencl as cl
@@ -28,7 +29,7 @@ import pyopencl as cl
 import engine.correlation.interpolation as interpolation
 from engine.backend import Backend, BackendError, get_backend
 from engine.correlation.finishing import boxes_overlap, finish, phase_offset
-from engine.correlation.tables import ModeTable
+from engine.correlation.tables import ModeTable, PerTable
 from engine.correlation.to_opencl import translate
 
 KERNEL_LOOP = r"""
@@ -128,6 +129,12 @@ def kernel_source() -> str:
 class OpenCLKernel:
     """Per-pose sums in one OpenCL launch; a table's buffers are uploaded on its first use.
 
+    Threads: the runtime's worker times and warms a new field while the loop evaluates the
+    field in use, and the two share this kernel. Each table gets its own :class:`_Launch`
+    (kernel arguments, device buffers, host arrays, a lock), uploaded once
+    (:class:`~engine.correlation.tables.PerTable`), and each thread its own command queue,
+    so neither thread changes what the other's launch reads or waits behind its work.
+
     Parameters
     ----------
     selection : {"cube"}
@@ -156,15 +163,13 @@ class OpenCLKernel:
         if self.double:
             options.append("-DUSE_DOUBLE")
         self.program = cl.Program(ctx, kernel_source()).build(options=options)
-        self.kernel = cl.Kernel(self.program, "pose_sums")
         self.acc_dtype = np.float64 if self.double else np.float32
         self.local_size = 64 if not self.backend.is_gpu else 256
         self.local_size = min(self.local_size, device.max_work_group_size)
         self.max_groups = 4 * device.max_compute_units if not self.backend.is_gpu else 512
-        self._pose = np.zeros(16, dtype=np.float32)
-        self._result = np.zeros(8, dtype=self.acc_dtype)
-        self._bound: ModeTable | None = None
-        self.global_size = self.local_size
+        #: Each table's launch, uploaded on its first use (``per_table.prepared`` counts).
+        self.per_table: PerTable[_Launch] = PerTable(lambda table: _Launch(self, table))
+        self._queues = threading.local()
 
     def describe(self) -> str:
         """Name and device."""
@@ -174,56 +179,19 @@ class OpenCLKernel:
         """Whether this kernel can sum ``table`` (a cube with its interleaved table)."""
         return table.moving is not None and table.kept is not None
 
-    def _bind(self, table: ModeTable) -> None:
-        """Upload a table's arrays and bind the constant kernel arguments."""
-        assert table.moving is not None and table.kept is not None
-        assert table.fixed_kept is not None
-        ctx = self.backend.context
-        mf = cl.mem_flags
-        fixed = np.ascontiguousarray(table.fixed_kept.ravel())
-        kept = table.kept.astype(np.float32)
-        nk = len(kept)
-        groups = max(1, min(self.max_groups, -(-nk**3 // self.local_size)))
-        self.global_size = groups * self.local_size
-        self._buffers = {
-            "fixed": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=fixed),
-            "table": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                               hostbuf=np.ascontiguousarray(table.moving.ravel())),
-            "kept": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=kept),
-            "partials": cl.Buffer(ctx, mf.READ_WRITE, size=groups * 8 * self._result.itemsize),
-            "counter": cl.Buffer(
-                ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.zeros(1, dtype=np.int32)
-            ),
-            "out": cl.Buffer(ctx, mf.WRITE_ONLY, size=8 * self._result.itemsize),
-        }
-        b = self._buffers
-        k = self.kernel
-        k.set_arg(0, b["fixed"])
-        k.set_arg(1, b["table"])
-        k.set_arg(2, b["kept"])
-        k.set_arg(3, np.int32(nk))
-        k.set_arg(4, np.int32(table.side))
-        k.set_arg(5, np.int32(table.radius))
-        k.set_arg(6, np.float32(table.scale))
-        k.set_arg(8, b["partials"])
-        k.set_arg(9, b["counter"])
-        k.set_arg(10, b["out"])
-        scratch = cl.LocalMemory(self.local_size * 7 * self._result.itemsize)
-        k.set_arg(11, scratch)  # type: ignore[arg-type]  # the stub omits LocalMemory
-        self._bound = table
+    def _queue(self) -> cl.CommandQueue:
+        """The calling thread's command queue for this kernel (made on its first pose)."""
+        queue = getattr(self._queues, "queue", None)
+        if queue is None:
+            queue = self._queues.queue = cl.CommandQueue(self.backend.context)
+        return queue
 
     def raw_sums(self, table: ModeTable, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(7,) float64 raw sums at one pose (see :mod:`engine.correlation.finishing`)."""
-        if table is not self._bound:
-            self._bind(table)
+        launch = self.per_table.get(table)
         g = table.geometry
-        self._pose[:9] = rot.ravel()
-        self._pose[9:12] = phase_offset(rot, t, g.centre_fixed, g.centre_moving) / g.n_h
-        self.kernel.set_arg(7, self._pose.view(cl.cltypes.float16)[0])
-        queue = self.backend.queue
-        cl.enqueue_nd_range_kernel(queue, self.kernel, (self.global_size,), (self.local_size,))
-        cl.enqueue_copy(queue, self._result, self._buffers["out"], is_blocking=True)
-        return self._result[:7].astype(np.float64)
+        offset = phase_offset(rot, t, g.centre_fixed, g.centre_moving) / g.n_h
+        return launch.run(self._queue(), rot, offset)
 
     def pose(self, table: ModeTable, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(7,) float64 ``[E, F (3), T (3)]`` at one pose (zeros where the boxes are apart)."""
@@ -234,3 +202,63 @@ class OpenCLKernel:
         return finish(self.raw_sums(table, rot, t), rot, g.centre_moving, g.kappa, g.n_h,
                       table.scale, g.rotation)
 
+
+class _Launch:
+    """One table on the device: its buffers, a kernel bound to them, and its host arrays.
+
+    A lock makes one launch run one pose at a time (two threads on the same table take
+    turns); launches of different tables run side by side.
+    """
+
+    def __init__(self, owner: OpenCLKernel, table: ModeTable) -> None:
+        assert table.moving is not None and table.kept is not None
+        assert table.fixed_kept is not None
+        self.table = table
+        ctx = owner.backend.context
+        mf = cl.mem_flags
+        fixed = np.ascontiguousarray(table.fixed_kept.ravel())
+        kept = table.kept.astype(np.float32)
+        nk = len(kept)
+        self.local_size = owner.local_size
+        groups = max(1, min(owner.max_groups, -(-nk**3 // owner.local_size)))
+        self.global_size = groups * owner.local_size
+        self.pose = np.zeros(16, dtype=np.float32)
+        self.result = np.zeros(8, dtype=owner.acc_dtype)
+        self.lock = threading.Lock()
+        item = self.result.itemsize
+        self.buffers = {
+            "fixed": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=fixed),
+            "table": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                               hostbuf=np.ascontiguousarray(table.moving.ravel())),
+            "kept": cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=kept),
+            "partials": cl.Buffer(ctx, mf.READ_WRITE, size=groups * 8 * item),
+            "counter": cl.Buffer(
+                ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.zeros(1, dtype=np.int32)
+            ),
+            "out": cl.Buffer(ctx, mf.WRITE_ONLY, size=8 * item),
+        }
+        b = self.buffers
+        k = self.kernel = cl.Kernel(owner.program, "pose_sums")
+        k.set_arg(0, b["fixed"])
+        k.set_arg(1, b["table"])
+        k.set_arg(2, b["kept"])
+        k.set_arg(3, np.int32(nk))
+        k.set_arg(4, np.int32(table.side))
+        k.set_arg(5, np.int32(table.radius))
+        k.set_arg(6, np.float32(table.scale))
+        k.set_arg(8, b["partials"])
+        k.set_arg(9, b["counter"])
+        k.set_arg(10, b["out"])
+        scratch = cl.LocalMemory(owner.local_size * 7 * item)
+        k.set_arg(11, scratch)  # type: ignore[arg-type]  # the stub omits LocalMemory
+
+    def run(self, queue: cl.CommandQueue, rot: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """(7,) float64 raw sums at the pose ``rot`` with phase offset ``offset``."""
+        with self.lock:
+            self.pose[:9] = rot.ravel()
+            self.pose[9:12] = offset
+            self.kernel.set_arg(7, self.pose.view(cl.cltypes.float16)[0])
+            cl.enqueue_nd_range_kernel(queue, self.kernel, (self.global_size,),
+                                       (self.local_size,))
+            cl.enqueue_copy(queue, self.result, self.buffers["out"], is_blocking=True)
+            return self.result[:7].astype(np.float64)

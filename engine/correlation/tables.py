@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Generic, TypeVar
 
 import numpy as np
 
@@ -27,6 +29,8 @@ from engine.errors import Cancelled
 from engine.grid import Grid
 
 TWO_PI = 2.0 * math.pi
+
+P = TypeVar("P")
 
 #: Largest per-pose table (bytes) the compiled kernels get; beyond it (K near the full
 #: lattice) evaluation runs on the numpy reference, which reads the spectra in place.
@@ -288,6 +292,55 @@ class ModeTable:
     def channels(self) -> int:
         """Floats per row of :attr:`moving`: 8 with rotation, 2 without."""
         return 8 if self.geometry.rotation else 2
+
+
+#: Tables a compiled kernel keeps prepared (:class:`PerTable`): the field in use, the one
+#: being built for a new K, and one more.
+KEPT_TABLES = 3
+
+
+class PerTable(Generic[P]):
+    """What a compiled kernel prepares per table, for the last few tables, thread-safe.
+
+    What is prepared: kernel arguments, device buffers. :data:`KEPT_TABLES` tables are
+    kept.
+
+    The runtime's worker times and warms a new field while the loop evaluates the field in
+    use, and the two share the kernels (:meth:`Correlator.with_modes`). A kernel that kept
+    only its last table would prepare the tables again each time the threads take turns,
+    and one thread could run with what the other just prepared. Here each thread gets what
+    belongs to its own table, prepared once.
+
+    Parameters
+    ----------
+    prepare : callable
+        ``prepare(table)`` makes what a table needs; it runs outside the lock (an upload may
+        take a while), so two threads asking for a new table at once may both prepare it.
+    """
+
+    def __init__(self, prepare: Callable[[ModeTable], P]) -> None:
+        self._prepare = prepare
+        self._kept: OrderedDict[int, tuple[ModeTable, P]] = OrderedDict()
+        self._lock = threading.Lock()
+        #: How many times a table was prepared.
+        self.prepared = 0
+
+    def get(self, table: ModeTable) -> P:
+        """What ``table`` needs, prepared on its first use."""
+        key = id(table)
+        with self._lock:
+            kept = self._kept.get(key)
+            if kept is not None and kept[0] is table:
+                self._kept.move_to_end(key)
+                return kept[1]
+        value = self._prepare(table)
+        with self._lock:
+            self.prepared += 1
+            self._kept[key] = (table, value)
+            self._kept.move_to_end(key)
+            while len(self._kept) > KEPT_TABLES:
+                self._kept.popitem(last=False)
+        return value
 
 
 def truncate(spectra: Spectra, modes: int) -> ModeTable:

@@ -432,6 +432,86 @@ def test_opencl_agrees_with_numpy(fields):
         np.testing.assert_allclose(got.torque, ref.torque, atol=1e-4 * np.linalg.norm(ref.torque))
 
 
+def _compiled_kernel(name):
+    from engine.backend import BackendError
+    from engine.correlation.per_pose import make_kernel
+
+    try:
+        return make_kernel(name, "cube", True)
+    except BackendError as exc:
+        pytest.skip(f"the {name} kernel cannot run here: {str(exc).splitlines()[0]}")
+
+
+def _two_tables(fields):
+    """A correlator's table and the one ``with_modes`` builds for a new K (as the worker does)."""
+    r1, r2 = fields
+    corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=12, backend="numpy",
+                      use_cache=False)
+    return corr, (corr.table, corr.with_modes(8).table)
+
+
+def _poses(corr, count, seed):
+    rng = np.random.default_rng(seed)
+    g = corr.table.geometry
+    out = []
+    for _ in range(count):
+        rot = rotation_matrix(rng.normal(scale=0.5, size=3))
+        out.append((rot, g.centre_fixed - rot @ g.centre_moving + rng.normal(scale=1.0, size=3)))
+    return out
+
+
+@pytest.mark.parametrize("name", ["numba", "opencl"])
+def test_kernel_prepares_each_table_once_when_two_take_turns(fields, name):
+    # the worker warms and times a new K's field while the loop evaluates the old one, with
+    # the same kernel: a kernel that kept only its last table prepared (copied, uploaded)
+    # each table again at every turn
+    kernel = _compiled_kernel(name)
+    corr, tables = _two_tables(fields)
+    (rot, t), = _poses(corr, 1, 5)
+    for _ in range(5):
+        for table in tables:
+            kernel.pose(table, rot, t)
+    assert kernel.per_table.prepared == 2
+
+
+@pytest.mark.parametrize("name", ["numba", "opencl"])
+def test_two_threads_on_two_tables_each_get_their_own_sums(fields, name):
+    # the same kernel, one table per thread, the interpreter switching threads as often as
+    # it can: every pose must come out as the numpy reference gives it for its own table
+    import sys
+    import threading
+
+    from engine.correlation import reference
+
+    kernel = _compiled_kernel(name)
+    corr, tables = _two_tables(fields)
+    poses = _poses(corr, 6, 11)
+    expected = [[reference.pose(corr.spectra, table, rot, t) for rot, t in poses]
+                for table in tables]
+    wrong: list[str] = []
+
+    def run(which):
+        table = tables[which]
+        for rep in range(40):
+            for i, (rot, t) in enumerate(poses):
+                got = kernel.pose(table, rot, t)
+                ref = expected[which][i]
+                if not np.allclose(got, ref, rtol=1e-3, atol=1e-4 * np.abs(ref).max()):
+                    wrong.append(f"table {which}, pose {i}, round {rep}: {got} != {ref}")
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        threads = [threading.Thread(target=run, args=(which,)) for which in (0, 1)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert not wrong, f"{len(wrong)} poses wrong, first: {wrong[0]}"
+
+
 def test_auto_names_the_backend(fields):
     r1, r2 = fields
     corr = Correlator(descriptor(r1, GRID1), descriptor(r2, GRID2), modes=8, use_cache=False)
