@@ -84,7 +84,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", choices=("auto", "here", "process"), default="auto",
                         help="where a K change's truncations and landscapes are computed: "
                              "'auto' as the engine decides (a job process of their own when "
-                             "the loop thread runs real-time), 'here' in the loop's process, "
+                             "the loop thread runs real-time or the machine has 4 cores or "
+                             "more), 'here' in the loop's process, "
                              "'process' in a job process (docs/runtime.md, K changes)")
     parser.add_argument("--plot", default="bench_loop.png", help="histogram PNG ('' for none)")
     parser.add_argument("--full-path", action="store_true",

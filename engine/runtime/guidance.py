@@ -88,7 +88,7 @@ class Guidance:
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
         #: Compute truncations and landscapes in a process of their own (never holding the
-        #: loop's interpreter lock; job_process.py): set when the loop thread runs real-time.
+        #: loop's interpreter lock; job_process.py): set as the loop starts (job_process.wanted).
         self.job_process = False
         self.jobs: JobProcess | None = None
         #: Why that work runs in this process after all (None: it does not, or need not).

@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from engine.backend import spare_cores
+from engine.backend import cpu_cores, spare_cores
 from engine.errors import Cancelled
 
 if TYPE_CHECKING:
@@ -67,6 +67,25 @@ if TYPE_CHECKING:
 _log = logging.getLogger(__name__)
 
 __all__ = ["JobProcess", "JobProcessGone", "RemoteSpectral", "read_arrays", "write_arrays"]
+
+#: Cores from which a loop thread at normal priority gets a job process too. On 2 cores such
+#: a loop lost its CPU to the job process and measured worse with it; on 16 (real-time
+#: scheduling refused) the job process took a K change's landscapes off the loop's
+#: interpreter lock: changes followed by a period over 2 ms fell from 20 of 20 to 3 and 5
+#: (docs/runtime.md, "K changes on a machine with more cores"). Between the two nothing was
+#: measured; 4 leaves the loop, the worker and the job process a core each.
+CORES_WITHOUT_REALTIME = 4
+
+
+def wanted(paced: bool, realtime_thread: bool, cores: int | None = None) -> bool:
+    """Whether a loop's truncations and landscapes go to a job process (the default rule).
+
+    A paced loop whose thread runs real-time, or one at normal priority on a machine of
+    :data:`CORES_WITHOUT_REALTIME` cores or more; never an unpaced (headless) one.
+    """
+    cores = cpu_cores() if cores is None else cores
+    return bool(paced and (realtime_thread or cores >= CORES_WITHOUT_REALTIME))
+
 
 #: Buffers start at multiples of this many bytes in a transfer file (aligned arrays).
 ALIGN = 64

@@ -32,6 +32,7 @@ from engine.devices import Device
 from engine.runtime.frames import FRAME_WIDTH, FrameRing, pack_frame
 from engine.runtime.guidance import Guidance
 from engine.runtime.inputs import DeviceSlot
+from engine.runtime.job_process import wanted as wanted_job_process
 from engine.runtime.jobs import FieldModel
 from engine.runtime.messages import (
     COMMAND_TYPES,
@@ -118,10 +119,10 @@ class EngineLoop:
         Where relative device files are found (the scene's folder).
     job_process : bool, optional
         Compute a field's truncations and landscapes in a process of their own
-        (:mod:`engine.runtime.job_process`). None: when paced in real time with the loop
-        thread granted real-time scheduling (decided as the loop starts); a loop at normal
-        priority can lose its CPU to that process, and measured worse with it
-        (docs/runtime.md, "K changes").
+        (:mod:`engine.runtime.job_process`). None: decided as the loop starts by
+        :func:`engine.runtime.job_process.wanted`: when paced in real time, with the loop
+        thread granted real-time scheduling or on a machine of 4 cores or more (on 2, a loop
+        at normal priority lost its CPU to that process; docs/runtime.md, "K changes").
     """
 
     def __init__(
@@ -261,7 +262,7 @@ class EngineLoop:
         self.guidance.refresh_lane.priority = LANE_PRIORITY if granted else None
         wait = self.wait or ("sleep" if granted else "yield")
         if self.job_process is None:
-            self.guidance.job_process = bool(self.realtime and granted)
+            self.guidance.job_process = wanted_job_process(self.realtime, granted)
         pacer = Pacer(self.sim.dt, realtime=self.realtime, wait=wait)
         self.waiting = pacer.waiting
         self.guidance.ready_message = (f"engine ready; its loop thread: {self.scheduling}, "

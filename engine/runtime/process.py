@@ -83,7 +83,7 @@ class EngineOptions:
     raise_priority: bool = False
     analytic: bool = False  # benchmarks: an analytic field instead of the correlator
     keep_periods: bool = False  # benchmarks: return every period at the end
-    job_process: bool | None = None  # see EngineLoop (None: when the loop thread is real-time)
+    job_process: bool | None = None  # see EngineLoop (None: job_process.wanted decides)
 
 
 @dataclass(frozen=True)

@@ -278,9 +278,12 @@ def _thread_loop(scene: Path, **kw) -> rt.EngineLoop:
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="reads /proc (Linux)")
 @pytest.mark.parametrize("paced", [True, False])
 def test_a_loop_at_normal_priority_keeps_its_spectral_work_in_its_own_process(
-        small_scene, paced):
-    # a loop thread at normal priority can lose its CPU to a job process (measured worse
-    # with one), and an unpaced run is headless: neither starts one
+        small_scene, paced, monkeypatch):
+    # on 2 cores a loop thread at normal priority can lose its CPU to a job process
+    # (measured worse with one), and an unpaced run is headless: neither starts one
+    import engine.runtime.job_process as job_process
+
+    monkeypatch.setattr(job_process, "cpu_cores", lambda: 2)
     before = set(_job_processes(os.getpid()))
     engine = rt.EngineHandle(_thread_loop(small_scene, realtime=paced))
     seen = Collector(engine)
@@ -291,6 +294,36 @@ def test_a_loop_at_normal_priority_keeps_its_spectral_work_in_its_own_process(
         assert set(_job_processes(os.getpid())) == before
     finally:
         engine.stop()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="reads /proc (Linux)")
+def test_a_paced_loop_at_normal_priority_on_many_cores_offloads_to_a_job_process(
+        small_scene, monkeypatch):
+    # with cores to spare, the job process keeps a K change's landscapes off the loop's
+    # interpreter lock, real-time scheduling or not (measured on 16 cores)
+    import engine.runtime.job_process as job_process
+    from engine.runtime.job_process import RemoteSpectral
+
+    monkeypatch.setattr(job_process, "cpu_cores", lambda: job_process.CORES_WITHOUT_REALTIME)
+    engine = rt.EngineHandle(_thread_loop(small_scene, realtime=True))
+    seen = Collector(engine)
+    try:
+        assert seen.wait(seen.ready)
+        assert seen.change_modes(6)
+        spectral = engine.transport.sim.field.correlator.spectral
+        assert isinstance(spectral, RemoteSpectral)
+        assert _job_processes(os.getpid()) == [spectral.jobs.pid]
+    finally:
+        engine.stop()
+
+
+def test_the_job_process_rule():
+    from engine.runtime.job_process import CORES_WITHOUT_REALTIME, wanted
+
+    assert wanted(True, True, cores=2)
+    assert not wanted(True, False, cores=CORES_WITHOUT_REALTIME - 1)
+    assert wanted(True, False, cores=CORES_WITHOUT_REALTIME)
+    assert not wanted(False, True, cores=64)  # unpaced: headless, never
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="reads /proc (Linux)")
