@@ -23,8 +23,10 @@ The pieces, each in its own module of :mod:`engine.correlation`:
 Threads: the spectra never change after construction, and the current table is replaced,
 never changed. :meth:`Correlator.with_modes` and :meth:`Correlator.landscape` only read
 them, so a worker thread may call them while another thread evaluates poses; the caller
-swaps the new correlator (or the new landscape) in. Poses are evaluated from one thread at
-a time (the compiled kernels keep the arguments of the last table bound).
+swaps the new correlator (or the new landscape) in. Correlators made by ``with_modes`` share
+the compiled kernels, and two threads may evaluate poses at once (the worker warms a new
+field while the loop uses the old one): a kernel keeps what it prepared per table
+(:class:`~engine.correlation.tables.PerTable`).
 """
 
 from __future__ import annotations
