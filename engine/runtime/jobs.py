@@ -493,7 +493,8 @@ class RefreshLane:
             return "ordinary priority"
         if not self.hurries:
             return f"not hurried (would run at SCHED_FIFO {self.priority})"
-        return f"hurried {self.hurries} times, to {self.scheduling}"
+        times = "once" if self.hurries == 1 else f"{self.hurries} times"
+        return f"hurried {times}, to {self.scheduling}"
 
     def _set_priority(self, native_id: int) -> None:
         if self.hurried and self.priority is not None:

@@ -541,7 +541,7 @@ def test_a_hurried_refresh_lane_runs_below_the_loop_and_above_ordinary_threads(m
     ran, child, lane = _lane_scheduling(LANE_PRIORITY, lambda lane: lane.hurry(True))
     assert ran == (os.SCHED_FIFO, LANE_PRIORITY)
     assert lane.scheduling == f"real-time (SCHED_FIFO {LANE_PRIORITY})"
-    assert lane.describe() == f"hurried 1 times, to real-time (SCHED_FIFO {LANE_PRIORITY})"
+    assert lane.describe() == f"hurried once, to real-time (SCHED_FIFO {LANE_PRIORITY})"
     assert child == (os.SCHED_OTHER, 0)  # a transform's helper threads do not inherit it
     # hurried and let go again, not hurried, or without a priority to run at: ordinary
     ran, _, lane = _lane_scheduling(LANE_PRIORITY, lambda lane: (lane.hurry(True),
