@@ -249,6 +249,28 @@ def compute_landscape(
             "ask for it without forces, or use a coarser grid") from exc
 
 
+def _centring_phase(sel: tuple[np.ndarray, ...], n: int) -> np.ndarray:
+    """``(-1)^(kx + ky + kz)`` at the kept modes: the inverse FFT comes out centred.
+
+    An inverse FFT of a spectrum times ``exp(-2 pi i (k . s) / n)`` is the inverse FFT
+    rolled by ``s`` along each axis; with ``s = n / 2`` (``n`` is even: the correlator makes
+    it so) the factor is ``(-1)^(kx + ky + kz)``, exactly, and the roll is the one
+    ``np.fft.fftshift`` makes: the translation ``j = 0`` lands at index ``n / 2``. The sign
+    touches the ``K^3`` kept modes only; ``fftshift`` copied the whole grid (four times
+    with forces) in slices that held the interpreter lock for up to a few milliseconds
+    each, and a loop thread waiting for the lock missed its period.
+
+    ``sel`` is the index of the kept modes into the ``(n, n, n)`` spectrum: an open mesh
+    (``np.ix_``) or three index arrays; the result broadcasts as ``spectrum[sel]``.
+    """
+    if n % 2:
+        raise ValueError(f"the landscape's FFT size must be even, got {n}")
+    odd = np.zeros((), dtype=np.int64)
+    for index in sel:
+        odd = odd + np.asarray(index, dtype=np.int64)
+    return np.where(odd % 2 == 1, np.float32(-1.0), np.float32(1.0))
+
+
 def _landscape(
     spectra: Spectra, rot: np.ndarray, modes: int, forces: bool, table: ModeTable | None,
     step: Callable[[float], None], start: float,
@@ -281,12 +303,13 @@ def _landscape(
                                   False)[0].astype(np.complex64)
     step(0.3)
     coeff = spectra.fixed.values[sel].astype(np.complex64)
-    # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N), with t0 + R c2 - c1 = 0
+    # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N), with t0 + R c2 - c1 = 0,
+    # for j = -N/2 ... N/2 - 1: the centring phase puts j = 0 at index N // 2
     spectrum = np.zeros((n, n, n), dtype=np.complex64)
-    spectrum[sel] = coeff * values * np.float32(1.0 / g.n_h ** 3)
+    spectrum[sel] = coeff * values * _centring_phase(sel, n) * np.float32(1.0 / g.n_h ** 3)
     scale = float(n) ** 3
     field = scipy.fft.ifftn(spectrum, workers=thread_budget())
-    energy = np.fft.fftshift(-g.kappa * scale * field.real).astype(np.float32)
+    energy = (-g.kappa * scale * field.real).astype(np.float32)
     del field
     step(0.55 if forces else 0.9)
     force = None
@@ -298,7 +321,7 @@ def _landscape(
             shape[a] = n
             deriv = spectrum * (np.complex64(2j * np.pi) * freq.reshape(shape))
             part = scipy.fft.ifftn(deriv, workers=thread_budget())
-            force[a] = np.fft.fftshift(g.kappa * scale * part.real)
+            np.multiply(part.real, g.kappa * scale, out=force[a])
             step(0.55 + 0.15 * (a + 1))
     t0 = g.centre_fixed - rot @ g.centre_moving
     axes = (t0[0] + h * (np.arange(n) - n // 2), t0[1] + h * (np.arange(n) - n // 2),
@@ -308,9 +331,9 @@ def _landscape(
                                    g.half_moving, h)
     masks = [np.abs(axes[a] + offset[a]) < reach[a] for a in range(3)]
     inside = masks[0][:, None, None] & masks[1][None, :, None] & masks[2][None, None, :]
-    energy[~inside] = 0.0
+    np.multiply(energy, inside, out=energy)  # a ufunc: the lock released, unlike a mask
     if force is not None:
-        force[:, ~inside] = 0.0
+        np.multiply(force, inside, out=force)
     step(1.0)
     return Landscape(energy=energy, force=force, translations=axes, rotation=rot,
                      modes=k_modes, seconds=time.perf_counter() - start)
