@@ -87,8 +87,7 @@ class Guidance:
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
-        #: Compute truncations and landscapes in a process of their own (never holding the
-        #: loop's interpreter lock; job_process.py): set as the loop starts (job_process.wanted).
+        #: Truncations and landscapes in a process of their own (job_process.wanted decides)
         self.job_process = False
         self.jobs: JobProcess | None = None
         #: Why that work runs in this process after all (None: it does not, or need not).
@@ -291,9 +290,10 @@ class Guidance:
 
     def _swap(self, r: FieldResponse, *, attached: bool = False) -> None:
         assert r.field is not None
-        req, old = r.request, self.sim.field
-        if isinstance(old, RotationCacheField):
-            self.refresh_lane.forget(old)
+        req = r.request
+        if isinstance(self.sim.field, RotationCacheField):
+            self.refresh_lane.forget(self.sim.field)
+        self.worker.dispose(self.sim.field)  # its arrays are freed there, not in a period
         self.sim.set_field(r.field)
         if not attached:
             self.attach(r.field)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import queue
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -313,6 +314,10 @@ class _Job:
     cancel: threading.Event = field(default_factory=threading.Event)
 
 
+#: Seconds :meth:`JobWorker.dispose` waits for the caller to let go of what it handed over.
+DISPOSE_WAIT = 0.05
+
+
 class JobWorker:
     """One background thread for the engine's jobs.
 
@@ -364,6 +369,34 @@ class JobWorker:
         future = self._pool.submit(body)
         future.add_done_callback(lambda f: self._dropped(f))
         self._jobs[kind] = _Job(future, flag)
+
+    def dispose(self, thing: object) -> None:
+        """Let the worker's thread drop ``thing``, not the caller's.
+
+        Freeing a replaced field's arrays took 0.4 to 2.3 ms (a landscape at grid 56: 44 MB)
+        on whichever thread dropped the last reference; on the loop thread that is a missed
+        period. The caller hands over its last reference; the worker, queued behind the
+        jobs, waits until it holds the only one (the caller's frame may still hold it when
+        the worker first looks), at most :data:`DISPOSE_WAIT` seconds, and drops it.
+        """
+        if self._closed:
+            return
+        box = [thing]
+        del thing
+        self._queued += 1
+
+        def body() -> None:
+            try:
+                end = time.monotonic() + DISPOSE_WAIT
+                # two: the box's reference and getrefcount's own argument
+                while sys.getrefcount(box[0]) > 2 and time.monotonic() < end:
+                    time.sleep(0.001)
+                box.clear()
+            finally:
+                self._queued -= 1
+
+        future = self._pool.submit(body)
+        future.add_done_callback(lambda f: self._dropped(f))
 
     def _dropped(self, future: Future[None]) -> None:
         if future.cancelled():  # never started: body() did not count it down
