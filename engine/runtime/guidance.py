@@ -82,7 +82,7 @@ class Guidance:
         self.events = events
         self.worker = JobWorker()
         self.refresh_lane = RefreshLane()
-        self.handover = Handover(self.attach)  # a new field waits for a cache that serves
+        self.handover = Handover(self.attach, self.worker.dispose)  # waits for a cache
         self.landscapes = Landscapes(self.worker, events)
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).

@@ -39,10 +39,15 @@ class Handover:
     ----------
     attach : callable(field)
         Attaches a field to the refresh lane (``Guidance.attach``).
+    dispose : callable(object), optional
+        Takes a dropped response, to free it off the loop's thread
+        (``JobWorker.dispose``); default: dropped here.
     """
 
-    def __init__(self, attach: Callable[[RotationCacheField], None]):
+    def __init__(self, attach: Callable[[RotationCacheField], None],
+                 dispose: Callable[[object], None] | None = None):
         self.attach = attach
+        self.dispose = dispose
         self.period = 1e-3  # the loop's period (seconds): a refresh's time in poses
         self.held: FieldResponse | None = None
         self._field: RotationCacheField | None = None
@@ -121,6 +126,8 @@ class Handover:
 
     def drop(self) -> None:
         """Forget the held field (superseded, or cancelled)."""
-        if self.held is not None:
+        held, self.held, self._field, self._asked = self.held, None, None, 0
+        if held is not None:
             self.counts["dropped"] += 1
-        self.held, self._field, self._asked = None, None, 0
+            if self.dispose is not None:
+                self.dispose(held)

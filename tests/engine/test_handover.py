@@ -170,9 +170,12 @@ def test_a_held_field_waits_at_most_the_hand_over_time(correlator, monkeypatch):
 def test_a_superseded_field_is_dropped(correlator):
     lane = Lane()
     handover = handover_with(lane)
+    disposed = []
+    handover.dispose = disposed.append  # freed off the loop's thread (Guidance: the worker)
     fld, response = held_field(correlator)
     assert handover.hold(response, turned(20.0), PERIOD)
     handover.drop()
+    assert disposed == [response] and handover.held is None
     lane.deliver(handover)  # its cache arrives: nothing is installed
     np.testing.assert_array_equal(fld.reference_rotation, np.eye(3))
     assert handover.due(turned(20.0)) is None and handover.held is None
@@ -181,6 +184,7 @@ def test_a_superseded_field_is_dropped(correlator):
     assert handover.hold(held_field(correlator)[1], turned(20.0), PERIOD)
     assert handover.hold(held_field(correlator)[1], turned(20.0), PERIOD)
     assert handover.counts == {"held": 3, "served": 0, "gave_up": 0, "dropped": 2}
+    assert len(disposed) == 2
 
 
 def test_the_lane_answers_two_fields_and_supersedes_within_one(correlator):
