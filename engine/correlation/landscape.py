@@ -308,21 +308,28 @@ def _landscape(
     spectrum = np.zeros((n, n, n), dtype=np.complex64)
     spectrum[sel] = coeff * values * _centring_phase(sel, n) * np.float32(1.0 / g.n_h ** 3)
     scale = float(n) ** 3
-    field = scipy.fft.ifftn(spectrum, workers=thread_budget())
-    energy = (-g.kappa * scale * field.real).astype(np.float32)
-    del field
-    step(0.55 if forces else 0.9)
+    # The transforms run in place (overwrite_x) in one work array, the energy's last in the
+    # spectrum itself: a new N^3 array per transform, allocated and freed while the
+    # interpreter lock is held, kept a thread beside this one waiting for milliseconds.
     force = None
     if forces:
         force = np.empty((3, n, n, n), dtype=np.float32)
+        work = np.empty_like(spectrum)
         freq = (np.fft.fftfreq(n, 1.0 / n) / g.n_h).astype(np.float32)
         for a in range(3):
             shape = [1, 1, 1]
             shape[a] = n
-            deriv = spectrum * (np.complex64(2j * np.pi) * freq.reshape(shape))
-            part = scipy.fft.ifftn(deriv, workers=thread_budget())
+            np.multiply(spectrum, np.complex64(2j * np.pi) * freq.reshape(shape), out=work)
+            part = scipy.fft.ifftn(work, overwrite_x=True, workers=thread_budget())
             np.multiply(part.real, g.kappa * scale, out=force[a])
-            step(0.55 + 0.15 * (a + 1))
+            del part
+            step(0.15 * (a + 1) + 0.3)
+        del work
+    field = scipy.fft.ifftn(spectrum, overwrite_x=True, workers=thread_budget())
+    del spectrum
+    energy = np.multiply(field.real, -g.kappa * scale, dtype=np.float32)
+    del field
+    step(0.9)
     t0 = g.centre_fixed - rot @ g.centre_moving
     axes = (t0[0] + h * (np.arange(n) - n // 2), t0[1] + h * (np.arange(n) - n // 2),
             t0[2] + h * (np.arange(n) - n // 2))

@@ -139,7 +139,8 @@ def test_transforms_use_the_calling_threads_budget(corr, monkeypatch):
     seen: list[int] = []
     real = landscape_module.scipy.fft.ifftn
     monkeypatch.setattr(landscape_module.scipy.fft, "ifftn",
-                        lambda x, workers=None: seen.append(workers) or real(x, workers=1))
+                        lambda x, workers=None, **kw: seen.append(workers)
+                        or real(x, workers=1, **kw))
     corr.landscape(np.eye(3))
     assert seen and set(seen) == {4}
     seen.clear()
