@@ -213,7 +213,6 @@ class _Launch:
     def __init__(self, owner: OpenCLKernel, table: ModeTable) -> None:
         assert table.moving is not None and table.kept is not None
         assert table.fixed_kept is not None
-        self.table = table
         ctx = owner.backend.context
         mf = cl.mem_flags
         fixed = np.ascontiguousarray(table.fixed_kept.ravel())
