@@ -214,6 +214,44 @@ def after_changes(periods: np.ndarray, ends: np.ndarray, sent: list[float],
             "between_n": b[0], "between_late": b[1], "between_max_us": b[2]}
 
 
+#: A garbage collection longer than this (seconds) is counted in the report.
+LONG_COLLECTION_S = 1e-3
+
+
+def collections_report(table: np.ndarray, begin: float, sent: list[float],
+                       within: float = AFTER_CHANGE_S) -> dict[str, float]:
+    """The garbage collections of the measured time, and the long ones after K changes.
+
+    Parameters
+    ----------
+    table : (m, 3) float
+        ``perf_counter`` start, seconds and generation of each collection
+        (:meth:`engine.runtime.pacing.CollectionLog.table`).
+    begin : float
+        ``perf_counter`` at which the measured periods begin; earlier collections are left
+        out.
+    sent : list of float
+        ``perf_counter`` of each K change (or control mark).
+
+    Returns
+    -------
+    dict
+        ``n`` collections, ``full`` of them of the oldest generation (2), ``long`` (over
+        :data:`LONG_COLLECTION_S`), ``longest_ms`` and ``longest_generation``, and
+        ``long_after`` (long ones starting within ``within`` seconds after a change).
+    """
+    t = np.asarray(table, float).reshape(-1, 3)
+    t = t[t[:, 0] >= begin]
+    long = t[t[:, 1] > LONG_COLLECTION_S]
+    after = sum(1 for start in long[:, 0]
+                if any(0.0 <= start - mark <= within for mark in sent))
+    top = int(np.argmax(t[:, 1])) if len(t) else -1
+    return {"n": len(t), "full": int(np.count_nonzero(t[:, 2] == 2)), "long": len(long),
+            "longest_ms": float(t[top, 1] * 1e3) if top >= 0 else 0.0,
+            "longest_generation": int(t[top, 2]) if top >= 0 else -1,
+            "long_after": after}
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the engine loop as the options ask (thread, process or beside the GUI) and report it.
 
@@ -291,6 +329,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"| {c['changes']} | {c['changes_late']} | {c['after_n']} | {c['after_late']} "
               f"| {c['after_max_us']:.1f} | {c['between_n']} | {c['between_late']} "
               f"| {c['between_max_us']:.1f} |")
+    if "collections" in info:
+        ends = np.asarray(info["ends"], float)
+        g = collections_report(info["collections"], float(ends[0] - periods[0]),
+                               list(info.get("sent", [])))
+        print(f"\ngarbage collections in the loop's process: {g['n']} ({g['full']} full), "
+              f"{g['long']} over {LONG_COLLECTION_S * 1e3:.0f} ms"
+              + (f" ({g['long_after']} within {AFTER_CHANGE_S * 1e3:.0f} ms after a change)"
+                 if info.get("sent") else "")
+              + (f", the longest {g['longest_ms']:.2f} ms (generation "
+                 f"{g['longest_generation']})" if g["n"] else ""))
     if load is not None:
         print(f"\nload thread iterations: {counter[0]}")
     for key in ("gui_fps", "gui_latency_ms"):
@@ -359,6 +407,7 @@ def _run_thread(args, load):
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
         "handover": ", ".join(f"{k} {v}" for k, v in loop.guidance.handover.counts.items()),
         "eval_us": eval_us,
+        "collections": loop.collections.table(),
         "scheduling": (f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}; "
                        f"refresh lane: {loop.guidance.refresh_lane.describe()}"),
     }
@@ -422,6 +471,7 @@ def _run_process(args, load):
         "what": Path(args.scene).name,
         "field": result.described,
         "eval_us": result.eval_us,
+        "collections": result.collections,
     }
 
 

@@ -24,6 +24,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +61,7 @@ from engine.runtime.pacing import (
     LANE_PRIORITY,
     WAIT_WORDS,
     WAITS,
+    CollectionLog,
     Pacer,
     PeriodWindow,
     current_native_id,
@@ -167,6 +169,7 @@ class EngineLoop:
         self.prepare = prepare
         self.on_frame = on_frame
         self.window = PeriodWindow(keep=keep_periods)
+        self.collections = CollectionLog()  # filled while run() runs, with keep_periods
         self.switch_interval = switch_interval
         self.job_switch_interval = job_switch_interval
         self._jobs_running = False
@@ -282,8 +285,9 @@ class EngineLoop:
         pacer.deadline = time.perf_counter() + self.sim.dt
         self._base_interval = sys.getswitchinterval()
         self.window.restart()
+        watching = self.collections.watching() if self.window.keep else nullcontext()
         try:
-            with switch_interval(self.switch_interval):
+            with switch_interval(self.switch_interval), watching:
                 while not self._stop.is_set():
                     self._iterate()
                     steps += 1

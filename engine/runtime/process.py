@@ -101,12 +101,16 @@ class LoopResult:
         Median evaluation time in microseconds.
     described : str
         The field and the loop thread's scheduling, in words.
+    collections : (m, 3) float64
+        The engine process's garbage collections while the loop ran
+        (:meth:`engine.runtime.pacing.CollectionLog.table`).
     """
 
     periods: np.ndarray
     ends: np.ndarray
     eval_us: float
     described: str
+    collections: np.ndarray
 
 
 def send_message(conn: Connection, obj: object) -> None:
@@ -453,7 +457,7 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
                          f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}; "
                          f"refresh lane: {loop.guidance.refresh_lane.describe()}")
             send_message(events, LoopResult(loop.periods, loop.window.ends(), eval_us,
-                                            described))
+                                            described, loop.collections.table()))
     except (BrokenPipeError, EOFError):
         guard.lost("event pipe closed")
     except Exception as exc:  # noqa: BLE001 -- reported to the parent

@@ -88,6 +88,20 @@ def test_after_changes_counts_the_periods_that_follow_each_change():
     assert c["between_max_us"] == pytest.approx(3000.0)
 
 
+def test_collections_report_places_long_collections_after_changes():
+    # collections at 1.0 s (gen 0, 0.1 ms), 2.05 s (gen 1, 1.5 ms: 50 ms after the change at
+    # 2.0 s), 2.5 s (gen 2, 80 ms: 500 ms after it), and one at 0.5 s before the measured
+    # periods begin (left out, however long)
+    from bench.loop import collections_report
+
+    table = np.array([[0.5, 0.2, 2], [1.0, 1e-4, 0], [2.05, 1.5e-3, 1], [2.5, 0.08, 2]])
+    g = collections_report(table, begin=0.9, sent=[2.0])
+    assert (g["n"], g["full"], g["long"], g["long_after"]) == (3, 1, 2, 1)
+    assert g["longest_ms"] == pytest.approx(80.0) and g["longest_generation"] == 2
+    none = collections_report(np.zeros((0, 3)), begin=0.0, sent=[])
+    assert (none["n"], none["long"], none["longest_generation"]) == (0, 0, -1)
+
+
 @pytest.mark.parametrize("where", [[], ["--process"]])
 def test_bench_loop_counts_the_periods_after_k_changes(where):
     # the process engine's periods come back with their end times on the parent's clock
@@ -104,6 +118,12 @@ def test_bench_loop_counts_the_periods_after_k_changes(where):
     assert 2 <= changes <= seconds / 0.4 + 1  # a loaded machine may delay the sends
     assert 0 <= late <= changes
     assert changes <= after_n <= 101 * changes
+    # the loop's process reports its garbage collections (both transports)
+    gc_line = re.search(r"garbage collections in the loop's process: (\d+) \((\d+) full\), "
+                        r"(\d+) over 1 ms \((\d+) within 100 ms after a change\)", out.stdout)
+    assert gc_line is not None, out.stdout
+    n, full, long, long_after = (int(x) for x in gc_line.groups())
+    assert full <= n and long_after <= long <= n
     # the thread engine reports its hand-overs (the process engine's stay in its process)
     held = re.search(r"held back until a cache served the part: held (\d+), served (\d+), "
                      r"gave_up (\d+), dropped (\d+)", out.stdout)

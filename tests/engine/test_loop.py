@@ -21,6 +21,7 @@ from engine.runtime.jobs import RefreshLane
 from engine.runtime.pacing import (
     LANE_PRIORITY,
     REALTIME_PRIORITY,
+    CollectionLog,
     Pacer,
     PeriodWindow,
     period_stats,
@@ -218,6 +219,43 @@ def test_a_period_window_says_when_each_period_ended():
     assert ends[-1] == pytest.approx(window._last, abs=1e-9)
     window.restart()  # a loop run again keeps counting from its first start
     assert window.ends()[0] == ends[0]
+
+
+def test_a_collection_log_records_the_collections_inside_its_block_only():
+    import gc
+
+    log = CollectionLog()
+    gc.collect()  # before: not logged
+    with log.watching():
+        before = time.perf_counter()
+        gc.collect()  # a full collection
+        gc.collect(0)
+        after = time.perf_counter()
+    gc.collect()  # after: not logged
+    table = log.table()
+    assert table.shape == (2, 3)
+    assert list(table[:, 2]) == [2.0, 0.0]  # the generations, in order
+    assert np.all(table[:, 0] >= before) and np.all(table[:, 0] + table[:, 1] <= after)
+    assert np.all(table[:, 1] > 0)
+    assert log._callback not in gc.callbacks
+
+
+def test_a_loop_keeping_its_periods_logs_the_collections_while_it_runs():
+    import gc
+
+    loop, _, _ = make_loop(realtime=False, keep_periods=True)
+    gc.collect()
+    done = []
+    loop.on_frame = lambda row: done.append(gc.collect(0)) if len(done) < 3 else None
+    loop.run(max_steps=10)
+    logged = len(loop.collections.table())
+    gc.collect()  # the loop has returned: not logged
+    table = loop.collections.table()
+    assert len(table) == logged >= 3  # the three asked for (and any the loop ran itself)
+    assert np.count_nonzero(table[:, 2] == 0) >= 3
+    quiet, _, _ = make_loop(realtime=False)  # without keep_periods nothing is logged
+    quiet.run(max_steps=5)
+    assert len(quiet.collections.table()) == 0
 
 
 def test_loop_publishes_frames_from_its_own_thread():
