@@ -407,7 +407,7 @@ def _run_thread(args, load):
         "paths": "" if counts is None else ", ".join(f"{k} {v}" for k, v in counts.items()),
         "handover": ", ".join(f"{k} {v}" for k, v in loop.guidance.handover.counts.items()),
         "eval_us": eval_us,
-        "collections": loop.collections.table(),
+        "collections": loop.window.collections.table(),
         "scheduling": (f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}; "
                        f"refresh lane: {loop.guidance.refresh_lane.describe()}"),
     }

@@ -24,7 +24,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +60,6 @@ from engine.runtime.pacing import (
     LANE_PRIORITY,
     WAIT_WORDS,
     WAITS,
-    CollectionLog,
     Pacer,
     PeriodWindow,
     current_native_id,
@@ -102,7 +100,7 @@ class EngineLoop:
     on_frame : callable((FRAME_WIDTH,) float64), optional
         Called with every stepped iteration's row in the loop thread (recording).
     keep_periods : bool
-        Keep every period (seconds) in :attr:`periods` (benchmarks).
+        Keep every period (seconds) and garbage collection in :attr:`window` (benchmarks).
     switch_interval : float, optional
         If given, ``sys.setswitchinterval`` while the loop runs; restored at the end.
     job_switch_interval : float, optional
@@ -169,7 +167,6 @@ class EngineLoop:
         self.prepare = prepare
         self.on_frame = on_frame
         self.window = PeriodWindow(keep=keep_periods)
-        self.collections = CollectionLog()  # filled while run() runs, with keep_periods
         self.switch_interval = switch_interval
         self.job_switch_interval = job_switch_interval
         self._jobs_running = False
@@ -285,9 +282,8 @@ class EngineLoop:
         pacer.deadline = time.perf_counter() + self.sim.dt
         self._base_interval = sys.getswitchinterval()
         self.window.restart()
-        watching = self.collections.watching() if self.window.keep else nullcontext()
         try:
-            with switch_interval(self.switch_interval), watching:
+            with switch_interval(self.switch_interval), self.window.watching():
                 while not self._stop.is_set():
                     self._iterate()
                     steps += 1

@@ -32,7 +32,7 @@ import threading
 import time
 from array import array
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from typing import cast
 
 import numpy as np
@@ -199,54 +199,6 @@ def _yield_kernel() -> Callable[[int, np.ndarray], None] | None:
     return cast("Callable[[int, np.ndarray], None]", spin)
 
 
-class PeriodWindow:
-    """The last :data:`STATS_WINDOW` periods and their statistics.
-
-    For benchmarks, it also keeps every period (``keep``).
-
-    Parameters
-    ----------
-    keep : bool
-        Also keep every period in :attr:`periods`.
-    """
-
-    def __init__(self, *, keep: bool = False):
-        self.keep = keep
-        self.periods = array("d")
-        self.stats = PeriodStats()
-        self._window = np.zeros(STATS_WINDOW)
-        self._n = 0
-        self._last = time.perf_counter()
-        #: ``perf_counter`` when the first kept period began (:meth:`ends`).
-        self.started = self._last
-
-    def restart(self) -> None:
-        """The next period starts now (the loop begins)."""
-        self._last = time.perf_counter()
-        if not self.periods:
-            self.started = self._last
-
-    def ends(self) -> np.ndarray:
-        """``perf_counter`` at the end of each kept period (with ``keep``).
-
-        ``perf_counter`` is ``CLOCK_MONOTONIC`` on Linux, one clock for every process, so a
-        parent can place a child's periods against its own times.
-        """
-        return self.started + np.cumsum(np.asarray(self.periods))
-
-    def tick(self) -> None:
-        """Record the period ending now."""
-        now = time.perf_counter()
-        period = now - self._last
-        self._last = now
-        self._window[self._n % STATS_WINDOW] = period
-        self._n += 1
-        if self.keep:
-            self.periods.append(period)
-        if self._n % STATS_EVERY == 0:
-            self.stats = period_stats(self._window[: min(self._n, STATS_WINDOW)])
-
-
 class CollectionLog:
     """Python's cyclic garbage collections while a loop runs: when, how long, which generation.
 
@@ -284,6 +236,60 @@ class CollectionLog:
     def table(self) -> np.ndarray:
         """(n, 3) float64: each collection's ``perf_counter`` start, seconds, generation."""
         return np.asarray(self._rows, dtype=np.float64).reshape(-1, 3)
+
+
+class PeriodWindow:
+    """The last :data:`STATS_WINDOW` periods and their statistics.
+
+    For benchmarks, it also keeps every period and the garbage collections (``keep``).
+
+    Parameters
+    ----------
+    keep : bool
+        Also keep every period in :attr:`periods`, and the collections inside
+        :meth:`watching` in :attr:`collections`.
+    """
+
+    def __init__(self, *, keep: bool = False):
+        self.keep = keep
+        self.periods = array("d")
+        self.collections = CollectionLog()
+        self.stats = PeriodStats()
+        self._window = np.zeros(STATS_WINDOW)
+        self._n = 0
+        self._last = time.perf_counter()
+        #: ``perf_counter`` when the first kept period began (:meth:`ends`).
+        self.started = self._last
+
+    def restart(self) -> None:
+        """The next period starts now (the loop begins)."""
+        self._last = time.perf_counter()
+        if not self.periods:
+            self.started = self._last
+
+    def ends(self) -> np.ndarray:
+        """``perf_counter`` at the end of each kept period (with ``keep``).
+
+        ``perf_counter`` is ``CLOCK_MONOTONIC`` on Linux, one clock for every process, so a
+        parent can place a child's periods against its own times.
+        """
+        return self.started + np.cumsum(np.asarray(self.periods))
+
+    def watching(self) -> AbstractContextManager[None]:
+        """A block inside which collections are logged (with ``keep``; else nothing)."""
+        return self.collections.watching() if self.keep else nullcontext()
+
+    def tick(self) -> None:
+        """Record the period ending now."""
+        now = time.perf_counter()
+        period = now - self._last
+        self._last = now
+        self._window[self._n % STATS_WINDOW] = period
+        self._n += 1
+        if self.keep:
+            self.periods.append(period)
+        if self._n % STATS_EVERY == 0:
+            self.stats = period_stats(self._window[: min(self._n, STATS_WINDOW)])
 
 
 @contextmanager

@@ -457,7 +457,7 @@ def _child_main(handle: SceneHandle, shm_name: str, commands: Connection, events
                          f"{loop.scheduling}, waiting by {WAIT_WORDS[loop.waiting]}; "
                          f"refresh lane: {loop.guidance.refresh_lane.describe()}")
             send_message(events, LoopResult(loop.periods, loop.window.ends(), eval_us,
-                                            described, loop.collections.table()))
+                                            described, loop.window.collections.table()))
     except (BrokenPipeError, EOFError):
         guard.lost("event pipe closed")
     except Exception as exc:  # noqa: BLE001 -- reported to the parent

@@ -248,14 +248,14 @@ def test_a_loop_keeping_its_periods_logs_the_collections_while_it_runs():
     done = []
     loop.on_frame = lambda row: done.append(gc.collect(0)) if len(done) < 3 else None
     loop.run(max_steps=10)
-    logged = len(loop.collections.table())
+    logged = len(loop.window.collections.table())
     gc.collect()  # the loop has returned: not logged
-    table = loop.collections.table()
+    table = loop.window.collections.table()
     assert len(table) == logged >= 3  # the three asked for (and any the loop ran itself)
     assert np.count_nonzero(table[:, 2] == 0) >= 3
     quiet, _, _ = make_loop(realtime=False)  # without keep_periods nothing is logged
     quiet.run(max_steps=5)
-    assert len(quiet.collections.table()) == 0
+    assert len(quiet.window.collections.table()) == 0
 
 
 def test_loop_publishes_frames_from_its_own_thread():
