@@ -233,8 +233,9 @@ def test_a_collection_log_records_the_collections_inside_its_block_only():
         after = time.perf_counter()
     gc.collect()  # after: not logged
     table = log.table()
-    assert table.shape == (2, 3)
-    assert list(table[:, 2]) == [2.0, 0.0]  # the generations, in order
+    # the two asked for, in order (another thread may have triggered one more meanwhile)
+    gens = list(table[:, 2])
+    assert table.shape[1] == 3 and 2.0 in gens and 0.0 in gens[gens.index(2.0) + 1:]
     assert np.all(table[:, 0] >= before) and np.all(table[:, 0] + table[:, 1] <= after)
     assert np.all(table[:, 1] > 0)
     assert log._callback not in gc.callbacks
