@@ -161,7 +161,7 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
     pose that puts the grid centres together.
     """
     from engine.correlation.reference import interpolate_rows
-    from engine.correlation.spectrum import kept_indices
+    from engine.correlation.spectrum import cube_weights, kept_indices
     from engine.correlation.tables import cube_reach
 
     grid = corr.moving_grid
@@ -185,7 +185,8 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
         tmp = np.einsum("cij,cj->ci", tmp, ey, optimize=True)
         exact[lo : lo + 512] = h**3 * np.einsum("ci,ci->c", tmp, ex)
     wrapped = np.mod(kept, corr.size)
-    a = corr.spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)].ravel().astype(np.complex128)
+    a = (corr.spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)]
+         * cube_weights(modes)).ravel().astype(np.complex128)
     weight = np.abs(a)
     spectral = float(np.sqrt(np.sum(weight * np.abs(approx - exact) ** 2)
                              / np.sum(weight * np.abs(exact) ** 2)))

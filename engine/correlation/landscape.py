@@ -26,7 +26,7 @@ from engine.backend import thread_budget
 from engine.correlation.finishing import Evaluation, overlap_bounds
 from engine.correlation.interpolation import hermite
 from engine.correlation.reference import interpolate_rows
-from engine.correlation.spectrum import kept_indices
+from engine.correlation.spectrum import cube_weights, kept_indices
 from engine.correlation.tables import ModeTable, Spectra, cube_reach, largest_modes
 from engine.errors import Cancelled
 
@@ -286,7 +286,7 @@ def _landscape(
         wrapped = np.mod(kept, n)
         sel: tuple[np.ndarray, ...] = np.ix_(wrapped, wrapped, wrapped)
         kf = kept.astype(np.float64)
-        values = np.empty((k_modes,) * 3, dtype=np.complex64)
+        values = np.empty((len(kept),) * 3, dtype=np.complex64)
         ky, kz = np.meshgrid(kf, kf, indexing="ij")
         for i, kx in enumerate(kf):
             kvec = np.stack([np.full(ky.size, kx), ky.ravel(), kz.ravel()], axis=1)
@@ -303,10 +303,17 @@ def _landscape(
                                   False)[0].astype(np.complex64)
     step(0.3)
     coeff = spectra.fixed.values[sel].astype(np.complex64)
+    if spectra.selection == "cube":
+        coeff *= cube_weights(k_modes).astype(np.float32)  # an even band's ends: one half
     # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N), with t0 + R c2 - c1 = 0,
     # for j = -N/2 ... N/2 - 1: the centring phase puts j = 0 at index N // 2
     spectrum = np.zeros((n, n, n), dtype=np.complex64)
-    spectrum[sel] = coeff * values * _centring_phase(sel, n) * np.float32(1.0 / g.n_h ** 3)
+    terms = coeff * values * _centring_phase(sel, n) * np.float32(1.0 / g.n_h ** 3)
+    if spectra.selection == "cube" and len(kept) > n:
+        # the whole even band: -N/2 and +N/2 wrap onto one index, each half of it
+        np.add.at(spectrum, sel, terms)
+    else:
+        spectrum[sel] = terms
     scale = float(n) ** 3
     # The transforms run in place (overwrite_x) in one work array, the energy's last in the
     # spectrum itself: a new N^3 array per transform, allocated and freed while the

@@ -24,7 +24,13 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from engine.correlation.spectrum import Spectrum, compute_spectrum, kept_indices, refined_table
+from engine.correlation.spectrum import (
+    Spectrum,
+    compute_spectrum,
+    cube_weights,
+    kept_indices,
+    refined_table,
+)
 from engine.errors import Cancelled
 from engine.grid import Grid
 
@@ -255,10 +261,13 @@ class ModeTable:
     scale : float
         Lattice steps per unit of ``k``: the rotated frequency ``-R^T w`` lies at lattice
         index ``u = -scale R^T k``.
-    kept : (K,) float64 or None
-        Signed frequency indices per axis (selection "cube").
-    fixed_kept : (K, K, K) complex64 or None
-        ``rho1c^(w) dw`` on the kept cube.
+    kept : (L,) float64 or None
+        Signed frequency indices per axis (selection "cube"): the symmetric band
+        ``-(K // 2) ... K // 2`` (:func:`~engine.correlation.spectrum.kept_indices`; ``L = K``
+        for odd K, ``K + 1`` for even K).
+    fixed_kept : (L, L, L) complex64 or None
+        ``rho1c^(w) dw`` on the kept cube, times the band's weights (an even K's end modes
+        count one half per axis).
     mode_k : (m', 3) float64 or None
         Signed frequency indices (selection "largest").
     mode_a : (m',) complex64 or None
@@ -357,10 +366,11 @@ def truncate(spectra: Spectra, modes: int) -> ModeTable:
     dw = np.float32(1.0 / geometry.n_h ** 3)
     kept = fixed_kept = mode_k = mode_a = None
     if spectra.selection == "cube":
-        indices = kept_indices(k, n)  # (K,) signed
+        indices = kept_indices(k, n)  # (L,) signed, symmetric: L = K, or K + 1 for even K
         wrapped = np.mod(indices, n)
-        fixed_kept = (spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)] * dw).astype(
-            np.complex64)  # (K, K, K): rho1c^(w) dw
+        # (L, L, L): rho1c^(w) dw, times the band's weights (1/2 at an even band's ends)
+        fixed_kept = (spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)]
+                      * (cube_weights(k) * dw)).astype(np.complex64)
         kept = indices.astype(np.float64)
         reach = cube_reach(k)
     else:

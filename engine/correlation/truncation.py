@@ -30,14 +30,14 @@ WORKERS = 2
 
 
 def smallest_cube(size: int) -> np.ndarray:
-    """(size,) int64: for each FFT-ordered index, the smallest K whose kept cube holds it.
+    """(size,) int64: for each FFT-ordered index ``k``, the K whose band first reaches it.
 
-    The cube of ``K`` keeps ``-(K // 2) ... K - K // 2 - 1``
-    (:func:`engine.correlation.spectrum.kept_indices`), so ``k >= 0`` needs ``K >= 2k + 1``
-    and ``k < 0`` needs ``K >= 2|k|``.
+    The band of ``K`` keeps ``-(K // 2) ... K // 2``
+    (:func:`engine.correlation.spectrum.kept_indices`): ``2 |k|``. ``k`` is kept whole from
+    ``K = 2|k| + 1``, and at half weight at ``K = 2|k|`` (an even band's end).
     """
     k = np.fft.fftfreq(size, 1.0 / size).round().astype(np.int64)  # signed indices
-    return np.where(k >= 0, 2 * k + 1, -2 * k)
+    return 2 * np.abs(k)
 
 
 #: What the weight bounds: the energy (``|rho1^| |rho2^|``) or the force (times ``|k|``).
@@ -76,9 +76,19 @@ def truncation_profile(fixed, moving, size: int, *, quantity: str = "energy") ->
         weight *= np.sqrt(signed[:, None, None] ** 2 + signed[None, :, None] ** 2
                           + signed[None, None, :] ** 2)
     need = smallest_cube(size)
-    cube = np.maximum(np.maximum(need[:, None, None], need[None, :, None]), need[None, None, :])
-    inside = np.cumsum(np.bincount(cube.ravel(), weights=weight.ravel(), minlength=size + 1))
-    total = float(inside[-1])
+    nx, ny, nz = need[:, None, None], need[None, :, None], need[None, None, :]
+    cube = np.maximum(np.maximum(nx, ny), nz)  # (N, N, N): whole from K = cube + 1
+    # at K = cube (even) the mode is kept at (1/2)^(axes at the band's end) of its weight
+    ends = (nx == cube).astype(np.int64) + (ny == cube) + (nz == cube)
+    whole = np.bincount(cube.ravel(), weights=weight.ravel(), minlength=size + 2)
+    half = np.bincount(cube.ravel(), weights=(weight * 0.5 ** ends).ravel(),
+                       minlength=size + 2)
+    total = float(whole.sum())
     if not total > 0:
         return np.zeros(size + 1)
-    return np.clip(1.0 - inside[: size + 1] / total, 0.0, 1.0)
+    # inside[K] = sum of modes with cube < K, plus the half-weighted ones with cube == K
+    before = np.concatenate([[0.0], np.cumsum(whole)])[: size + 1]
+    inside = before + half[: size + 1]
+    inside[0] = 0.0  # K = 0 keeps nothing (k = 0 has cube 0)
+    inside[size] = total  # the whole lattice (the Nyquist index wraps onto itself)
+    return np.clip(1.0 - inside / total, 0.0, 1.0)

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.correlation.spectrum import compute_spectrum, fast_size, kept_indices
+from engine.correlation.spectrum import (
+    compute_spectrum,
+    cube_weights,
+    fast_size,
+    kept_indices,
+    kept_weights,
+)
 from engine.grid import Grid
 
 
@@ -88,10 +94,22 @@ def test_bad_inputs_are_rejected():
         compute_spectrum(bad, grid, 8, use_cache=False)
 
 
-def test_kept_indices():
-    np.testing.assert_array_equal(kept_indices(4, 16), [-2, -1, 0, 1])
+def test_kept_band_is_symmetric_with_half_weights_at_an_even_bands_ends():
+    np.testing.assert_array_equal(kept_indices(4, 16), [-2, -1, 0, 1, 2])
+    np.testing.assert_array_equal(kept_weights(4), [0.5, 1, 1, 1, 0.5])
     np.testing.assert_array_equal(kept_indices(3, 16), [-1, 0, 1])
-    np.testing.assert_array_equal(np.sort(np.mod(kept_indices(16, 16), 16)), np.arange(16))
+    np.testing.assert_array_equal(kept_weights(3), [1, 1, 1])
+    np.testing.assert_array_equal(kept_indices(1, 16), [0])
+    for k in range(1, 17):
+        band = kept_indices(k, 16)
+        np.testing.assert_array_equal(band, -band[::-1])  # symmetric about zero
+        assert kept_weights(k).sum() == pytest.approx(k)  # K modes' worth per axis
+    # the whole even lattice: both ends wrap onto the Nyquist index, half each
+    wrapped = np.mod(kept_indices(16, 16), 16)
+    per_index = np.bincount(wrapped, weights=kept_weights(16), minlength=16)
+    np.testing.assert_array_equal(per_index, np.ones(16))
+    w = cube_weights(4)
+    assert w.shape == (5, 5, 5) and w[0, 0, 0] == 0.125 and w[2, 2, 2] == 1.0
     with pytest.raises(ValueError):
         kept_indices(17, 16)
 
