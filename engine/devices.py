@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import errno
+import io
 import logging
 import math
 import socket
@@ -38,6 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from engine.errors import InputError
+from engine.files import MAX_TRAJECTORY_BYTES, decode_text, read_input
 from engine.params import UDP_MAX_ROTATION, UdpBridgeParams
 from engine.pose import rotation_matrix, rotation_vector
 
@@ -178,12 +180,12 @@ def read_trajectory(path: str | Path) -> np.ndarray:
         Missing file or column, bad number (with the line), times not increasing.
     """
     path = Path(path)
-    try:
-        # utf-8-sig: a byte-order mark (spreadsheets write one) is not part of a column name
-        fh = open(path, newline="", encoding="utf-8-sig")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open the trajectory file ({exc.strerror})") from exc
-    with fh:
+    # bounded, from a regular file only (/dev/zero never ends); utf-8-sig: a byte-order
+    # mark (spreadsheets write one) is not part of a column name
+    data = read_input(path, what="trajectory file", limit=MAX_TRAJECTORY_BYTES)
+    text = decode_text(data, path, what="trajectory file")
+    del data
+    with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         try:
             header = [h.strip() for h in next(reader)]

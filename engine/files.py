@@ -15,9 +15,11 @@ of the input files they must never replace.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -262,3 +264,92 @@ def files_digest(paths: Iterable[str | os.PathLike], *, length: int = 16) -> str
                 h.update(block)
         h.update(b"\0")
     return h.hexdigest()[:length]
+
+
+# --------------------------------------------------------------------------- inputs
+#: Largest input files read, in bytes. A scene is a page of TOML; a trajectory or replayed
+#: log of 256 MiB is a million rows of a log (17 minutes at 1 kHz) and a minute of
+#: parsing; a part file of 1 GiB is a binary STL of 20 million triangles, far past what a
+#: descriptor resolves.
+MAX_SCENE_BYTES = 16 * 2**20
+MAX_TRAJECTORY_BYTES = 256 * 2**20
+MAX_PART_BYTES = 2**30
+
+
+def input_problem(path: str | os.PathLike, *, what: str, limit: int | None = None
+                  ) -> str | None:  # fmt: skip
+    """Why ``path`` cannot be read as a ``what`` (a message naming it and the fix), or None.
+
+    Refused: a missing file or a link to one, a loop of symbolic links, a folder, a device,
+    FIFO or socket (``/dev/zero`` never ends, a FIFO blocks), an unreadable file, and a
+    file larger than ``limit`` bytes.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        if os.path.islink(p):
+            return f"{p}: a symbolic link to a missing file; check where it points"
+        return f"{p}: no such {what}; check the path"
+    except NotADirectoryError:
+        return f"{p}: no such {what} (a part of the path is a file, not a folder); check the path"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return (f"{p}: a loop of symbolic links (a link that leads back to itself); "
+                    "point the link at the real file")
+        return f"{p}: cannot read the {what} ({exc.strerror}); check the path and permissions"
+    if stat.S_ISDIR(st.st_mode):
+        return f"{p}: is a folder, not a {what}; give the file inside it"
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else
+                "a socket" if stat.S_ISSOCK(st.st_mode) else "a device")
+        return (f"{p}: is {kind}, not a regular file; a {what} is read from a file: save "
+                "it to one first")
+    if limit is not None and st.st_size > limit:
+        return (f"{p}: the {what} is {human_size(st.st_size)}, more than the "
+                f"{human_size(limit)} a {what} may be; check that this is the right file")
+    if not os.access(p, os.R_OK):
+        return f"{p}: cannot read the {what} (permission denied); check its permissions"
+    return None
+
+
+def read_input(path: str | os.PathLike, *, what: str, limit: int) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them.
+
+    The file is opened without blocking (a FIFO put in its place between the check and the
+    open is refused, not waited on) and read up to ``limit`` + 1 bytes, so a file that
+    grows past the limit while it is read is refused too.
+
+    Raises
+    ------
+    InputError
+        See :func:`input_problem`; the message names the file, the problem and the fix.
+    """
+    problem = input_problem(path, what=what, limit=limit)
+    if problem:
+        raise InputError(problem)
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read the {what} ({exc.strerror}); check the path and "
+                         "permissions") from None
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+            raise InputError(f"{p}: not a regular file; a {what} is read from a file")
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise InputError(f"{p}: the {what} is more than the {human_size(limit)} a {what} may "
+                         "be; check that this is the right file")
+    return data
+
+
+def decode_text(data: bytes, path: str | os.PathLike, *, what: str) -> str:
+    """UTF-8 text of an input (a byte-order mark dropped); InputError naming the file if not."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise InputError(f"{path}:{line}: the {what} is not UTF-8 text (byte "
+                         f"{data[exc.start]:#04x} at offset {exc.start}); is it the right "
+                         "file? save it as UTF-8 text") from None

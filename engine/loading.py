@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, TypeAlias
 import numpy as np
 
 from engine.errors import InputError
+from engine.files import MAX_PART_BYTES, input_problem, read_input
 from engine.params import LENGTH_UNITS
 
 if TYPE_CHECKING:
@@ -74,6 +75,10 @@ MIN_STEP_DIAGONAL_MM = 1e3 * OCC_PRECISION_MM
 #: Most triangles a STEP tessellation may make (480,000 took 2 minutes here; the memory on
 #: the way is about 1 KB per triangle).
 MAX_STEP_TRIANGLES = 2_000_000
+
+#: Most triangles a mesh file may hold (a binary STL's header says before it is read;
+#: 10^6 load in about 6 s and 350 MB here).
+MAX_MESH_TRIANGLES = 10_000_000
 
 #: STEP length units: SI prefix (or conversion-based name) -> (short name, metres per unit).
 _SI_PREFIXES = {
@@ -215,9 +220,12 @@ def load_parts(
             f"{p}: unknown part file type {p.suffix or '(none)'!r}; "
             f"use one of {', '.join(SUFFIXES)}"
         )
-    if not p.is_file():
+    if not p.exists() and not p.is_symlink():
         raise PartError(f"{p}: no such file; check the path (relative paths in a scene file "
                         "are relative to the scene file)")
+    problem = input_problem(p, what="part file", limit=MAX_PART_BYTES)
+    if problem:
+        raise PartError(problem)
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise PartError(f"tessellation tolerance must be a positive number, got {tolerance!r}")
     if unit is not None and unit not in LENGTH_UNITS:
@@ -731,7 +739,10 @@ def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Pa
             f"{path}: reading STEP needs the cascadio and trimesh packages "
             "(`pip install cascadio trimesh`)"
         ) from exc
-    data = path.read_bytes()
+    try:
+        data = read_input(path, what="part file", limit=MAX_PART_BYTES)
+    except InputError as exc:
+        raise PartError(str(exc)) from None
     head = data[:4096].lstrip()
     if not head.startswith(b"ISO-10303-21"):
         raise PartError(
@@ -1067,6 +1078,11 @@ def _check_stl(path: Path) -> None:
     if size >= 84:
         count = int.from_bytes(head[80:84], "little")
         if size == 84 + 50 * count:
+            if count > MAX_MESH_TRIANGLES:
+                raise PartError(
+                    f"{path}: {count:,} triangles, more than the {MAX_MESH_TRIANGLES:,} a part "
+                    "may have (each costs about 700 bytes while it loads); export it coarser"
+                )
             return
     try:
         text = head.decode("ascii")

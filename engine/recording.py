@@ -23,6 +23,7 @@ rate feeds the exact recorded proxy pose to every step and so reproduces the mot
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 import tempfile
@@ -34,7 +35,17 @@ import numpy as np
 
 from engine.devices import TrajectoryDevice
 from engine.errors import InputError
-from engine.files import TEMP_PREFIX, TEMP_SUFFIX, atomic_write, move_into_place, write_error
+from engine.files import (
+    MAX_TRAJECTORY_BYTES,
+    TEMP_PREFIX,
+    TEMP_SUFFIX,
+    atomic_write,
+    decode_text,
+    input_problem,
+    move_into_place,
+    read_input,
+    write_error,
+)
 
 COLUMNS = (
     "t", "tx", "ty", "tz", "rx", "ry", "rz",
@@ -221,12 +232,14 @@ class RecordingWriter:
 def recording_scene(path: str | Path) -> str | None:
     """The scene tag a recording was made with, or None (a plain trajectory, an old file)."""
     path = Path(path)
+    if input_problem(path, what="recording", limit=MAX_TRAJECTORY_BYTES):
+        return None
     try:
         if path.suffix.lower() == ".npz":
             with open(path, "rb") as raw, np.load(raw, allow_pickle=False) as data:
                 return str(data["scene"]) if "scene" in data.files else None
-        with open(path, encoding="utf-8-sig") as text:
-            last = text.readline().rstrip("\r\n").split(",")[-1].strip()
+        with open(path, encoding="utf-8-sig", errors="replace") as text:
+            last = text.readline(1 << 16).rstrip("\r\n").split(",")[-1].strip()
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
         return None
     m = _SCENE_FIELD.match(last)
@@ -238,15 +251,23 @@ def load_recording(path: str | Path) -> np.ndarray:
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":
+            problem = input_problem(path, what="recording", limit=MAX_TRAJECTORY_BYTES)
+            if problem:
+                raise InputError(problem)
             with open(path, "rb") as raw, np.load(raw, allow_pickle=False) as data:
                 columns = tuple(str(c) for c in data["columns"])
                 rows = data["rows"]
         else:
-            with open(path, encoding="utf-8-sig") as text:  # -sig: a byte-order mark is no column
+            raw_text = read_input(path, what="recording", limit=MAX_TRAJECTORY_BYTES)
+            # -sig: a byte-order mark is no column
+            with io.StringIO(decode_text(raw_text, path, what="recording")) as text:
+                del raw_text
                 columns = tuple(c.strip() for c in text.readline().split(","))
                 if columns and _SCENE_FIELD.match(columns[-1]):
                     columns = columns[:-1]
                 rows = np.loadtxt(text, delimiter=",", ndmin=2)
+    except InputError:
+        raise
     except OSError as exc:
         raise InputError(f"{path}: cannot read the recording ({exc})") from exc
     except (ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:

@@ -19,6 +19,7 @@ from typing import Literal, TypeAlias, TypeVar, overload
 import numpy as np
 
 from engine.errors import InputError
+from engine.files import MAX_SCENE_BYTES, decode_text, read_input
 from engine.params import (
     AXES,
     DEFAULT_GRID,
@@ -264,15 +265,16 @@ def load_scene(path: str | os.PathLike) -> Scene:
         Unreadable file, bad TOML, unknown key, bad value, missing part file; the message
         names the file and line, the problem and the fix.
     """
-    p = Path(path).resolve()
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError(f"{path}: no such scene file; check the path", path=str(path)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{path}: cannot read the scene file ({exc}); check that it is a "
-                         "UTF-8 text file you may read", path=str(path)) from exc
-    return parse_scene(text, p)
+        # bounded and only from a regular file: /dev/zero or a FIFO never ends; utf-8-sig:
+        # a byte-order mark (Windows editors write one) is not TOML
+        data = read_input(path, what="scene file", limit=MAX_SCENE_BYTES)
+        text = decode_text(data, path, what="scene file")
+    except InputError as exc:
+        m = re.match(r".*?:(\d+): ", str(exc))
+        raise SceneError(str(exc), path=str(path), line=int(m.group(1)) if m else None
+                         ) from None
+    return parse_scene(text, Path(path).resolve())
 
 
 def parse_scene(text: str, path: Path) -> Scene:

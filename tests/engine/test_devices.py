@@ -59,7 +59,7 @@ def test_bad_trajectory_messages(tmp_path, text, match):
 
 
 def test_missing_trajectory_file(tmp_path):
-    with pytest.raises(InputError, match="cannot open"):
+    with pytest.raises(InputError, match="no such trajectory file"):
         read_trajectory(tmp_path / "nope.csv")
     with pytest.raises(DeviceError, match="trajectory"):
         open_device("trajectory", np.zeros(6), {"file": "nope.csv"}, tmp_path)
