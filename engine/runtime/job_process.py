@@ -72,8 +72,8 @@ __all__ = ["JobProcess", "JobProcessGone", "RemoteSpectral", "read_arrays", "wri
 #: a loop lost its CPU to the job process and measured worse with it; on 16 (real-time
 #: scheduling refused) the job process took a K change's landscapes off the loop's
 #: interpreter lock: changes followed by a period over 2 ms fell from 20 of 20 to 3 and 5
-#: (docs/runtime.md, "K changes on a machine with more cores"). Between the two nothing was
-#: measured; 4 leaves the loop, the worker and the job process a core each.
+#: (docs/measurements/loop.md, "K changes on a machine with more cores"). Between the two
+#: nothing was measured; 4 leaves the loop, the worker and the job process a core each.
 CORES_WITHOUT_REALTIME = 4
 
 

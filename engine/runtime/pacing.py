@@ -205,8 +205,8 @@ class CollectionLog:
     A collection holds the interpreter lock from start to end, in whichever thread
     triggered it, so a loop sharing the interpreter waits it out. In a thread engine that
     interpreter is the caller's: a full collection of a test process's 165,000 objects took
-    50 to 90 ms there (docs/runtime.md, "The thread engine shares its caller's garbage
-    collector"). Benchmarks keep this log beside the periods (``keep_periods``) and place
+    50 to 90 ms there (docs/runtime.md, "The garbage collector": a thread engine shares its
+    caller's). Benchmarks keep this log beside the periods (``keep_periods``) and place
     each collection against the K changes.
 
     The callback (``gc.callbacks``) runs in the collecting thread with the lock held, and

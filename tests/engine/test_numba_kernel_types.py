@@ -3,7 +3,7 @@
 numba compiles one variant per argument type; a read-only or non-contiguous array is a
 type of its own. ``compile_now`` compiles the kernel early on a worker thread with
 ``warm_arguments``; a first pose passing other types (a scene's read-only pose) would
-compile it a second time, seconds more (docs/correlation.md, "Preparing a scene").
+compile it a second time, seconds more (docs/correlation.md, "Preparation and progress").
 No compilation happens in this test: it compares numba's types of the arguments.
 """
 
