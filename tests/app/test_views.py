@@ -73,27 +73,38 @@ def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
     assert win.slice_view._descriptors is old
     assert win.descriptor_seconds is None  # no DescriptorsSwapped came
     assert win.frames_received > n  # the engine kept stepping meanwhile
-    # 2. start one and let it finish: the bar advances, the GUI keeps ticking
+    # 2. start one and let it finish: the bar advances
     values = []
     panel.progress.valueChanged.connect(values.append)
-    ticks = []
-    timer = QtCore.QTimer()
-    timer.timeout.connect(lambda: ticks.append(time.perf_counter()))
-    timer.start(20)
     panel.sigma.setValue(1.2)
     wait_until(lambda: win.descriptor_seconds is not None, 60000, "the new descriptors")
-    timer.stop()
     assert any(0 < v < 1000 for v in values), values  # seen part-way
     assert max(values) > min(values)
     assert win.slice_view._descriptors is not old
     new_rho = win.slice_view._descriptors[0].rho
     assert new_rho.shape == old[0].rho.shape and not np.allclose(new_rho, old[0].rho)
     assert not panel.cancel.isEnabled()
-    # the event loop never stalled for long while the recompute ran: a timing check, so
-    # only where other work leaves the machine's cores free (the load guard of the slow
-    # timing tests: at most half the CPUs busy)
-    if os.getloadavg()[0] <= 0.5 * (os.cpu_count() or 1):
-        assert np.max(np.diff(ticks)) < 0.5
+
+
+@pytest.mark.slow
+def test_the_event_loop_keeps_ticking_while_descriptors_are_recomputed(
+        ready_window, wait_until):
+    # A timing check: slow-marked, and skipped with its reason where other work holds the
+    # machine's cores (the load guard of the slow timing tests: at most half the CPUs busy).
+    load, cpus = os.getloadavg()[0], os.cpu_count() or 1
+    if load > 0.5 * cpus:
+        pytest.skip(f"a timing check: the load average {load:.1f} exceeds half the "
+                    f"{cpus} CPUs, and a loaded machine stalls any event loop")
+    win = ready_window
+    ticks = []
+    timer = QtCore.QTimer()
+    timer.timeout.connect(lambda: ticks.append(time.perf_counter()))
+    timer.start(20)
+    win.params.sigma.setValue(1.2)
+    wait_until(lambda: win.descriptor_seconds is not None, 60000, "the new descriptors")
+    timer.stop()
+    assert len(ticks) > 10
+    assert np.max(np.diff(ticks)) < 0.5, "the event loop stalled while the recompute ran"
 
 
 def test_slice_view_shows_the_descriptor_and_follows_the_plane(ready_window, qtbot):

@@ -99,17 +99,23 @@ def test_eviction_keeps_what_is_costly_to_recompute(tmp_path, monkeypatch):
 def test_an_entry_records_how_long_it_took_and_unrecorded_ones_rank_as_one_second_a_mib(
         tmp_path, monkeypatch):
     import time
+    from types import SimpleNamespace
 
     monkeypatch.setenv("SKELASM_CACHE", str(tmp_path))
+    # The cache's clock, faked so that the computation takes 0.75 s exactly: what is
+    # recorded is the computation's time, not whatever the machine's load adds to a sleep.
+    clock = SimpleNamespace(now=1000.0)
+    monkeypatch.setattr(cache, "time", SimpleNamespace(
+        perf_counter=lambda: clock.now, time=time.time, sleep=time.sleep))
 
     def slow():
-        time.sleep(0.05)
+        clock.now += 0.75
         return {"x": np.ones(4)}
 
     arrays, hit = cache.load_or_compute("k", {"n": 1}, slow)
     assert not hit and set(arrays) == {"x"}
     written = tmp_path / "k" / f"{cache.content_key('k', {'n': 1})}.npz"
-    assert 0.05 <= cache.recompute_seconds(written) < 5.0
+    assert cache.recompute_seconds(written) == pytest.approx(0.75)
     cache.store("k", "0" * 64, {"x": np.ones(4)})  # as older versions wrote
     assert cache.recompute_seconds(tmp_path / "k" / f"{'0' * 64}.npz") is None
     mib = 2**20

@@ -57,7 +57,8 @@ def test_second_run_hits_the_cache_and_parameters_recompute(capfd):
     first = run_json(capfd, SLIDE, *SMALL)
     assert first["output"] == str(Path.cwd() / "slide.npz")  # default: current directory
     second = run_json(capfd, SLIDE, *SMALL, "--force")  # replaces the first run's file
-    assert second["from_cache"] is True and second["seconds"] < 0.5
+    assert second["from_cache"] is True
+    assert second["compute_seconds"] == first["compute_seconds"]  # the stored computation's
     third = run_json(capfd, SLIDE, *SMALL, "--sigma", "0.7", "--force")
     assert third["from_cache"] is False and third["sigma"] == 0.7
     fourth = run_json(capfd, SLIDE, *SMALL, "--no-cache", "--force")
