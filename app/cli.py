@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
+import signal
 import sys
+import threading
 
 #: Subcommand name -> module in app.commands providing add_parser(subparsers) and run(args).
 COMMANDS = ("scene", "precompute", "evaluate", "landscape", "simulate", "bench", "report", "gui")
@@ -23,11 +26,73 @@ NEGATIVE_NUMBER = re.compile(
 
 
 class Parser(argparse.ArgumentParser):
-    """An ArgumentParser (and its subcommands' parsers) that reads any negative float."""
+    """An ArgumentParser (and its subcommands' parsers) that reads any negative float.
+
+    A bad option is one line, like every other error (argparse's usage block drowned it),
+    and a JSON object on stdout when ``--json`` was asked for.
+    """
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = NEGATIVE_NUMBER
+
+    def error(self, message: str):  # type: ignore[override]  # argparse's is NoReturn
+        """Print ``message`` as one line (and as JSON with ``--json``), exit with status 2."""
+        print(f"{self.prog}: error: {message} (see {self.prog} --help)", file=sys.stderr)
+        if "--json" in sys.argv[1:] or _JSON_REQUESTED:
+            _print_json_error(message, None, None)
+        sys.exit(2)
+
+
+#: Set by main() when its argument list asks for --json (the parser sees no sys.argv then).
+_JSON_REQUESTED = False
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP (a closed terminal): unwinds like Ctrl+C so every output is kept."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated(signum)
+
+
+def _catch_termination() -> dict[int, object]:
+    """Turn SIGTERM and SIGHUP into :class:`Terminated` (main thread only).
+
+    By default they end the process at once: a log half-written, its temporary file left.
+    Raised as an exception, they run the same ``finally`` and ``except`` blocks Ctrl+C runs.
+    Returns the handlers replaced, to put back when the command ends.
+    """
+    replaced: dict[int, object] = {}
+    if threading.current_thread() is not threading.main_thread():
+        return replaced
+    for name in ("SIGTERM", "SIGHUP"):
+        number = getattr(signal, name, None)
+        if number is not None and signal.getsignal(number) in (signal.SIG_DFL, None):
+            replaced[number] = signal.signal(number, _raise_terminated)
+    return replaced
+
+
+def _error_location(exc: BaseException) -> tuple[str | None, int | None]:
+    """The file and line an error names: its ``path`` and ``line``, else its message's start."""
+    file = getattr(exc, "path", None) or None
+    line = getattr(exc, "line", None)
+    if file is None:
+        m = re.match(r"^(.+?)(?::(\d+))?: ", str(exc))
+        if m and (" " not in m.group(1) or os.path.exists(m.group(1))):
+            file = m.group(1)
+            line = int(m.group(2)) if m.group(2) else None
+    return (str(file) if file else None), (int(line) if line is not None else None)
+
+
+def _print_json_error(message: str, file: str | None, line: int | None) -> None:
+    import json
+
+    print(json.dumps({"error": message, "file": file, "line": line}), flush=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -64,31 +129,55 @@ def _unavailable(name: str):
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `skelasm` console script."""
     from engine.backend import check_environment
+    from engine.cache import max_bytes
     from engine.errors import ResourceError
 
+    global _JSON_REQUESTED
+    _JSON_REQUESTED = argv is not None and "--json" in argv
     parser = build_parser()
     args = parser.parse_args(argv)
+    as_json = bool(getattr(args, "json", False))
+
+    def fail(exc: BaseException, message: str, status: int) -> int:
+        print(f"skelasm {args.command}: error: {message}", file=sys.stderr)
+        if as_json:
+            _print_json_error(message, *_error_location(exc))
+        return status
+
+    replaced: dict[int, object] = {}
     try:
+        if args.command != "gui":  # the window handles its own ending
+            replaced = _catch_termination()
         check_environment()
+        max_bytes()  # a bad SKELASM_CACHE_MAX_GB is refused now, not after the computation
         return int(args.run(args) or 0)
+    except Terminated as exc:
+        name = signal.Signals(exc.signum).name
+        print(f"skelasm: stopped by {name}", file=sys.stderr)
+        if as_json:
+            _print_json_error(f"stopped by {name}", None, None)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("skelasm: interrupted", file=sys.stderr)
+        if as_json:
+            _print_json_error("interrupted", None, None)
         return 130
     except (UserError, ValueError, OSError, ResourceError) as exc:
         # Every engine error meant for the user is a ValueError/OSError subclass with a message
         # that names the problem and the fix; a traceback would only hide it. A refusal for
         # memory (ResourceError) answers a bad input too (a grid too fine): exit 2 as well.
-        print(f"skelasm {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return fail(exc, str(exc), 2)
     except MemoryError as exc:
         # an allocation no estimate foresaw: still one line and the fix
-        print(f"skelasm {args.command}: error: out of memory ({exc or 'allocation failed'}); "
-              "use a coarser grid (smaller --grid or larger --spacing) or a shorter run",
-              file=sys.stderr)
-        return 2
+        return fail(exc, f"out of memory ({exc or 'allocation failed'}); use a coarser grid "
+                    "(smaller --grid or larger --spacing) or a shorter run", 2)
+    except RecursionError as exc:
+        return fail(exc, f"an input nested too deeply to read ({exc}); check the file", 2)
     except RuntimeError as exc:
-        print(f"skelasm {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return fail(exc, str(exc), 1)
+    finally:
+        for number, handler in replaced.items():
+            signal.signal(number, handler)  # type: ignore[arg-type]
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -35,8 +35,6 @@ from pathlib import Path
 import numpy as np
 
 from engine.files import (
-    TEMP_PREFIX,
-    TEMP_SUFFIX,
     atomic_write,
     disk_space_error,
     human_size,
@@ -164,6 +162,13 @@ KIND_NAME = re.compile(r"^[a-z][a-z0-9-]{0,63}$")
 TAG_NAME = "CACHEDIR.TAG"
 _TAG = ("Signature: 8a477f597d28d172789f06886806bc55\n"
         "# This file is a cache tag created by skelasm; its entries can be recomputed.\n")
+#: Largest cap taken as given (a zettabyte); a larger ``SKELASM_CACHE_MAX_GB`` is this.
+MAX_CAP_GB = 2.0**40
+#: The cache's own temporary files: ``.skelasm-<entry>.<random>.partial`` as
+#: :func:`engine.files.atomic_write` names them for an entry, and older versions' ``tmp``
+#: files. Nothing else is removed, however it is named.
+TEMP_NAME = re.compile(r"^(\.skelasm-[0-9a-f]{64}\.npz\.(\d+\.)?[a-z0-9_]+\.partial"
+                       r"|tmp[a-z0-9_]{8}\.tmp\.npz)$")
 #: Temporary files of interrupted writes older than this (seconds) are removed on eviction.
 STALE_SECONDS = 3600.0
 
@@ -189,7 +194,8 @@ def max_bytes() -> int:
     if not (math.isfinite(gb) and gb >= 0):
         raise ValueError(f"SKELASM_CACHE_MAX_GB must be zero (no cache) or a positive number "
                          f"of GiB, got {raw!r}")
-    return int(gb * 2**30)
+    # a cap past what any disk holds is no cap: 1e300 GiB is no integer number of bytes
+    return int(min(gb, MAX_CAP_GB) * 2**30)
 
 
 def entry_path(kind: str, key: str) -> Path:
@@ -228,8 +234,7 @@ def _stale_temporaries(now: float) -> list[Path]:
     for folder in _kind_folders(cache_dir()):
         try:
             for f in folder.iterdir():
-                ours = ((f.name.startswith(TEMP_PREFIX) and f.name.endswith(TEMP_SUFFIX))
-                        or (f.name.startswith("tmp") and f.name.endswith(".tmp.npz")))
+                ours = TEMP_NAME.match(f.name) is not None
                 if ours and not f.is_symlink() and now - f.stat().st_mtime > STALE_SECONDS:
                     out.append(f)
         except OSError:

@@ -182,9 +182,8 @@ def read_trajectory(path: str | Path) -> np.ndarray:
     path = Path(path)
     # bounded, from a regular file only (/dev/zero never ends); utf-8-sig: a byte-order
     # mark (spreadsheets write one) is not part of a column name
-    data = read_input(path, what="trajectory file", limit=MAX_TRAJECTORY_BYTES)
-    text = decode_text(data, path, what="trajectory file")
-    del data
+    text = decode_text(read_input(path, what="trajectory file", limit=MAX_TRAJECTORY_BYTES),
+                       path, what="trajectory file")
     with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         try:

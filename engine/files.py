@@ -18,6 +18,7 @@ import contextlib
 import errno
 import hashlib
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -89,6 +90,7 @@ def check_output(
             raise InputError(f"{p}: the file is read-only; make it writable or choose "
                              "another name")
     _check_folder_takes_files(folder, p, what)
+    remove_stale_temporaries(p)
     return p
 
 
@@ -189,10 +191,8 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb", *, what: str = "file
     if mode not in ("wb", "w"):
         raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
     p = Path(path)
-    folder = p.parent
     try:
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f"{TEMP_PREFIX}{p.name}.",
-                                   suffix=TEMP_SUFFIX)
+        fd, tmp = make_temporary(p)
     except OSError as exc:
         raise write_error(p, exc, what=what) from exc
     try:
@@ -214,6 +214,64 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb", *, what: str = "file
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def make_temporary(path: Path) -> tuple[int, str]:
+    """Create ``.skelasm-<name>.<pid>.<random>.partial`` beside ``path``: (fd, its path).
+
+    The process id in the name lets a later run tell a temporary file whose writer was
+    killed (``kill -9``, a power cut) from one still being written: see
+    :func:`remove_stale_temporaries`.
+    """
+    return tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.name}.{os.getpid()}.",
+                            suffix=TEMP_SUFFIX)
+
+
+def staged_path(path: str | os.PathLike) -> Path:
+    """A hidden name beside ``path`` for a file moved into place once a whole set is done.
+
+    Named like :func:`make_temporary`'s files (``.skelasm-<name>.<pid>.staged__.partial``),
+    so :func:`remove_stale_temporaries` removes it when its process was killed.
+    """
+    p = Path(path)
+    return p.parent / f"{TEMP_PREFIX}{p.name}.{os.getpid()}.staged__{TEMP_SUFFIX}"
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> int:
+    """Remove the temporary files of writes of ``path`` whose writing process is gone.
+
+    Only names :func:`make_temporary` gives for this very file count, and only when the
+    process id they carry no longer exists on this machine. Returns how many were removed.
+    """
+    p = Path(path)
+    pattern = re.compile(re.escape(f"{TEMP_PREFIX}{p.name}.") + r"(\d+)\.[a-z0-9_]{8}"
+                         + re.escape(TEMP_SUFFIX) + "$")
+    removed = 0
+    try:
+        names = os.listdir(p.parent)
+    except OSError:
+        return 0
+    for name in names:
+        m = pattern.match(name)
+        if not m or _alive(int(m.group(1))):
+            continue
+        with contextlib.suppress(OSError):
+            os.unlink(p.parent / name)
+            removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process with this id exists (one we may not signal counts as alive)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True
+    return True
 
 
 def move_into_place(tmp: str | os.PathLike, path: str | os.PathLike) -> None:

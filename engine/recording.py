@@ -26,7 +26,6 @@ import contextlib
 import io
 import os
 import re
-import tempfile
 import zipfile
 from pathlib import Path
 from types import TracebackType
@@ -37,11 +36,10 @@ from engine.devices import TrajectoryDevice
 from engine.errors import InputError
 from engine.files import (
     MAX_TRAJECTORY_BYTES,
-    TEMP_PREFIX,
-    TEMP_SUFFIX,
     atomic_write,
     decode_text,
     input_problem,
+    make_temporary,
     move_into_place,
     read_input,
     write_error,
@@ -127,21 +125,31 @@ class RecordingWriter:
         self._filled = 0
         self._closed = False
         try:
-            fd, self._tmp = tempfile.mkstemp(dir=self.path.parent,
-                                             prefix=f"{TEMP_PREFIX}{self.path.name}.",
-                                             suffix=TEMP_SUFFIX)
+            fd, self._tmp = make_temporary(self.path)
         except OSError as exc:
             raise write_error(self.path, exc, what="recording") from exc
-        self._fh = os.fdopen(fd, "wb")
+        # unbuffered: every write is one whole chunk of rows, and ``_good`` counts the bytes
+        # of the chunks written whole, so a signal that stops a write leaves no torn row
+        self._fh = os.fdopen(fd, "wb", buffering=0)
+        self._good = 0
         if not self._npz:
             self._write((_header(scene) + "\n").encode())
 
     def _write(self, data: bytes) -> None:
+        view = memoryview(data)
         try:
-            self._fh.write(data)
+            while view:
+                done = self._fh.write(view)
+                view = view[done or 0:]
         except OSError as exc:
             self.discard()
             raise write_error(self.path, exc, what="recording") from exc
+        finally:
+            if view and not self._closed:  # stopped part-way by a signal: back to whole rows
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self._fh.fileno(), self._good)
+                    os.lseek(self._fh.fileno(), self._good, os.SEEK_SET)
+        self._good += len(data)
 
     def on_frame(self, row: np.ndarray) -> None:
         """Record one row (a frame row when ``index`` was given, else a recording row)."""
@@ -167,13 +175,12 @@ class RecordingWriter:
             return
         rows = self._buffer[: self._filled]
         if self._npz:
-            self._write(rows.tobytes())
+            chunk = rows.tobytes()
         else:
-            try:
-                np.savetxt(self._fh, rows, delimiter=",", fmt="%.17g")
-            except OSError as exc:
-                self.discard()
-                raise write_error(self.path, exc, what="recording") from exc
+            text = io.BytesIO()
+            np.savetxt(text, rows, delimiter=",", fmt="%.17g")
+            chunk = text.getvalue()
+        self._write(chunk)  # the rows stay buffered until they are written whole
         self._filled = 0
 
     def close(self) -> Path:

@@ -105,11 +105,12 @@ def check_image_output(path, *, force: bool, inputs) -> None:
     check_output(path, force=force, inputs=inputs, what="image")
 
 
-def write_section_png(path, section, u, v, plane, *, title, units, fitted, lowest) -> None:
+def write_section_png(path, section, u, v, plane, *, title, units, fitted, lowest,
+                      image_format: str | None = None) -> None:  # fmt: skip
     """Write a section image with the fitted pose (cross) and the section's minimum (circle).
 
     The image is written whole or not at all (``engine.files.atomic_write``); its format
-    follows the file's suffix.
+    is ``image_format``, by default the file's suffix.
     """
     from pathlib import Path
 
@@ -138,5 +139,5 @@ def write_section_png(path, section, u, v, plane, *, title, units, fitted, lowes
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     with atomic_write(path, what="image") as fh:
-        fig.savefig(fh, format=Path(path).suffix.lstrip(".").lower() or "png")
+        fig.savefig(fh, format=image_format or Path(path).suffix.lstrip(".").lower() or "png")
     plt.close(fig)

@@ -9,6 +9,8 @@ accuracy at the fitted pose, and energy sections through the fitted pose.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import time
 from pathlib import Path
 
@@ -87,14 +89,7 @@ def _slice_png(path: Path, descriptor, name: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write ``OUTPUT/report.md`` and its figures for a scene with two parts; returns 0."""
-    import numpy as np
-
-    from app.commands.landscape import write_section_png
-    from app.commands.scale import energy_scale
-    from engine.correlation import Correlator
-    from engine.descriptor import descriptors_for_scene
-    from engine.files import check_output, check_output_folder, write_text
-    from engine.pose import rotation_matrix
+    from engine.files import check_output, check_output_folder, move_into_place, staged_path
     from engine.scene import load_scene, load_scene_parts
 
     scene = load_scene(args.scene)
@@ -109,6 +104,35 @@ def run(args: argparse.Namespace) -> int:
         for path in outputs:
             check_output(path, force=args.force, inputs=inputs, what="report file")
     out.mkdir(parents=True, exist_ok=True)
+    # every file is written under a staged name and moved into place at the end: an
+    # interrupted report (Ctrl+C, SIGTERM) leaves the folder as it was, not half a report
+    staged: dict[Path, Path] = {path: staged_path(path) for path in outputs}
+    try:
+        _write_report(args, scene, parts, out, staged)
+    except BaseException:
+        for tmp in staged.values():
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        raise
+    for final, tmp in staged.items():
+        if tmp.exists():
+            move_into_place(tmp, final)
+    print(f"wrote {out / 'report.md'}")
+    return 0
+
+
+def _write_report(args: argparse.Namespace, scene, parts, out: Path,
+                  staged: dict[Path, Path]) -> None:  # fmt: skip
+    """Compute the report and write its files to their staged names."""
+    import numpy as np
+
+    from app.commands.landscape import write_section_png
+    from app.commands.scale import energy_scale
+    from engine.correlation import Correlator
+    from engine.descriptor import descriptors_for_scene
+    from engine.files import write_text
+    from engine.pose import rotation_matrix
+
     lines = [f"# {scene.name}", "", f"Scene: `{scene.path}`, units: {scene.units}.", ""]
 
     lines += ["## Parts", "", "| part | file | triangles | extent | checks |",
@@ -131,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
               "|---|---|---|---|---|---|"]
     for part, d in zip(parts, descriptors, strict=False):
         image = f"slice_{part.name}.png"
-        _slice_png(out / image, d, part.name)
+        _slice_png(staged[out / image], d, part.name)
         lines.append(f"| {part.name} | {'x'.join(map(str, d.grid.shape))} | {d.seconds:.2f} | "
                      f"{d.backend} | {d.from_cache} | ![{part.name}]({image}) |")
 
@@ -186,12 +210,11 @@ def run(args: argparse.Namespace) -> int:
         axes = [a for a in range(3) if a != normal]
         image = f"landscape_{plane}.png"
         write_section_png(
-            out / image, section, u, v, plane,
+            staged[out / image], section, u, v, plane,
             title=f"{scene.name}: E(t), {plane} through the fitted pose, K = {land.modes}",
             units=scene.units, fitted=fitted[axes],
             lowest=np.unravel_index(int(np.argmin(section)), section.shape),
+            image_format="png",
         )
         lines.append(f"![{plane}]({image})")
-    write_text(out / "report.md", "\n".join(lines) + "\n", what="report")
-    print(f"wrote {out / 'report.md'}")
-    return 0
+    write_text(staged[out / "report.md"], "\n".join(lines) + "\n", what="report")

@@ -84,7 +84,9 @@ def test_multibody_needs_body(capfd, tmp_path):
 def test_corrupt_step_is_a_clean_error(capfd):
     assert main(["precompute", str(ROOT / "tests" / "data" / "corrupt.step"), "--json"]) == 2
     out, err = capfd.readouterr()
-    assert out == ""
+    record = json.loads(out)  # --json: a script reads the error as an object too
+    assert set(record) == {"error", "file", "line"} and record["file"].endswith("corrupt.step")
+    assert record["error"] in err
     assert err.startswith("skelasm precompute: error: ") and "corrupt.step" in err
     assert "Traceback" not in err
 
