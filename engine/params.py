@@ -948,3 +948,82 @@ class HapticLimits:
                        max_torque=udp.max_torque)
         return cls(force_scale=device.force_scale,
                    max_force=math.inf if device.max_force is None else device.max_force)
+
+
+# ------------------------------------------------------------------ what a control offers
+@dataclass(frozen=True)
+class ControlRange:
+    """What a GUI control of one parameter offers: the one source of its range and default.
+
+    A control is a slider beside a numeric field. The field accepts every value the engine
+    accepts (``allowed``); the slider spans the stretch a user usually wants
+    (``comfortable``), so that a drag is fine-grained where it matters. A value outside the
+    comfortable stretch (a scene's K = 64 where the slider ends at 48) is shown in the field
+    and kept, with the slider at its end: opening and saving a scene never changes a value.
+
+    Attributes
+    ----------
+    allowed : (float, float)
+        Every value the engine accepts, inclusive.
+    comfortable : (float, float)
+        The slider's span, within ``allowed``.
+    default : float
+        The value a control starts with (the engine's default where it has one).
+    step : float
+        The field's step (its arrows, the wheel).
+    log : bool
+        The slider is logarithmic (``comfortable`` must then be positive).
+    integer : bool
+        Whole numbers only.
+    decimals : int
+        Decimals the field shows.
+    """
+
+    allowed: tuple[float, float]
+    comfortable: tuple[float, float]
+    default: float
+    step: float
+    log: bool = False
+    integer: bool = False
+    decimals: int = 3
+
+    def __post_init__(self) -> None:
+        lo, hi = self.allowed
+        c_lo, c_hi = self.comfortable
+        if not (lo <= c_lo < c_hi <= hi and lo <= self.default <= hi):
+            raise ValueError(f"a control's ranges must nest (allowed {self.allowed}, "
+                             f"comfortable {self.comfortable}, default {self.default})")
+        if self.log and c_lo <= 0:
+            raise ValueError("a logarithmic slider needs a positive comfortable range")
+        if not self.step > 0:
+            raise ValueError(f"a control's step must be positive, got {self.step}")
+
+    def clamp(self, value: float) -> float:
+        """``value`` within :attr:`allowed` (whole for an integer control)."""
+        v = min(max(float(value), self.allowed[0]), self.allowed[1])
+        return float(round(v)) if self.integer else v
+
+
+#: The controls of the live parameters, by name: their range, step and default, derived
+#: from the parameter types and limits above so that a control accepts every value a scene
+#: may hold. The comfortable stretches are where users work (K 4 to 48: beyond, a pose
+#: costs milliseconds on a CPU; sigma to 3 and penalty to 20: beyond, the density is flat
+#: or the overlap cost hides every fit).
+CONTROLS: dict[str, ControlRange] = {
+    "modes": ControlRange(allowed=(1.0, float(MAX_MODES)), comfortable=(4.0, 48.0),
+                          default=float(DEFAULT_MODES), step=1.0, integer=True, decimals=0),
+    "sigma": ControlRange(allowed=(SIGMA_RANGE[0], SIGMA_GRID_MAX), comfortable=(0.05, 3.0),
+                          default=DescriptorParams.sigma, step=0.01, log=True, decimals=3),
+    "penalty": ControlRange(allowed=PENALTY_RANGE, comfortable=(1.0, 20.0),
+                            default=DescriptorParams.penalty, step=0.1, log=True, decimals=3),
+    # kappa's own bound is relative to the part (MAX_KAPPA_FACTOR times its scale-free
+    # default), checked when physics is resolved: the control takes any kappa >= 0
+    "kappa": ControlRange(allowed=(0.0, 1e300), comfortable=(1e-6, 1e9), default=1.0,
+                          step=0.1, log=True, decimals=4),
+    # a coupling frequency must be positive and, at the fastest rate, leave the step stable
+    # (2 pi f dt <= 1, engine.scene.reader)
+    "coupling_hz": ControlRange(allowed=(1e-6, RATE_RANGE[1] / (2 * math.pi)),
+                                comfortable=(0.5, 50.0),
+                                default=CouplingParams.frequency_hz, step=0.5, log=True,
+                                decimals=3),
+}

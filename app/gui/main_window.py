@@ -495,9 +495,7 @@ class MainWindow(QtWidgets.QMainWindow):
             target.parent.mkdir(parents=True, exist_ok=True)
             check_output(target, force=True, inputs=inputs, what="scene")
             out = write_scene(handle, Path(path), moving_relative_pose=pose,
-                              sigma=self.params.sigma.value(),
-                              penalty=self.params.penalty.value(),
-                              modes=int(self.params.modes.value()))
+                              **self.params.scene_settings())
         except (OSError, ValueError) as exc:
             self.show_error(f"Could not save the scene: {exc}")
             raise

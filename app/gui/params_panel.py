@@ -24,7 +24,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import SliderField
 from engine import runtime
-from engine.params import AXES, GUIDANCE, CouplingParams, Effects
+from engine.params import AXES, CONTROLS, GUIDANCE, CouplingParams, Effects
 
 
 class ParamsPanel(QtWidgets.QWidget):
@@ -50,7 +50,7 @@ class ParamsPanel(QtWidgets.QWidget):
 
         acc = QtWidgets.QGroupBox("Accuracy (applies on release)")
         form = QtWidgets.QFormLayout(acc)
-        self.modes = SliderField(4, 48, 16, integer=True, on_release=True)
+        self.modes = SliderField(CONTROLS["modes"], on_release=True)
         self.modes.setObjectName("modes")
         self.modes.setToolTip(
             "K: Fourier modes kept per axis (m' = K³ in all). More is more accurate and\n"
@@ -79,13 +79,13 @@ class ParamsPanel(QtWidgets.QWidget):
         self._profile: np.ndarray | None = None
         self.modes.valueChanged.connect(self._modes_changed)
         self.modes.previewed.connect(lambda k: self._show_truncation(int(k)))
-        self._show_modes(16)
+        self._show_modes(int(self.modes.value()))
         lay.addWidget(acc)
 
         desc = QtWidgets.QGroupBox("Descriptors (apply on release)")
         form = QtWidgets.QFormLayout(desc)
-        self.sigma = SliderField(0.05, 3.0, 0.5, decimals=3, log=True, on_release=True)
-        self.penalty = SliderField(1.0, 20.0, 3.0, decimals=2, log=True, on_release=True)
+        self.sigma = SliderField(CONTROLS["sigma"], on_release=True)
+        self.penalty = SliderField(CONTROLS["penalty"], on_release=True)
         self.sigma.setToolTip("Width of the skeletal density's kernel (dimensionless). Applies "
                               "when the slider is let go\nor a typed value is entered; the "
                               "recompute can take minutes on a fine grid.")
@@ -123,7 +123,7 @@ class ParamsPanel(QtWidgets.QWidget):
         self.kappa_default.setToolTip(
             "kappa scales the fit's energy E = -kappa Re f. The scale-free default ties it\n"
             "to the coupling stiffness and the part's size; untick to set it yourself.")
-        self.kappa = SliderField(1e-6, 1e9, 1.0, decimals=4, log=True, on_release=True)
+        self.kappa = SliderField(CONTROLS["kappa"], on_release=True)
         self.kappa.setEnabled(False)
         self.kappa_value = QtWidgets.QLabel("kappa: -")
         self.kappa_value.setObjectName("kappa_value")
@@ -131,7 +131,7 @@ class ParamsPanel(QtWidgets.QWidget):
         form.addRow("kappa", self.kappa_default)
         form.addRow("", self.kappa)
         form.addRow("", self.kappa_value)
-        self.coupling = SliderField(0.5, 50.0, 10.0, decimals=1, log=True, suffix=" Hz")
+        self.coupling = SliderField(CONTROLS["coupling_hz"], suffix=" Hz")
         self.coupling.setToolTip(
             "Coupling stiffness as the natural frequency of part + spring: k = m (2 pi f)^2,\n"
             "so the same setting works whatever the unit of length."
@@ -199,6 +199,22 @@ class ParamsPanel(QtWidgets.QWidget):
         self._gravity_vector = gravity_vector(config.units)
         self.set_effects(config.effects, emit=False)
         self.set_progress(None)
+
+    def scene_settings(self) -> dict[str, object]:
+        """What the panel shows, as the scene writer's keywords (``write_scene``).
+
+        The panel is the one source of what is saved: K, sigma and penalty exactly as shown
+        (a scene's value beyond a slider's stretch included), the effects, the coupling and
+        kappa (None: the scale-free default).
+        """
+        return {
+            "modes": int(self.modes.value()),
+            "sigma": self.sigma.value(),
+            "penalty": self.penalty.value(),
+            "effects": self._effects,
+            "coupling": self._coupling,
+            "kappa": None if self.kappa_default.isChecked() else self.kappa.value(),
+        }
 
     def set_effects(self, effects: Effects, *, emit: bool = True) -> None:
         """Show ``effects`` in the panel's controls; with ``emit``, send them to the engine.

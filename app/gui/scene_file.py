@@ -17,11 +17,14 @@ import numpy as np
 from engine.params import CouplingParams, Effects
 from engine.scene import save_scene
 
+#: ``kappa=KEEP``: the scene's own ``[simulation] kappa`` is written as it was.
+KEEP = object()
+
 
 def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | None = None,
                 sigma: float | None = None, penalty: float | None = None,
                 modes: int | None = None, effects: Effects | None = None,
-                coupling: CouplingParams | None = None, kappa: float | None = None) -> Path:
+                coupling: CouplingParams | None = None, kappa: Any = KEEP) -> Path:
     """Write ``handle``'s scene to ``path`` (TOML) and return the path written.
 
     Parameters
@@ -33,8 +36,11 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
         Part 2 relative to part 1 now; stored as part 2's world pose.
     sigma, penalty, modes : optional
         Current descriptor and accuracy settings.
-    effects, coupling, kappa : optional
-        Current simulation settings (``[effects]``, ``[coupling]``, ``[simulation] kappa``).
+    effects, coupling : optional
+        Current simulation settings (``[effects]``, ``[coupling]``).
+    kappa : float or None, optional
+        ``[simulation] kappa``: a value, or None for the scale-free default; by default
+        (:data:`KEEP`) the scene's own.
 
     Raises
     ------
@@ -53,8 +59,9 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
         config = replace(config, effects=effects)
     if coupling is not None:
         config = replace(config, coupling=coupling)
-    if kappa is not None:
-        config = replace(config, simulation=replace(config.simulation, kappa=float(kappa)))
+    if kappa is not KEEP:
+        config = replace(config, simulation=replace(
+            config.simulation, kappa=None if kappa is None else float(kappa)))
     scene = replace(
         scene,
         parts=tuple(parts),

@@ -6,9 +6,17 @@ import math
 
 from PySide6 import QtCore, QtWidgets
 
+from engine.params import ControlRange
+
 
 class SliderField(QtWidgets.QWidget):
-    """A horizontal slider and a spin box showing one float value, linear or logarithmic.
+    """A horizontal slider and a spin box showing one value, linear or logarithmic.
+
+    Its range, step and default come from an :class:`engine.params.ControlRange` (the
+    engine's parameter module is their one source): the field accepts every value the
+    engine accepts, the slider spans the comfortable stretch of it. A value given from code
+    (:meth:`setValueSilently`, a scene's setting) is kept exactly as given, also beyond the
+    slider's stretch: the field shows it and the slider sits at its end.
 
     With ``on_release`` the value is committed only when the slider is let go (or a value is
     typed and Enter pressed, or set from code); while the slider is dragged the field shows
@@ -27,33 +35,33 @@ class SliderField(QtWidgets.QWidget):
     previewed = QtCore.Signal(float)
     STEPS = 1000
 
-    def __init__(self, lo: float, hi: float, value: float, *, decimals: int = 3,
-                 log: bool = False, integer: bool = False, suffix: str = "",
-                 on_release: bool = False, parent=None):
+    def __init__(self, control: ControlRange, *, suffix: str = "", on_release: bool = False,
+                 parent=None):
         super().__init__(parent)
-        if not lo < hi:
-            raise ValueError(f"slider range must have lo < hi, got {lo}, {hi}")
-        if log and lo <= 0:
-            raise ValueError("a logarithmic slider needs a positive lower bound")
-        self.lo, self.hi, self.log, self.integer = lo, hi, log, integer
+        self.control = control
+        self.lo, self.hi = control.comfortable
+        self.log, self.integer = control.log, control.integer
+        lo, hi = control.allowed
         self.slider = QtWidgets.QSlider(QtCore.Qt.Horizontal)
-        self.slider.setRange(0, self.STEPS if not integer else int(hi - lo))
-        if integer:
+        self.slider.setRange(0, self.STEPS if not self.integer else int(self.hi - self.lo))
+        if self.integer:
             self.field: QtWidgets.QAbstractSpinBox = QtWidgets.QSpinBox()
             self.field.setRange(int(lo), int(hi))
+            self.field.setSingleStep(max(1, int(control.step)))
         else:
             self.field = QtWidgets.QDoubleSpinBox()
-            self.field.setDecimals(decimals)
+            self.field.setDecimals(control.decimals)
             self.field.setRange(lo, hi)
-            self.field.setSingleStep(10 ** -(decimals - 1) if decimals > 1 else 0.1)
+            self.field.setSingleStep(control.step)
         self.field.setSuffix(suffix)
         self.field.setKeyboardTracking(False)
         self.field.setMinimumWidth(80)
+        self.field.setMaximumWidth(140)  # a wide allowed range would size it to its maximum
         lay = QtWidgets.QHBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.slider, 1)
         lay.addWidget(self.field)
-        self._value = float(value)
+        self._value = float(control.default)
         self._sync(self._value)
         self.on_release = on_release
         self.slider.setTracking(not on_release)  # without tracking: valueChanged on release
@@ -62,6 +70,8 @@ class SliderField(QtWidgets.QWidget):
         self.field.valueChanged.connect(self._from_field)
 
     def _to_pos(self, v: float) -> int:
+        """The slider position showing ``v``: its end for a value beyond its stretch."""
+        v = min(max(v, self.lo), self.hi)
         if self.integer:
             return int(round(v - self.lo))
         if self.log:
@@ -103,25 +113,27 @@ class SliderField(QtWidgets.QWidget):
         self._set(float(v))
 
     def _set(self, v: float) -> None:
-        v = min(max(float(v), self.lo), self.hi)
-        if self.integer:
-            v = float(round(v))
+        v = self.control.clamp(v)
         self._sync(v)
         if v != self._value:
             self._value = v
             self.valueChanged.emit(v)
 
     def value(self) -> float:
-        """The current value, within the slider's range."""
+        """The current value (exactly as last set or committed)."""
         return self._value
 
     def setValue(self, v: float) -> None:  # noqa: N802 (Qt naming)
-        """Set the value and emit valueChanged if it changed."""
+        """Commit ``v`` (within the allowed range) and emit valueChanged if it changed."""
         self._set(v)
 
     def setValueSilently(self, v: float) -> None:  # noqa: N802
-        """Set the value without emitting (for values coming back from the engine)."""
-        self._value = min(max(float(v), self.lo), self.hi)
+        """Show ``v`` without emitting (a scene's setting, a value from the engine).
+
+        The value is kept exactly as given, also outside the slider's stretch, so that what
+        was loaded is what is saved.
+        """
+        self._value = float(v)
         self._sync(self._value)
 
 

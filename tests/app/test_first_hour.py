@@ -22,7 +22,7 @@ from app.gui.widgets import SliderField
 from engine import pose as posemath
 from engine import runtime
 from engine.correlation import Landscape
-from engine.params import QuantityUnits
+from engine.params import CONTROLS, QuantityUnits
 
 
 def _place(win, pose, wait_until):
@@ -347,7 +347,7 @@ def test_window_fits_a_1280_by_800_screen(settings, qtbot, monkeypatch):
 
 
 def test_slider_applies_on_release_only(qtbot):
-    field = SliderField(0.05, 3.0, 0.5, log=True, on_release=True)
+    field = SliderField(CONTROLS["sigma"], on_release=True)
     qtbot.addWidget(field)
     applied = []
     field.valueChanged.connect(applied.append)

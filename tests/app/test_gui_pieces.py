@@ -110,8 +110,10 @@ def test_strip_chart_keeps_the_last_seconds(qtbot):
 
 def test_slider_field_log_mapping_and_signal(qtbot):
     from app.gui.widgets import SliderField
+    from engine.params import ControlRange
 
-    field = SliderField(0.01, 100.0, 1.0, log=True)
+    field = SliderField(ControlRange(allowed=(1e-3, 1e3), comfortable=(0.01, 100.0),
+                                     default=1.0, step=0.1, log=True))
     qtbot.addWidget(field)
     assert field.slider.value() == 500  # 1 is the geometric middle of [0.01, 100]
     seen = []
@@ -120,8 +122,15 @@ def test_slider_field_log_mapping_and_signal(qtbot):
     assert seen and seen[-1] == pytest.approx(10.0)
     field.setValueSilently(0.1)
     assert len(seen) == 1 and field.slider.value() == 250
+    # beyond the slider's stretch: kept and shown, the slider at its end
+    field.setValueSilently(500.0)
+    assert field.value() == 500.0 and field.field.value() == pytest.approx(500.0)
+    assert field.slider.value() == field.slider.maximum() and len(seen) == 1
+    field.setValue(5e4)  # a typed value is held to what the control allows
+    assert field.value() == 1e3
     with pytest.raises(ValueError):
-        SliderField(0.0, 1.0, 0.5, log=True)
+        ControlRange(allowed=(0.0, 1.0), comfortable=(0.0, 1.0), default=0.5, step=0.1,
+                     log=True)
 
 
 def test_strip_chart_range_does_not_magnify_jitter():
