@@ -173,10 +173,10 @@ def test_ctrl_c_during_report_leaves_the_folder_as_it_was(scene, capsys, monkeyp
 
     out = scene.parent / "rep"
     monkeypatch.setattr(landscape, "write_section_png", interrupted)
-    assert main(["report", str(scene), "-o", str(out), "--backend", "numpy"]) == 130
+    assert main(["report", str(scene), "-o", str(out), "--backend", "numba"]) == 130
     assert sorted(p.name for p in out.iterdir()) == []
     monkeypatch.setattr(landscape, "write_section_png", real)
-    assert main(["report", str(scene), "-o", str(out), "--backend", "numpy"]) == 0
+    assert main(["report", str(scene), "-o", str(out), "--backend", "numba"]) == 0
     assert (out / "report.md").exists() and partials(out) == []
 
 
