@@ -83,7 +83,8 @@ def _error_location(exc: BaseException) -> tuple[str | None, int | None]:
     line = getattr(exc, "line", None)
     if file is None:
         m = re.match(r"^(.+?)(?::(\d+))?: ", str(exc))
-        if m and (" " not in m.group(1) or os.path.exists(m.group(1))):
+        if m and not m.group(1).startswith("-") and (" " not in m.group(1)
+                                                      or os.path.exists(m.group(1))):
             file = m.group(1)
             line = int(m.group(2)) if m.group(2) else None
     return (str(file) if file else None), (int(line) if line is not None else None)

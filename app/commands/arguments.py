@@ -28,3 +28,44 @@ def positive_float(text: str) -> float:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {text}")
     return value
+
+
+def int_in_range(low: int, high: int, why: str = ""):
+    """An argparse type: a whole number from ``low`` to ``high`` (``why`` says why)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            try:
+                as_float = float(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+            if not (math.isfinite(as_float) and as_float.is_integer()):
+                raise argparse.ArgumentTypeError(
+                    f"must be a whole number from {low:,} to {high:,}, got {text}") from None
+            value = int(as_float)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"must be a whole number from {low:,} to {high:,}, got {text}"
+                + (f" ({why})" if why else ""))
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+def check_rotation_vector(rotation, option: str) -> None:
+    """Refuse a rotation vector longer than the engine's proxy bound (1e4 rad).
+
+    Beyond it the angle's double precision is coarser than 1e-12 rad per 1e4 rad and a sine
+    of it is meaningless; 1e6 rad used to be evaluated as if it meant something.
+    """
+    from engine.errors import InputError
+    from engine.sim.guard import MAX_ROTATION_VECTOR
+
+    angle = math.hypot(*(float(r) for r in rotation))
+    if angle > MAX_ROTATION_VECTOR:
+        raise InputError(f"{option}: a rotation vector of {angle:.3g} rad is longer than "
+                         f"{MAX_ROTATION_VECTOR:g} rad: rotations are rotation vectors in "
+                         "radians (reduce it modulo 2 pi)")

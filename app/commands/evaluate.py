@@ -6,9 +6,12 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from app.commands.arguments import finite_float
+from app.commands.arguments import check_rotation_vector, finite_float, int_in_range
 from app.commands.poses import add_about_argument, typed_pose
 from engine.backend import CHOICES
+
+#: Most evaluations --repeat times (100,000 of the slowest, 10 ms each, take 17 minutes).
+MAX_REPEAT = 100_000
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,8 +37,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--backend", default="auto", choices=CHOICES,
                         help="per-pose backend (auto measures the compiled ones and keeps the "
                         "faster)")
-    parser.add_argument("--repeat", type=int, default=100,
-                        help="evaluations to time; the reported microseconds are their median")
+    parser.add_argument("--repeat", type=int_in_range(1, MAX_REPEAT, "each is one evaluation "
+                                                      "of up to milliseconds"),
+                        default=100, metavar="N",
+                        help="evaluations to time, 1 to 100,000; the reported microseconds "
+                        "are their median")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(run=run)
 
@@ -61,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
         from engine.params import check_modes
 
         check_modes(args.modes, "--modes")
+    if args.pose is not None:
+        check_rotation_vector(args.pose[3:], "--pose")
     handle = open_scene(args.scene)  # the scene and its parts, read once
     scene = handle.scene
     pose = (typed_pose(handle, args.pose, args.about) if args.pose is not None
@@ -76,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     rot = rotation_matrix(pose[3:])
     t = pose[:3]
     result = corr.evaluate(rot, t)
-    times = [corr.evaluate(rot, t).microseconds for _ in range(max(1, args.repeat))]
+    times = [corr.evaluate(rot, t).microseconds for _ in range(args.repeat)]
     micro = float(np.median(times))
     moving = handle.parts[-1]
     spec = handle.config.mass_spec(len(handle.parts) - 1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from app.commands.arguments import finite_float
+from app.commands.arguments import check_rotation_vector, finite_float
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
         from engine.params import check_modes
 
         check_modes(args.modes, "--modes")
+    if args.rotation is not None:
+        check_rotation_vector(args.rotation, "--rotation")
     check_image_output(args.output, force=args.force,
                        inputs=[scene.path, *(spec.file for spec in scene.parts)])
     fitted = np.asarray(scene.assembled_pose, dtype=float)

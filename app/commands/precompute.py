@@ -47,8 +47,12 @@ def _grid_samples(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"must be at least 2, got {value}")
+    from engine.params import MAX_GRID
+
+    if not 4 <= value <= MAX_GRID:  # the range DescriptorParams holds a scene's grid to
+        raise argparse.ArgumentTypeError(f"must be an integer from 4 to {MAX_GRID}, got "
+                                         f"{value}: fewer than 4 samples resolve nothing, "
+                                         f"{MAX_GRID}^3 take 64 GiB per part")
     return value
 
 
