@@ -54,6 +54,8 @@ from typing import Any
 
 import numpy as np
 
+from engine.backend import choices
+
 DIALS = ("modes", "grid", "sigma", "quadrature", "interpolation", "backend")
 DEFAULT_SCENES = ("real/iso_pin_5_H7h6_through", "peg_in_hole")
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
@@ -406,7 +408,7 @@ def sweep_backend(case: Case, base: Pair, args) -> list[Row]:
     corr, spectra_s = correlator(base, args.modes, backend="numpy")
     reference = evaluate(corr, case.poses)
     rows = []
-    for name in ("numpy", "numba", "opencl"):
+    for name in choices("per_pose")[:-1]:  # every per-pose backend, the reference first
         try:
             corr.use_backend(name)
         except Exception as exc:  # noqa: BLE001 - an absent backend is reported, not fatal
@@ -418,7 +420,7 @@ def sweep_backend(case: Case, base: Pair, args) -> list[Row]:
                   reference=name == "numpy")
         rows.append(_fill(row, evaluate(corr, case.poses), reference))
     pairs = {}
-    for name in ("numba", "opencl"):
+    for name in choices("descriptor")[:-1]:
         try:
             warm_up(case, "adaptive", name)
             pairs[name] = descriptors(case, args.grid, backend=name, use_cache=False)

@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.backend import choices
+
 DEFAULT_MODES = ("4", "8", "16", "24", "32", "48", "64", "full")
 CACHE_MODES = ("16", "24", "32", "48", "64")
 #: CAD-tessellated pairs (under assets/real) the rotation-cache table measures as well.
@@ -468,7 +470,7 @@ def _cost_path(path: str) -> str:
 
 def _print_costs(costs) -> None:
     """Per-pose cost per pair and K: median (p99) microseconds, one column per backend."""
-    backends = [b for b in ("numba", "opencl", "numpy") if any(c[1] == b for c in costs)]
+    backends = [b for b in choices("per_pose")[:-1] if any(c[1] == b for c in costs)]
     table: dict[tuple[str, int], dict[str, str]] = {}
     for name, backend, k, med, p99, on_reference in costs:
         mark = " (ran on numpy)" if on_reference and backend != "numpy" else ""
@@ -519,7 +521,7 @@ def _auto_pick(d1, d2, args) -> str:
 
 def _present_backends(corr) -> list[str]:
     names = ["numpy"]
-    for name in ("numba", "opencl"):
+    for name in choices("per_pose")[1:-1]:  # the compiled ones (numpy is the reference)
         try:
             corr.use_backend(name)
             names.append(name)

@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from engine.backend import choices
 from engine.grid import Grid
 
 #: Torus sections (major, minor) per requested triangle count (2 * major * minor).
@@ -34,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--triangles", type=int, nargs="+", default=[1000, 20000, 200000],
                         help="approximate triangle counts of the test tori")  # fmt: skip
     parser.add_argument("--backends", nargs="+", default=None,
-                        help="numba and/or opencl (default: all that work here)")  # fmt: skip
+                        choices=[c for c in choices("descriptor") if c != "auto"],
+                        help="descriptor backends (default: all that work here)")  # fmt: skip
     parser.add_argument("--methods", nargs="+", default=["adaptive", "tree"],
                         help="adaptive, tree (default both)")  # fmt: skip
     parser.add_argument("--cad-grid", type=int, default=32,
@@ -70,12 +72,15 @@ def cubic_grid(vertices: np.ndarray, n: int, padding: int = 3) -> Grid:
 
 
 def _usable_backends() -> list[str]:
-    from engine.backend import available_backends, get_backend
+    """The descriptor's backends (the registry's) that work here, its reference first."""
+    from engine.backend import CAPABILITIES, backend_problem, get_backend
     from engine.descriptor.opencl_kernels import kernel_builds
 
-    names = ["numba"]
-    if "opencl" in available_backends() and kernel_builds(get_backend("opencl")):
-        names.append("opencl")
+    names = []
+    for name in reversed(CAPABILITIES["descriptor"].backends):
+        if backend_problem(name) is None and (name != "opencl"
+                                              or kernel_builds(get_backend(name))):
+            names.append(name)
     return names
 
 

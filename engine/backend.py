@@ -10,6 +10,14 @@ The names, validated in one place (:func:`check_name`):
 - ``"auto"``: the first backend of a preference order that works here (default:
   :data:`AUTO_ORDER`, OpenCL, then numba, then numpy). This is the one fallback rule.
 
+Each *capability* (the descriptor's kernels, the per-pose sum, the transforms) is
+implemented for some of these backends; :data:`CAPABILITIES` registers them, and
+:func:`resolve` is the one place a capability's choice is made, with the same meaning of
+"auto" for all: the first backend of the capability's order that works here (a backend it
+marks ``gpu_only`` counts only on a GPU device; a capability may also test that its kernel
+builds on the backend). Commands and benchmarks offer :func:`choices`. A backend asked for
+by name is used or fails with its cause; nothing falls back silently from a named choice.
+
 ``SKELASM_BACKEND`` overrides the default name. Each backend is created once per process
 (per device) and shared. A backend that cannot be created is registered with the error
 that stopped it, and fails only when asked for by name, raising :class:`BackendError`
@@ -38,6 +46,43 @@ AUTO_ORDER = ("opencl", "numba", "numpy")
 
 class BackendError(RuntimeError):
     """A requested compute backend cannot be used here (the cause says why)."""
+
+
+@dataclass(frozen=True)
+class Capability:
+    """One kind of work and the backends it is implemented for.
+
+    Attributes
+    ----------
+    name : str
+        ``"descriptor"``, ``"per_pose"`` or ``"fft"``.
+    backends : tuple of str
+        The backends it has, in the order "auto" tries them; the last is its reference,
+        which always works.
+    gpu_only : frozenset of str
+        Backends "auto" takes only on a GPU device (a per-pose OpenCL launch costs more on
+        a CPU device than numba's whole sum).
+    """
+
+    name: str
+    backends: tuple[str, ...]
+    gpu_only: frozenset[str] = frozenset()
+
+    @property
+    def reference(self) -> str:
+        """The backend that always works (the last of the order)."""
+        return self.backends[-1]
+
+
+#: The capabilities and the backends each is implemented for, in "auto"'s order.
+CAPABILITIES: dict[str, Capability] = {
+    # the descriptor has no pure-numpy implementation: numba is its reference
+    "descriptor": Capability("descriptor", ("opencl", "numba")),
+    "per_pose": Capability("per_pose", ("opencl", "numba", "numpy"),
+                           gpu_only=frozenset({"opencl"})),
+    # the transforms run through scipy.fft on the CPU (the numpy stack)
+    "fft": Capability("fft", ("numpy",)),
+}
 
 
 @dataclass(frozen=True)
@@ -78,6 +123,84 @@ def check_name(name: str) -> str:
     if lowered not in CHOICES:
         raise ValueError(f"unknown backend {name!r}; valid: {', '.join(CHOICES)}")
     return lowered
+
+
+def _capability(capability: str) -> Capability:
+    try:
+        return CAPABILITIES[capability]
+    except KeyError:
+        raise ValueError(f"unknown capability {capability!r}; valid: "
+                         f"{', '.join(CAPABILITIES)}") from None
+
+
+def choices(capability: str) -> tuple[str, ...]:
+    """What a user may ask ``capability`` to run on: its backends, reference first, and "auto"."""
+    return tuple(reversed(_capability(capability).backends)) + ("auto",)
+
+
+def check_choice(capability: str, name: str) -> str:
+    """``name`` in lower case, if ``capability`` offers it; else a ValueError listing them."""
+    valid = choices(capability)
+    lowered = str(name).lower()
+    if lowered not in valid:
+        what = _capability(capability).name.replace("_", "-")
+        raise ValueError(f"the {what} computation has no backend {name!r}; "
+                         f"valid: {', '.join(valid)}")
+    return lowered
+
+
+def resolve(
+    capability: str,
+    name: str | Backend | None = None,
+    device: str | None = None,
+    *,
+    usable: Callable[[Backend], bool] | None = None,
+) -> Backend:
+    """The backend ``capability`` runs on: the one place its choice is made.
+
+    Parameters
+    ----------
+    capability : {"descriptor", "per_pose", "fft"}
+    name : str, Backend or None
+        A name of :func:`choices`, "auto", or a created backend. None: ``SKELASM_BACKEND``
+        (its reference where the capability has no such backend), else "auto".
+    device : str, optional
+        OpenCL device selector (``SKELASM_DEVICE`` by default).
+    usable : callable, optional
+        For "auto": whether the capability's kernel builds on a candidate (a backend that
+        works in general may not compile a particular kernel).
+
+    Raises
+    ------
+    ValueError
+        A name or backend the capability has no implementation for.
+    BackendError
+        A backend asked for by name cannot be used here (its cause says why).
+    """
+    cap = _capability(capability)
+    if isinstance(name, Backend):
+        check_choice(capability, name.name)
+        return name
+    if name is None:
+        # the environment's default; one the capability has no implementation for (numpy
+        # for the descriptor) means its reference
+        env = os.environ.get("SKELASM_BACKEND", "").strip().lower() or "auto"
+        name = env if env in cap.backends or env == "auto" else cap.reference
+    name = check_choice(capability, name)
+    if name != "auto":
+        return get_backend(name, device)
+    for candidate in cap.backends[:-1]:
+        try:
+            made = get_backend(candidate, device)
+        except BackendError as exc:
+            _refuse_asked_device(candidate, device, exc)
+            continue
+        if candidate in cap.gpu_only and not made.is_gpu:
+            continue
+        if usable is not None and not usable(made):
+            continue
+        return made
+    return get_backend(cap.reference, None)
 
 
 _lock = threading.RLock()
@@ -245,7 +368,6 @@ def get_backend(
         error.
     """
     name = check_name(name or os.environ.get("SKELASM_BACKEND") or "auto")
-    asked = "device" if device else "SKELASM_DEVICE"
     device = device or os.environ.get("SKELASM_DEVICE") or None
     if name != "auto":
         return _create(name, device)
@@ -253,14 +375,23 @@ def get_backend(
         try:
             return _create(check_name(candidate), device)
         except BackendError as exc:
-            if candidate == "opencl" and device is not None:
-                # a device was asked for: passing over it silently would hide the typo
-                raise InputError(
-                    f"{asked} = {device!r} picks no usable OpenCL device "
-                    f"({str(exc).splitlines()[0]}); give part of a device's name or "
-                    "PLATFORM:DEVICE indices, or unset it to let the engine choose") from exc
+            _refuse_asked_device(candidate, device, exc)
             continue
     return _create("numpy", None)
+
+
+def _refuse_asked_device(candidate: str, device: str | None, exc: BackendError) -> None:
+    """An InputError when "auto" would pass over an OpenCL device a user asked for.
+
+    Passing over it silently would hide a typo in the device's name.
+    """
+    device = device or os.environ.get("SKELASM_DEVICE") or None
+    if candidate == "opencl" and device is not None:
+        asked = "SKELASM_DEVICE" if device == os.environ.get("SKELASM_DEVICE") else "device"
+        raise InputError(
+            f"{asked} = {device!r} picks no usable OpenCL device "
+            f"({str(exc).splitlines()[0]}); give part of a device's name or "
+            "PLATFORM:DEVICE indices, or unset it to let the engine choose") from exc
 
 
 def check_environment() -> None:

@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 from app.commands.arguments import check_rotation_vector, finite_float, int_in_range
 from app.commands.poses import add_about_argument, typed_pose
-from engine.backend import CHOICES
+from engine.backend import choices
 
 #: Most evaluations --repeat times (100,000 of the slowest, 10 ms each, take 17 minutes).
 MAX_REPEAT = 100_000
@@ -34,9 +34,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_about_argument(parser, "--pose")
     parser.add_argument("--modes", type=int, help="modes per axis K (m' = K^3); default: the "
                         "scene's [correlation] modes")
-    parser.add_argument("--backend", default="auto", choices=CHOICES,
-                        help="per-pose backend (auto measures the compiled ones and keeps the "
-                        "faster)")
+    parser.add_argument("--backend", default="auto", choices=choices("per_pose"),
+                        help="per-pose backend (auto: OpenCL on a GPU, else numba, else numpy)")
     parser.add_argument("--repeat", type=int_in_range(1, MAX_REPEAT, "each is one evaluation "
                                                       "of up to milliseconds"),
                         default=100, metavar="N",

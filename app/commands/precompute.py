@@ -21,6 +21,8 @@ import json
 import sys
 from pathlib import Path
 
+from engine.backend import choices
+
 
 def _positive_float(text: str) -> float:
     try:
@@ -87,7 +89,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "of the part's bounding-box diagonal)")
     parser.add_argument("--body", metavar="NAME",
                         help="which solid of a multi-body STEP file")
-    parser.add_argument("--backend", choices=("numba", "opencl", "auto"),
+    parser.add_argument("--backend", choices=choices("descriptor"),
                         help="compute backend (default: SKELASM_BACKEND, else OpenCL when a "
                         "device is there, else numba)")
     parser.add_argument("--device", metavar="D",

@@ -8,6 +8,7 @@ import sys
 
 from app.commands.arguments import finite_float, positive_float
 from app.commands.poses import add_about_argument, typed_pose
+from engine.backend import choices
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--guidance", choices=("skeletal", "collision", "none"),
                    help="override the scene's [effects] guidance")
     p.add_argument("--modes", type=int, help="override the scene's [correlation] modes")
-    p.add_argument("--backend", default="auto", choices=("auto", "numpy", "numba", "opencl"),
+    p.add_argument("--backend", default="auto", choices=choices("per_pose"),
                    help="per-pose evaluator of the correlator")
     p.add_argument("--start", type=finite_float, nargs=6,
                    metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),

@@ -17,7 +17,7 @@ The pieces, each in its own module of :mod:`engine.correlation`:
 * :mod:`~engine.correlation.finishing`: energy, force and torque from the raw sums;
 * :mod:`~engine.correlation.reference` (numpy), :mod:`~engine.correlation.numba_kernels`
   and :mod:`~engine.correlation.opencl_kernels`: the per-pose sums;
-* :mod:`~engine.correlation.per_pose`: which of them runs ("auto" measures);
+* :mod:`~engine.correlation.per_pose`: which of them runs (the registry's "auto");
 * :mod:`~engine.correlation.landscape`: every translation at once.
 
 Threads: the spectra never change after construction, and the current table is replaced,
@@ -41,7 +41,7 @@ import numpy as np
 
 import engine.correlation.per_pose as per_pose
 import engine.correlation.reference as reference
-from engine.backend import CHOICES, check_name
+from engine.backend import check_choice, choices
 from engine.correlation.finishing import Evaluation, boxes_overlap
 from engine.correlation.landscape import Landscape, compute_landscape
 from engine.correlation.spectrum import fast_size
@@ -58,8 +58,8 @@ from engine.params import CorrelationParams
 if TYPE_CHECKING:
     from engine.correlation.rotation_cache import RotationCache
 
-#: Backend names a Correlator accepts.
-BACKEND_CHOICES = CHOICES
+#: Backend names a Correlator accepts (the registry's per-pose choices).
+BACKEND_CHOICES = choices("per_pose")
 
 
 class SampledField(Protocol):
@@ -196,7 +196,7 @@ class Correlator:
             fine_modes=base.fine_modes if fine_modes is None else fine_modes,
             selection=base.selection if selection is None else selection,
         )
-        backend = check_name(backend)
+        backend = check_choice("per_pose", backend)
         for name, obj in (("fixed", fixed), ("moving", moving)):
             if not hasattr(obj, "rho") or not hasattr(obj, "grid"):
                 raise TypeError(f"{name} must have .rho and .grid (a descriptor)")
@@ -368,7 +368,7 @@ class Correlator:
 
     def use_backend(self, name: str) -> None:
         """Switch the per-pose backend (building its kernel if needed)."""
-        name = check_name(name)
+        name = check_choice("per_pose", name)
         if name == "auto":
             raise ValueError("use_backend needs a backend name: numpy, numba or opencl")
         if name != "numpy" and name not in self._kernels:

@@ -277,7 +277,7 @@ class NumbaKernel:
     """Per-pose sums compiled with numba; one thread unless asked for more.
 
     ``SKELASM_CORRELATION_THREADS`` asks for more threads; a parallel variant is then
-    compiled too, and :func:`engine.correlation.per_pose.measure` keeps it only where it
+    compiled too, and ``engine.correlation.per_pose._tune_threads`` keeps it only where it
     measures clearly faster. On a shared 2-core machine a parallel region whose second
     thread is not scheduled stalls for a whole time slice (a benchmark saw medians of 36 ms
     instead of 80 us), which a 1 kHz loop cannot take, hence one thread by default.

@@ -14,8 +14,8 @@ definition (:func:`kernel_source`, :mod:`engine.correlation.to_opencl`); only th
 the modes, the phases and the reduction are written in C here.
 
 On a CPU-only machine (PoCL) a launch plus read-back costs a few hundred microseconds
-whatever the kernel does, so :func:`engine.correlation.per_pose.choose` measures this path
-against numba and keeps the faster.
+whatever the kernel does, so "auto" takes this path only on a GPU
+(``engine.backend.CAPABILITIES["per_pose"].gpu_only``).
 """
 
 from __future__ import annotations

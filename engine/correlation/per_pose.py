@@ -1,13 +1,16 @@
 """Choosing the per-pose path: the numpy reference, or a compiled kernel, measured.
 
-Works on the backend names of :mod:`engine.backend` ("numpy", "numba", "opencl", "auto")
-and on kernels with the small interface the correlator calls: ``pose(table, rot, t)``
-returning ``[E, F (3), T (3)]``, ``supports(table)`` and ``describe()``. "numpy" has no
-kernel (the correlator runs :mod:`engine.correlation.reference`). "auto" builds every
-compiled kernel the registry has here, measures them at a few generic poses and keeps the
-fastest; a kernel that cannot be built is a note in the description, not an error. A
-kernel asked for by name that cannot be built raises :class:`engine.backend.BackendError`
-with the original error as its cause.
+Works on the per-pose backends the registry offers (``engine.backend.choices("per_pose")``:
+"numpy", "numba", "opencl", "auto") and on kernels with the small interface the correlator
+calls: ``pose(table, rot, t)`` returning ``[E, F (3), T (3)]``, ``supports(table)`` and
+``describe()``. "numpy" has no kernel (the correlator runs
+:mod:`engine.correlation.reference`). "auto" is the registry's one rule
+(``engine.backend.resolve("per_pose")``): the first of OpenCL on a GPU, numba and numpy
+whose kernel builds here and can sum the table; a kernel passed over is a note in the
+description, not an error. (The order is what measuring them gave: on a CPU device an
+OpenCL launch costs more than numba's whole sum, on a GPU OpenCL is the faster.) A kernel
+asked for by name that cannot be built raises :class:`engine.backend.BackendError` with
+the original error as its cause.
 """
 
 from __future__ import annotations
@@ -19,12 +22,20 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from engine.backend import BackendError, backend_problem, check_name, get_backend
+from engine.backend import (
+    CAPABILITIES,
+    Backend,
+    BackendError,
+    backend_problem,
+    check_choice,
+    get_backend,
+    resolve,
+)
 from engine.correlation.tables import ModeTable
 from engine.pose import rotation_matrix
 
-#: The compiled per-pose kernels, in the order "auto" measures them.
-COMPILED = ("numba", "opencl")
+#: The compiled per-pose kernels (the registry's per-pose backends but the reference).
+COMPILED = tuple(b for b in CAPABILITIES["per_pose"].backends if b != "numpy")
 
 
 class Kernel(Protocol):
@@ -51,7 +62,7 @@ def make_kernel(name: str, selection: str, rotation: bool) -> Kernel:
     The kernel modules import their compilers (numba, pyopencl) at the top, so they are
     imported only here, after the backend registry has vouched for the compiler.
     """
-    backend = get_backend(check_name(name))  # BackendError (with its cause) when missing
+    backend = get_backend(check_choice("per_pose", name))  # BackendError when missing
     try:
         if name == "numba":
             from engine.correlation.numba_kernels import NumbaKernel
@@ -81,7 +92,8 @@ def warm_up(name: str, selection: str) -> None:
     spectra are computed, it overlaps with them. Does nothing when numba is absent, not
     asked for, or already compiling or compiled.
     """
-    if check_name(name) not in ("numba", "auto") or backend_problem("numba") is not None:
+    if check_choice("per_pose", name) not in ("numba", "auto") or backend_problem(
+            "numba") is not None:
         return
     kind = "cube" if selection == "cube" else "list"
     with _warming_lock:
@@ -102,9 +114,10 @@ def choose(
     """The kernels built, the short name of the one to use, and a line saying why.
 
     ``name`` "numpy" builds nothing; "numba" or "opencl" builds that kernel (or raises);
-    "auto" builds what it can and measures (a few hundred calls in all).
+    "auto" takes the registry's choice (:func:`engine.backend.resolve`), building the
+    kernels it tries.
     """
-    name = check_name(name)
+    name = check_choice("per_pose", name)
     if name == "numpy":
         return {}, "numpy", "numpy (reference, asked for)"
     if name != "auto":
@@ -113,25 +126,27 @@ def choose(
         return {name: kernel}, name, f"{kernel.describe()} (asked for)"
     kernels: dict[str, Kernel] = {}
     notes: list[str] = []
-    for i, candidate in enumerate(COMPILED):
+
+    def usable(backend: Backend) -> bool:
         try:
-            kernels[candidate] = make_kernel(candidate, selection, rotation)
-            _tune_threads(kernels[candidate], table)
+            kernels[backend.name] = make_kernel(backend.name, selection, rotation)
         except BackendError as exc:
-            notes.append(f"{candidate} unavailable: {str(exc).splitlines()[0]}")
-        if progress is not None:
-            progress(0.5 * (i + 1) / len(COMPILED))
-    usable = {k: v for k, v in kernels.items() if v.supports(table)}
-    if not usable:
-        return kernels, "numpy", ("numpy (auto: no compiled backend"
-                                  + "".join(f"; {n}" for n in notes) + ")")
-    timings = measure(usable, table, progress=progress)
-    best = min(timings, key=lambda k: timings[k])
-    measured = ", ".join(f"{k} {v:.0f} us" for k, v in sorted(timings.items()))
+            notes.append(f"{backend.name} unavailable: {str(exc).splitlines()[0]}")
+            return False
+        if not kernels[backend.name].supports(table):
+            notes.append(f"{backend.name}: the table exceeds its kernel's limit")
+            return False
+        return True
+
+    chosen = resolve("per_pose", "auto", usable=usable).name
+    if progress is not None:
+        progress(1.0)
     extra = "".join(f"; {n}" for n in notes)
-    why = (f"{kernels[best].describe()} (auto: fastest median at K={table.modes}: "
-           f"{measured}{extra})")
-    return kernels, best, why
+    if chosen == "numpy":
+        return kernels, "numpy", f"numpy (auto: no compiled backend{extra})"
+    _tune_threads(kernels[chosen], table)
+    return kernels, chosen, (f"{kernels[chosen].describe()} (auto: OpenCL on a GPU, else "
+                             f"numba, else numpy{extra})")
 
 
 def _tune_threads(kernel: Any, table: ModeTable) -> None:
@@ -148,23 +163,6 @@ def _tune_threads(kernel: Any, table: ModeTable) -> None:
         kernel.parallel = True
         parallel.append(median_microseconds(kernel, table, calls=2))
     kernel.parallel = float(np.median(parallel)) < 0.75 * float(np.median(serial))
-
-
-def measure(
-    kernels: dict[str, Kernel], table: ModeTable, *, rounds: int = 4, calls: int = 5,
-    progress: Callable[[float], None] | None = None,
-) -> dict[str, float]:
-    """Median microseconds per pose of each kernel, measured in interleaved rounds.
-
-    Interleaving makes load from other processes hit all kernels alike.
-    """
-    samples: dict[str, list[float]] = {k: [] for k in kernels}
-    for r in range(rounds):
-        for name, kernel in kernels.items():
-            samples[name].append(median_microseconds(kernel, table, calls=calls))
-        if progress is not None:
-            progress(0.5 + 0.5 * (r + 1) / rounds)
-    return {k: float(np.median(v)) for k, v in samples.items()}
 
 
 def median_microseconds(kernel: Any, table: ModeTable, calls: int = 30) -> float:

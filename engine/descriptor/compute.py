@@ -86,7 +86,7 @@ import numba
 import numpy as np
 
 import engine.descriptor.constants as _c
-from engine.backend import Backend, get_backend
+from engine.backend import CAPABILITIES, Backend, choices, resolve
 from engine.descriptor.adaptive import sample_grid
 from engine.descriptor.numba_kernels import evaluate as _evaluate_numba
 from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
@@ -97,8 +97,8 @@ from engine.params import SIGMA_GRID_MAX, SIGMA_RANGE, DescriptorParams
 
 _log = logging.getLogger(__name__)
 
-#: Backends the descriptor has kernels for (engine.backend's vocabulary).
-DESCRIPTOR_BACKENDS = ("numba", "opencl")
+#: Backends the descriptor has kernels for (registered in engine.backend.CAPABILITIES).
+DESCRIPTOR_BACKENDS = CAPABILITIES["descriptor"].backends
 
 #: What ``backend=`` accepts.
 BackendLike = Backend | str | None
@@ -168,49 +168,33 @@ def check_grid_sigma(sigma: float) -> None:
             f"{SIGMA_RANGE[0]:g} to {SIGMA_GRID_MAX:g}")
 
 
-def _numba_backend() -> Backend:
-    return get_backend("numba")
+def _kernel_builds(backend: Backend) -> bool:
+    """For "auto": whether the descriptor kernel compiles on ``backend`` (logged if not)."""
+    if backend.name != "opencl" or kernel_builds(backend):
+        return True
+    _log.warning("OpenCL device %s cannot compile the descriptor kernel; using numba",
+                 backend.device_name)
+    return False
 
 
 def resolve_backend(backend: BackendLike = None) -> Backend:
-    """The backend that computes a descriptor.
+    """The backend that computes a descriptor: ``engine.backend.resolve("descriptor", ...)``.
 
-    None takes :func:`engine.backend.get_backend`'s choice; when the descriptor has no
-    kernel for it (the pure-numpy reference) or its OpenCL device cannot compile the
-    descriptor kernel, the numba kernels are used (logged). A name or a Backend is used as
-    given and fails with its own error.
+    None or "auto" take the registry's choice for the descriptor (OpenCL where a device
+    compiles its kernel, else numba, its reference); a name or a Backend is used as given
+    and fails with its own error.
 
     Raises
     ------
     ValueError
         A name or backend the descriptor has no kernels for.
     BackendError
-        OpenCL asked for explicitly and unusable here.
+        A backend asked for by name is unusable here.
     """
-    if backend is None:
-        chosen = get_backend()
-        if chosen.name == "opencl" and not kernel_builds(chosen):
-            _log.warning("OpenCL device %s cannot compile the descriptor kernel; using numba",
-                         chosen.device_name)  # fmt: skip
-            return _numba_backend()
-        if chosen.name not in DESCRIPTOR_BACKENDS:
-            return _numba_backend()
-        return chosen
-    if isinstance(backend, str):
-        name = backend.lower()
-        if name == "auto":
-            return resolve_backend(None)
-        if name not in DESCRIPTOR_BACKENDS:
-            raise ValueError(f"the descriptor has no {backend!r} kernels; valid backends: "
-                             f"{', '.join(DESCRIPTOR_BACKENDS + ('auto',))}")  # fmt: skip
-        return _numba_backend() if name == "numba" else get_backend(name)
-    if isinstance(backend, Backend):
-        if backend.name not in DESCRIPTOR_BACKENDS:
-            raise ValueError(f"the descriptor has no {backend.name!r} kernels; valid backends: "
-                             f"{', '.join(DESCRIPTOR_BACKENDS)}")  # fmt: skip
-        return backend
-    raise ValueError(f"backend must be None, a Backend or one of "
-                     f"{', '.join(DESCRIPTOR_BACKENDS + ('auto',))}; got {backend!r}")  # fmt: skip
+    if not (backend is None or isinstance(backend, (str, Backend))):
+        raise ValueError(f"backend must be None, a Backend or one of "
+                         f"{', '.join(choices('descriptor'))}; got {backend!r}")
+    return resolve("descriptor", backend, usable=_kernel_builds)
 
 
 @dataclass(frozen=True)

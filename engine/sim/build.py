@@ -657,22 +657,14 @@ class SceneModel:
         """
         from engine.descriptor.collision import collision_descriptor
         from engine.descriptor.store import descriptors_for_scene
-        from engine.errors import InputError
 
         scene = self._scene_with(sigma, penalty, grid)
-        parts = list(self.parts)
-        try:
-            descs = descriptors_for_scene(
-                scene, parts=parts, backend=None, progress=progress, cancel=cancel
-            )
-        except (Cancelled, InputError):
-            raise
-        except Exception:
-            # the picked compute backend failed (an OpenCL driver that cannot build the
-            # kernels, say): the reference path computes the same values
-            descs = descriptors_for_scene(
-                scene, parts=parts, backend="numba", progress=progress, cancel=cancel
-            )
+        # the backend is the registry's choice for the descriptor (engine.backend.resolve:
+        # an OpenCL device that cannot build its kernel is passed over there); an error
+        # while computing is an error, not a reason to compute again elsewhere
+        descs = descriptors_for_scene(
+            scene, parts=list(self.parts), backend=None, progress=progress, cancel=cancel
+        )
         d1, d2 = descs[0], descs[1]
         if effects.guidance == "collision":
             d1 = collision_descriptor(d1, self.parts[0])

@@ -98,3 +98,127 @@ def test_names_are_checked_in_one_place():
     assert backend_mod.check_name("NumBa") == "numba"
     with pytest.raises(ValueError, match="valid: numpy, numba, opencl, auto"):
         backend_mod.check_name("cuda")
+
+
+# ------------------------------------------------------------------ capabilities
+
+
+def test_each_capability_offers_its_backends_reference_first_and_auto():
+    assert backend_mod.choices("per_pose") == ("numpy", "numba", "opencl", "auto")
+    assert backend_mod.choices("descriptor") == ("numba", "opencl", "auto")
+    assert backend_mod.choices("fft") == ("numpy", "auto")
+    with pytest.raises(ValueError, match="valid: numba, opencl, auto"):
+        backend_mod.check_choice("descriptor", "numpy")
+    with pytest.raises(ValueError, match="valid: descriptor, per_pose, fft"):
+        backend_mod.choices("ray tracing")
+
+
+class _FakeOpenCL:
+    """An OpenCL backend on a CPU or a GPU device, without OpenCL."""
+
+    def __init__(self, gpu):
+        self.gpu = gpu
+
+    def __call__(self, device):
+        return backend_mod.Backend("opencl", "fake device", is_gpu=self.gpu)
+
+
+@pytest.mark.parametrize("gpu", [False, True])
+def test_auto_means_the_first_of_a_capabilitys_order_that_works_here(fresh_registry,
+                                                                     monkeypatch, gpu):
+    pytest.importorskip("numba")
+    monkeypatch.setitem(fresh_registry._FACTORIES, "opencl", _FakeOpenCL(gpu))
+    monkeypatch.delenv("SKELASM_DEVICE", raising=False)
+    # the descriptor takes OpenCL on any device; the per-pose sum only on a GPU
+    assert fresh_registry.resolve("descriptor").name == "opencl"
+    assert fresh_registry.resolve("per_pose").name == ("opencl" if gpu else "numba")
+    # a kernel that does not build there is passed over, to the next of the order
+    assert fresh_registry.resolve("descriptor", usable=lambda b: b.name != "opencl").name == (
+        "numba")
+    assert fresh_registry.resolve("fft").name == "numpy"
+
+
+def test_a_missing_backend_passes_to_the_reference_under_auto_and_fails_when_named(
+        fresh_registry, monkeypatch):
+    original = ImportError("No module named 'numba' (simulated)")
+
+    def broken(device):
+        raise original
+
+    monkeypatch.setitem(fresh_registry._FACTORIES, "numba", broken)
+    monkeypatch.setitem(fresh_registry._FACTORIES, "opencl", broken)
+    assert fresh_registry.resolve("per_pose").name == "numpy"
+    with pytest.raises(fresh_registry.BackendError) as info:
+        fresh_registry.resolve("per_pose", "numba")  # named: no silent fallback
+    assert info.value.__cause__ is original
+    with pytest.raises(fresh_registry.BackendError):
+        fresh_registry.resolve("descriptor")  # its reference, numba, is what is missing
+
+
+def test_the_environment_default_is_the_capabilitys_reference_where_it_lacks_it(
+        fresh_registry, monkeypatch):
+    pytest.importorskip("numba")
+    monkeypatch.setenv("SKELASM_BACKEND", "numpy")
+    assert fresh_registry.resolve("per_pose").name == "numpy"
+    assert fresh_registry.resolve("descriptor").name == "numba"  # no numpy descriptor
+    given = fresh_registry.get_backend("numba")
+    assert fresh_registry.resolve("descriptor", given) is given
+    with pytest.raises(ValueError, match="descriptor"):
+        fresh_registry.resolve("descriptor", fresh_registry.get_backend("numpy"))
+
+
+def test_commands_and_benchmarks_offer_the_registrys_choices():
+    import argparse
+
+    from app.cli import build_parser
+
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    offered = {}
+    for name, sub in subparsers.choices.items():
+        for action in sub._actions:
+            if action.dest in ("backend", "backends") and action.choices is not None:
+                offered[name] = tuple(action.choices)
+    assert offered, "no command offers a backend: the check looks in the wrong place"
+    per_pose, descriptor = backend_mod.choices("per_pose"), backend_mod.choices("descriptor")
+    for name, names in offered.items():
+        assert set(names) in (set(per_pose), set(descriptor), set(descriptor) - {"auto"}), (
+            name, names)
+
+
+def test_no_module_declares_its_own_list_of_backends():
+    """Tuples or lists naming numba and opencl together live in engine/backend.py only."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    found = []
+    for folder in ("engine", "app", "bench"):
+        for source in (root / folder).rglob("*.py"):
+            if source == root / "engine" / "backend.py":
+                continue
+            for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
+                if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+                    names = {e.value for e in node.elts if isinstance(e, ast.Constant)}
+                    if {"numba", "opencl"} <= names:
+                        found.append(f"{source.relative_to(root)}:{node.lineno}")
+    assert not found, f"backend lists outside the registry: {found}"
+
+
+def test_a_descriptor_failure_is_not_computed_again_on_another_backend(monkeypatch):
+    """One fallback rule: the registry's "auto". A failure while computing propagates."""
+    import engine.descriptor.store as store
+    import engine.runtime as rt
+    from engine.sim.build import SceneModel
+
+    model = SceneModel(rt.open_scene("assets/peg_in_hole/scene.toml"))
+    calls = []
+
+    def failing(scene, **kw):
+        calls.append(kw.get("backend"))
+        raise RuntimeError("the kernel failed (simulated)")
+
+    monkeypatch.setattr(store, "descriptors_for_scene", failing)
+    with pytest.raises(RuntimeError, match="simulated"):
+        model.descriptors(model.config.effects)
+    assert calls == [None]  # asked once, for the registry's choice, and not again
