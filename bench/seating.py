@@ -11,6 +11,14 @@ translation along its axis free, a round fit the rotation about it): the positio
 pair, guided and collision-only) and shows progress with the time left on a terminal.
 
 Seated means within :data:`SEAT_FRACTION` of the width and :data:`SEAT_DEGREES` of tilt.
+
+``--generated N --seed S`` runs the same protocol on N unseen pairs made by the fit
+generator (:mod:`bench.fitgen`, docs/generated_fits.md), each a scene made only by ``scene
+new``: the misaim tilts the part about its fit centre, errors are measured there, the free
+directions are the fit's own vectors, and the tolerances widen to the fit's radial and
+angular play where those are larger. Every run also records, at every step, the angle
+between the part's orientation and the proxy's, and is *tipped* when it exceeds the fit's
+angular play plus the misaim. Prints a table per family and overall, and a table of the runs.
 """
 
 from __future__ import annotations
@@ -92,6 +100,12 @@ class SeatingResult:
     modes: int
     seconds: float          # simulated
     wall_seconds: float
+    family: str = ""        # a generated pair's family ("" for the real suite)
+    position_tolerance: float | None = None  # None: SEAT_FRACTION of the width
+    angle_tolerance_deg: float = SEAT_DEGREES
+    max_proxy_angle_deg: float = math.nan    # largest part-to-proxy angle over the run
+    tip_limit_deg: float = TILT_DEGREES      # beyond it the run tipped
+    setup_seconds: float = 0.0               # wall: loading, descriptors, fields
 
     @property
     def position_percent(self) -> float:
@@ -100,9 +114,76 @@ class SeatingResult:
 
     @property
     def seated(self) -> bool:
-        """Within :data:`SEAT_FRACTION` of the width and :data:`SEAT_DEGREES`."""
-        return (self.position_error <= SEAT_FRACTION * self.width
-                and self.tilt_deg <= SEAT_DEGREES)
+        """Within the position and angle tolerances.
+
+        :data:`SEAT_FRACTION` of the width, or the fit's radial play where larger;
+        :data:`SEAT_DEGREES`, or the fit's angular play where larger.
+        """
+        tol = (SEAT_FRACTION * self.width if self.position_tolerance is None
+               else self.position_tolerance)
+        return self.position_error <= tol and self.tilt_deg <= self.angle_tolerance_deg
+
+    @property
+    def tipped(self) -> bool:
+        """The part turned further from the proxy than the fit's play plus the misaim."""
+        return self.max_proxy_angle_deg > self.tip_limit_deg
+
+
+@dataclass(frozen=True)
+class SeatingCase:
+    """One pair to push, and what its fit leaves free (part 1's frame, the scene's unit).
+
+    Attributes
+    ----------
+    name : str
+        The pair's name in the tables.
+    scene : Path
+    free_translations, free_rotations : tuple of (3,) tuple
+        Unit vectors of the free directions.
+    lateral : (3,) tuple or None
+        The misaim's sideways direction (None: the protocol's default).
+    family : str
+    width : float or None
+        Part 2's width along ``lateral`` (None: measured from its mesh).
+    radial_play, angular_play_deg : float
+        The fit's plays: the tolerances widen to them, the tip limit adds the angular one.
+    centre : (3,) tuple or None
+        Part 2's fit centre in its own frame: the misaim turns about it and the position
+        error is measured there. None: part 2's file origin (the real suite's parts have it
+        on the fit's axis).
+    """
+
+    name: str
+    scene: Path
+    free_translations: tuple[tuple[float, float, float], ...] = ()
+    free_rotations: tuple[tuple[float, float, float], ...] = ()
+    lateral: tuple[float, float, float] | None = None
+    family: str = ""
+    width: float | None = None
+    radial_play: float = 0.0
+    angular_play_deg: float = 0.0
+    centre: tuple[float, float, float] | None = None
+
+
+def real_case(name: str) -> SeatingCase:
+    """The case of a pair of assets/real (its free axes from :data:`FITS`)."""
+    fit = FITS[name]
+    eye = np.eye(3)
+    return SeatingCase(
+        name=name, scene=REAL / name / "scene.toml",
+        free_translations=tuple(tuple(eye[i]) for i, a in enumerate(_AXES[:3])
+                                if a in fit.free),
+        free_rotations=tuple(tuple(eye[i]) for i, a in enumerate(_AXES[3:]) if a in fit.free),
+        lateral=fit.lateral)
+
+
+def generated_case(pair) -> SeatingCase:
+    """The case of a generated pair (a :class:`bench.fitgen.GeneratedPair`)."""
+    t = pair.truth
+    return SeatingCase(
+        name=pair.folder.name, scene=pair.scene, free_translations=t.free_translations,
+        free_rotations=t.free_rotations, lateral=t.lateral, family=t.family, width=t.width,
+        radial_play=t.radial_play, angular_play_deg=t.angular_play_deg, centre=t.centre)
 
 
 def pair_names() -> list[str]:
@@ -123,85 +204,173 @@ def misaim(axis: np.ndarray, lateral: np.ndarray | None = None
     return lateral, tilt_axis / np.linalg.norm(tilt_axis)
 
 
-def constrained_errors(error: np.ndarray, axis: np.ndarray, free: tuple[str, ...]
-                       ) -> tuple[float, float, float, float]:
-    """(position, lateral, axial, tilt_deg) of a pose error (6,) in the target's frame.
+def free_direction_errors(displacement: np.ndarray, rotation: np.ndarray, axis: np.ndarray,
+                          free_translations=(), free_rotations=()
+                          ) -> tuple[float, float, float, float]:
+    """(position, lateral, axial, tilt_deg) of a pose error, free directions taken out.
 
-    Free translation axes are dropped from the position error. The tilt is the whole
-    rotation angle when no rotation is free, the angle the part's free rotation axis has
-    turned when one is, and 0 when all are.
+    Parameters
+    ----------
+    displacement : (3,) float
+        How far the measured point of part 2 is from its seated place (part 1's frame).
+    rotation : (3, 3) float
+        The rotation from the seated orientation to the current one (part 1's frame).
+    axis : (3,) float
+        The insertion axis.
+    free_translations, free_rotations : sequence of (3,) float
+        Directions the fit leaves free (any length, need not be orthogonal).
+
+    Returns
+    -------
+    position : float
+        The displacement less its part in the span of the free translations.
+    lateral, axial : float
+        That remainder across the insertion axis, and along it (signed).
+    tilt_deg : float
+        With no free rotation, the whole rotation's angle; with one free axis ``a``, the
+        angle ``a`` has turned (its spin about itself is free); with two, the turn about the
+        third axis (their cross product; twist of a swing-twist split); with three, 0.
     """
     from scipy.spatial.transform import Rotation
 
-    t = np.array(error[:3], float)
-    for i, name in enumerate(_AXES[:3]):
-        if name in free:
-            t[i] = 0.0
-    axis = axis / np.linalg.norm(axis)
+    t = np.asarray(displacement, float).reshape(3).copy()
+    free_t = np.asarray(free_translations, float).reshape(-1, 3)
+    if len(free_t):
+        basis = np.linalg.svd(free_t, full_matrices=False)[2]  # (r, 3) orthonormal rows
+        basis = basis[: np.linalg.matrix_rank(free_t)]
+        t -= basis.T @ (basis @ t)
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
     axial = float(t @ axis)
     lateral = float(np.linalg.norm(t - axial * axis))
-    rot = Rotation.from_rotvec(np.array(error[3:], float))
-    free_rot = [i for i, name in enumerate(_AXES[3:]) if name in free]
-    if not free_rot:
-        tilt = float(np.linalg.norm(error[3:]))
-    elif len(free_rot) == 1:
-        a = np.eye(3)[free_rot[0]]
-        tilt = float(np.arccos(np.clip(rot.apply(a) @ a, -1.0, 1.0)))
+    rot = np.asarray(rotation, float).reshape(3, 3)
+    free_r = np.asarray(free_rotations, float).reshape(-1, 3)
+    rank = np.linalg.matrix_rank(free_r) if len(free_r) else 0
+    if rank == 0:
+        tilt = float(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
+    elif rank == 1:
+        a = free_r[0] / np.linalg.norm(free_r[0])
+        tilt = float(np.arccos(np.clip((rot @ a) @ a, -1.0, 1.0)))
+    elif rank == 2:
+        n = np.cross(free_r[0], free_r[1])
+        if np.linalg.norm(n) < 1e-12:
+            n = np.cross(free_r[0], free_r[2])
+        n /= np.linalg.norm(n)
+        x, y, z, w = Rotation.from_matrix(rot).as_quat()
+        tilt = float(2.0 * math.atan2(abs(np.dot((x, y, z), n)), abs(w)))
     else:
         tilt = 0.0
     return float(np.linalg.norm(t)), lateral, axial, math.degrees(tilt)
 
 
-def seating_run(name: str, guidance: str = "skeletal", *, seconds: float = 5.0,
+def constrained_errors(error: np.ndarray, axis: np.ndarray, free: tuple[str, ...]
+                       ) -> tuple[float, float, float, float]:
+    """(position, lateral, axial, tilt_deg) of a pose error (6,) in the target's frame.
+
+    ``free`` names the free axes (``tx ty tz rx ry rz``): :func:`free_direction_errors` with
+    the coordinate axes they name. Free translation axes are dropped from the position error.
+    The tilt is the whole rotation angle when no rotation is free, the angle the part's free
+    rotation axis has turned when one is, and 0 when all are.
+    """
+    from scipy.spatial.transform import Rotation
+
+    eye = np.eye(3)
+    return free_direction_errors(
+        np.asarray(error[:3], float), Rotation.from_rotvec(np.asarray(error[3:], float))
+        .as_matrix(), axis, [eye[i] for i, n in enumerate(_AXES[:3]) if n in free],
+        [eye[i] for i, n in enumerate(_AXES[3:]) if n in free])
+
+
+def proxy_angles(part_poses: np.ndarray, proxy_poses: np.ndarray) -> np.ndarray:
+    """(k,) degrees between the part's orientation and the proxy's, poses (k, 6)."""
+    from scipy.spatial.transform import Rotation
+
+    part = Rotation.from_rotvec(np.asarray(part_poses, float).reshape(-1, 6)[:, 3:])
+    proxy = Rotation.from_rotvec(np.asarray(proxy_poses, float).reshape(-1, 6)[:, 3:])
+    return np.degrees((part.inv() * proxy).magnitude())
+
+
+def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds: float = 5.0,
                 modes: int | None = None, backend: str = "auto",
                 progress=None) -> SeatingResult:
-    """Run the misaim protocol on one pair of assets/real (see the module docstring).
+    """Run the misaim protocol on one pair (see the module docstring).
 
-    ``progress(fraction)`` is called as the simulation advances.
+    ``pair`` is a folder of assets/real or a :class:`SeatingCase`. ``progress(fraction)`` is
+    called as the simulation advances.
     """
     from engine.devices import TrajectoryDevice
-    from engine.pose import relative_pose
+    from engine.pose import pose_to_matrix, relative_pose, rotate_about
     from engine.runtime import EngineLoop, open_scene
     from engine.sim import build_simulation
 
-    fit = FITS[name]
-    handle = open_scene(REAL / name / "scene.toml")
+    case = real_case(pair) if isinstance(pair, str) else pair
+    t_setup = time.perf_counter()
+    handle = open_scene(case.scene)
     cfg = handle.config
     handle = replace(handle, config=replace(cfg, effects=replace(cfg.effects,
                                                                  guidance=guidance)))
     axis = np.array(handle.scene.insertion_axis, float)
     axis /= np.linalg.norm(axis)
-    lateral, tilt_axis = misaim(axis, None if fit.lateral is None else np.array(fit.lateral))
-    width = float(np.ptp(handle.parts[1].vertices @ lateral))
+    lateral, tilt_axis = misaim(axis, None if case.lateral is None else np.array(case.lateral))
+    target = np.array(handle.assembled_pose, float)
+    seat = pose_to_matrix(target)
+    if case.width is None:  # part 2's extent along the aim, seated
+        width = float(np.ptp(handle.parts[1].vertices @ (seat[:3, :3].T @ lateral)))
+    else:
+        width = float(case.width)
     start = np.array(handle.start_pose, float)
     start[:3] += OFFSET_FRACTION * width * lateral
-    start[3:] += math.radians(TILT_DEGREES) * tilt_axis
+    tilt = math.radians(TILT_DEGREES) * tilt_axis
+    if case.centre is None:
+        start[3:] += tilt
+    else:
+        m = pose_to_matrix(start)
+        start = rotate_about(start, tilt, m[:3, :3] @ np.asarray(case.centre, float) + m[:3, 3])
     handle = replace(handle, start_pose=start)
     k = int(modes if modes is not None else handle.scene.modes)
     sim, model = build_simulation(handle, prepare=True, backend=backend, modes=k)
-    target = np.array(handle.assembled_pose, float)
     end = start.copy()
     end[:3] += axis * float((target[:3] - start[:3]) @ axis)
     device = TrajectoryDevice(np.array([[0.0, *start], [PUSH_SECONDS, *end]]))
-    loop = EngineLoop(sim, model=model, device=device, realtime=False)
     total = int(round(seconds / sim.dt))
     chunk = max(1, int(round(0.1 / sim.dt)))
-    done = 0
+    # every step's frame stays in the ring until read: the part-to-proxy angle at each step
+    loop = EngineLoop(sim, model=model, device=device, realtime=False, frame_queue=chunk + 16)
+    done, worst = 0, 0.0
     t0 = time.perf_counter()
+    setup = t0 - t_setup
     while done < total:
         done += loop.run(max_steps=min(chunk, total - done))
-        loop.poll_frames()
+        frames = loop.poll_frames()
+        if frames:
+            angles = proxy_angles(np.array([f.part_pose for f in frames]),
+                                  np.array([f.proxy_pose for f in frames]))
+            worst = max(worst, float(angles.max()))
         loop.poll_events()
         if progress is not None:
             progress(done / total)
     wall = time.perf_counter() - t0
     final = np.asarray(sim.part_pose(), float)
-    error = relative_pose(target, final)
-    position, lat, axial, tilt = constrained_errors(error, axis, fit.free)
-    return SeatingResult(pair=name, guidance=guidance, width=width, position_error=position,
-                         lateral_error=lat, axial_error=axial, tilt_deg=tilt,
-                         final_pose=tuple(float(x) for x in final), modes=k,
-                         seconds=done * sim.dt, wall_seconds=wall)
+    if case.centre is None:  # at part 2's origin, in the seat's frame (constrained_errors)
+        error = relative_pose(target, final)
+        position, lat, axial, tilt_deg = free_direction_errors(
+            error[:3], pose_to_matrix(error)[:3, :3], axis, case.free_translations,
+            case.free_rotations)
+    else:
+        c = np.asarray(case.centre, float)
+        now = pose_to_matrix(final)
+        moved = (now[:3, :3] @ c + now[:3, 3]) - (seat[:3, :3] @ c + seat[:3, 3])
+        position, lat, axial, tilt_deg = free_direction_errors(
+            moved, now[:3, :3] @ seat[:3, :3].T, axis, case.free_translations,
+            case.free_rotations)
+    return SeatingResult(pair=case.name, guidance=guidance, width=width,
+                         position_error=position, lateral_error=lat, axial_error=axial,
+                         tilt_deg=tilt_deg, final_pose=tuple(float(x) for x in final),
+                         modes=k, seconds=done * sim.dt, wall_seconds=wall, family=case.family,
+                         position_tolerance=max(SEAT_FRACTION * width, case.radial_play),
+                         angle_tolerance_deg=max(SEAT_DEGREES, case.angular_play_deg),
+                         max_proxy_angle_deg=worst,
+                         tip_limit_deg=case.angular_play_deg + TILT_DEGREES,
+                         setup_seconds=setup)
 
 
 # ---------------------------------------------------------------------------- command
@@ -217,6 +386,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="modes per axis K (default: each scene's)")
     parser.add_argument("--backend", default="auto", help="per-pose backend")
     parser.add_argument("-o", "--output", default="bench_seating.png", help="plot (PNG)")
+    parser.add_argument("--generated", type=int, default=None, metavar="N",
+                        help="instead of assets/real: N unseen pairs from the fit generator "
+                        "(needs gmsh: pip install -e \".[assets]\"), cycling through its "
+                        "families, each made a scene by `scene new` alone")
+    parser.add_argument("--seed", type=int, default=None, metavar="S",
+                        help="with --generated: the seed that draws the set (default: a new "
+                        "one, printed)")
+    parser.add_argument("--keep", default=None, metavar="DIR",
+                        help="with --generated: write the pairs into DIR and keep them "
+                        "(default: a temporary folder; a DIR holding this seed and count "
+                        "already is reused)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="runs at once, each in its own process (default 1)")
 
 
 class _Progress:
@@ -243,6 +425,11 @@ class _Progress:
                           f"{100 * fraction:3.0f} %  time left {text}   ")
         self.stream.flush()
 
+    def finished(self, count: int, label: str) -> None:
+        """``count`` runs are done (runs finishing out of order, in a pool)."""
+        self.begin(count - 1, label)
+        self(1.0)
+
     def end(self) -> None:
         if self.tty:
             self.stream.write("\r" + " " * 90 + "\r")
@@ -251,6 +438,8 @@ class _Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark: table on stdout, plot to ``args.output``."""
+    if getattr(args, "generated", None) is not None:
+        return run_generated(args)
     names = args.pairs or pair_names()
     unknown = [n for n in names if n not in FITS]
     if unknown:
@@ -282,14 +471,15 @@ def table(results: list[SeatingResult]) -> str:
              f"{TILT_DEGREES:g} degrees; seated: within {100 * SEAT_FRACTION:g} % and "
              f"{SEAT_DEGREES:g} degrees in the constrained axes.", "",
              "| pair | free | guidance | K | width | position error (% width) | lateral | "
-             "axial | tilt (deg) | seated | wall s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "axial | tilt (deg) | seated | wall s | max turn from proxy (deg) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         free = " ".join(FITS[r.pair].free) or "none"
         lines.append(
             f"| {r.pair} | {free} | {r.guidance} | {r.modes} | {r.width:.2f} | "
             f"{r.position_percent:.2f} | {r.lateral_error:.3f} | {r.axial_error:+.3f} | "
-            f"{r.tilt_deg:.2f} | {'yes' if r.seated else 'no'} | {r.wall_seconds:.0f} |")
+            f"{r.tilt_deg:.2f} | {'yes' if r.seated else 'no'} | {r.wall_seconds:.0f} | "
+            f"{r.max_proxy_angle_deg:.2f}{' tipped' if r.tipped else ''} |")
     return "\n".join(lines)
 
 
@@ -329,6 +519,189 @@ def _plot(results: list[SeatingResult], path: str) -> None:
     axes[0].invert_yaxis()
     axes[0].legend(loc="lower right")
     fig.suptitle("Seating from a misaimed push (dashed: the seating criterion)")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------- generated
+def _job(case: SeatingCase, guidance: str, seconds: float, modes: int | None,
+         backend: str) -> SeatingResult:
+    """One run in a pool's process (no progress across processes)."""
+    return seating_run(case, guidance, seconds=seconds, modes=modes, backend=backend)
+
+
+def _say(r: SeatingResult) -> None:
+    print(f"{r.pair} ({r.guidance}): position {r.position_percent:.2f} % of the width, tilt "
+          f"{r.tilt_deg:.2f} deg, {'seated' if r.seated else 'not seated'}, max turn from "
+          f"the proxy {r.max_proxy_angle_deg:.2f} deg{' (tipped)' if r.tipped else ''} "
+          f"({r.setup_seconds:.0f} + {r.wall_seconds:.0f} s)", file=sys.stderr, flush=True)
+
+
+def run_generated(args: argparse.Namespace) -> int:
+    """``--generated N``: make the set, push every pair, print the tables, write the plot."""
+    import secrets
+    import tempfile
+
+    from bench.fitgen import KernelMissing, generate
+    from bench.fitgen.scenes import SceneNewFailed
+
+    if args.generated < 1 or args.workers < 1:
+        print("--generated and --workers must be at least 1", file=sys.stderr)
+        return 2
+    seed = args.seed if args.seed is not None else secrets.randbelow(10**6)
+    print(f"generated set: {args.generated} pairs, seed {seed}", file=sys.stderr, flush=True)
+    with tempfile.TemporaryDirectory(prefix="skelasm_fits_") as tmp:
+        root = Path(args.keep) if args.keep else Path(tmp)
+        bar = _Progress(args.generated)
+        try:
+            pairs = generate(args.generated, seed, root,
+                             progress=lambda i, family: bar.begin(i, f"modelling {family}"))
+        except (KernelMissing, FileExistsError, SceneNewFailed) as exc:
+            bar.end()
+            print(f"skelasm bench seating: {exc}", file=sys.stderr)
+            return 2
+        bar.end()
+        results = _push_all([generated_case(p) for p in pairs], args)
+    print(family_table(results, seed=seed, count=args.generated))
+    print()
+    print(generated_table(results))
+    _plot_generated(results, args.output, seed)
+    print(f"\nplot: {args.output}")
+    if args.keep:
+        print(f"pairs: {args.keep}")
+    return 0
+
+
+def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[SeatingResult]:
+    guidances = ("skeletal", "collision") if args.guidance == "both" else (args.guidance,)
+    jobs = [(c, g) for c in cases for g in guidances]
+    bar = _Progress(len(jobs))
+    results: list[SeatingResult] = []
+    if args.workers == 1:
+        for i, (case, guidance) in enumerate(jobs):
+            bar.begin(i, f"{case.name} ({guidance})")
+            results.append(seating_run(case, guidance, seconds=args.seconds, modes=args.modes,
+                                       backend=args.backend, progress=bar))
+            bar.end()
+            _say(results[-1])
+        return results
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend): (c, g)
+                   for c, g in jobs}
+        bar.begin(0, f"{args.workers} runs at a time")
+        for future in as_completed(futures):
+            results.append(future.result())
+            bar.end()
+            _say(results[-1])
+            bar.finished(len(results), f"{args.workers} runs at a time")
+    bar.end()
+    order = {(c.name, g): i for i, (c, g) in enumerate(jobs)}
+    return sorted(results, key=lambda r: order[r.pair, r.guidance])
+
+
+def _median(values: list[float]) -> float:
+    return float(np.median(values)) if values else math.nan
+
+
+def family_table(results: list[SeatingResult], *, seed: int | None = None,
+                 count: int | None = None) -> str:
+    """Markdown table per family and guidance, then overall."""
+    head = (f"Generated set: {count} pairs, seed {seed}. " if seed is not None else "")
+    lines = [head + f"Misaim {100 * OFFSET_FRACTION:g} % of the width sideways and "
+             f"{TILT_DEGREES:g} degrees about the fit centre; seated: within "
+             f"{100 * SEAT_FRACTION:g} % of the width (or the radial play) and {SEAT_DEGREES:g} "
+             "degree (or the angular play) in the constrained directions; tipped: turned from "
+             "the proxy by more than the angular play plus the misaim at some step.", "",
+             "| family | guidance | pairs | seated | tipped | position error, % width: "
+             "median / worst | tilt, deg: median / worst | max turn from proxy, deg | "
+             "wall s per run: setup + push (median) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    families = sorted({r.family for r in results}, key=[r.family for r in results].index)
+    for family in [*families, "all"]:
+        for guidance in ("skeletal", "collision"):
+            rows = [r for r in results if r.guidance == guidance
+                    and (family == "all" or r.family == family)]
+            if not rows:
+                continue
+            pos = [r.position_percent for r in rows]
+            tilt = [r.tilt_deg for r in rows]
+            name = f"**{family}**" if family == "all" else family
+            lines.append(
+                f"| {name} | {'guided' if guidance == 'skeletal' else 'collision only'} | "
+                f"{len(rows)} | {sum(r.seated for r in rows)} | {sum(r.tipped for r in rows)} "
+                f"| {_median(pos):.2f} / {max(pos):.2f} | {_median(tilt):.2f} / "
+                f"{max(tilt):.2f} | {max(r.max_proxy_angle_deg for r in rows):.2f} | "
+                f"{_median([r.setup_seconds for r in rows]):.0f} + "
+                f"{_median([r.wall_seconds for r in rows]):.0f} |")
+    return "\n".join(lines)
+
+
+def generated_table(results: list[SeatingResult]) -> str:
+    """Markdown table of the runs of a generated set."""
+    lines = ["| pair | guidance | K | width | position error (% width) | tolerance (% width) | "
+             "tilt (deg) | tolerance (deg) | max turn from proxy (deg) | limit (deg) | seated | "
+             "wall s (setup + push) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        tol = 100 * (r.position_tolerance or SEAT_FRACTION * r.width) / r.width
+        lines.append(
+            f"| {r.pair} | {'guided' if r.guidance == 'skeletal' else 'collision only'} | "
+            f"{r.modes} | {r.width:.4g} | {r.position_percent:.2f} | {tol:.2f} | "
+            f"{r.tilt_deg:.2f} | {r.angle_tolerance_deg:.2f} | {r.max_proxy_angle_deg:.2f}"
+            f"{' tipped' if r.tipped else ''} | {r.tip_limit_deg:.2f} | "
+            f"{'yes' if r.seated else 'no'} | {r.setup_seconds:.0f} + {r.wall_seconds:.0f} |")
+    return "\n".join(lines)
+
+
+def _plot_generated(results: list[SeatingResult], path: str, seed: int) -> None:
+    """Plot the seated share per family and every run's errors over their tolerances."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    families = sorted({r.family for r in results}, key=[r.family for r in results].index)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 0.5 * len(families) + 2.5), dpi=110)
+    y = np.arange(len(families))
+    bars = (("skeletal", "seated", "guided: seated", "tab:blue"),
+            ("collision", "seated", "collision only: seated", "tab:orange"),
+            ("skeletal", "tipped", "guided: tipped", "tab:grey"))
+    for j, (guidance, what, label, colour) in enumerate(bars):
+        share = []
+        for family in families:
+            rows = [r for r in results if r.family == family and r.guidance == guidance]
+            share.append(100.0 * sum(getattr(r, what) for r in rows) / len(rows) if rows
+                         else np.nan)
+        axes[0].barh(y + (j - 1) * 0.27, share, height=0.25, label=label, color=colour)
+    axes[0].set_yticks(y, families)
+    axes[0].invert_yaxis()
+    axes[0].set_xlim(0, 100)
+    axes[0].set_xlabel("% of the family's pairs")
+    axes[0].legend(loc="lower right", fontsize="small")
+    for guidance, marker in (("skeletal", "o"), ("collision", "x")):
+        rows = [r for r in results if r.guidance == guidance]
+        if not rows:
+            continue
+        px = [max(r.position_error / (r.position_tolerance or SEAT_FRACTION * r.width), 1e-3)
+              for r in rows]
+        py = [max(r.tilt_deg / r.angle_tolerance_deg, 1e-3) for r in rows]
+        axes[1].scatter(px, py, marker=marker, label="guided" if guidance == "skeletal"
+                        else "collision only")
+    axes[1].axvline(1, color="k", ls="--", lw=1)
+    axes[1].axhline(1, color="k", ls="--", lw=1)
+    axes[1].set_xscale("log")
+    axes[1].set_yscale("log")
+    axes[1].xaxis.set_minor_formatter(NullFormatter())  # labels at the decades only
+    axes[1].yaxis.set_minor_formatter(NullFormatter())
+    axes[1].set_xlabel("position error / its tolerance (log)")
+    axes[1].set_ylabel("tilt / its tolerance (log)")
+    axes[1].legend(loc="upper left")
+    fig.suptitle(f"Generated fits, seed {seed}: seating from a misaimed push (seated: lower "
+                 "left of the dashed lines)")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
