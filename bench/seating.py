@@ -289,6 +289,37 @@ def proxy_angles(part_poses: np.ndarray, proxy_poses: np.ndarray) -> np.ndarray:
     return np.degrees((part.inv() * proxy).magnitude())
 
 
+def misaimed_push(start: np.ndarray, target: np.ndarray, axis: np.ndarray,
+                  lateral: np.ndarray, tilt_axis: np.ndarray, width: float,
+                  centre: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) poses (6,) of the protocol's proxy, part 1's frame.
+
+    From ``start`` (where the scene puts part 2), :data:`OFFSET_FRACTION` of ``width`` along
+    ``lateral`` and :data:`TILT_DEGREES` about ``tilt_axis``; the end is that pose moved
+    along the unit ``axis`` to the depth of ``target`` (the assembled pose). With ``centre``
+    (3,) (part 2's fit centre in its own frame) the tilt turns about it and the centre is
+    what reaches the depth; without, both use part 2's file origin (the real suite's parts
+    have it on the fit's axis).
+    """
+    from engine.pose import pose_to_matrix, rotate_about
+
+    start = np.array(start, float)
+    start[:3] += OFFSET_FRACTION * width * np.asarray(lateral, float)
+    tilt = math.radians(TILT_DEGREES) * np.asarray(tilt_axis, float)
+    if centre is None:
+        start[3:] += tilt
+        end_shift = np.asarray(target[:3], float) - start[:3]
+    else:
+        c = np.asarray(centre, float)
+        m = pose_to_matrix(start)
+        start = rotate_about(start, tilt, m[:3, :3] @ c + m[:3, 3])
+        now, seat = pose_to_matrix(start), pose_to_matrix(target)
+        end_shift = (seat[:3, :3] @ c + seat[:3, 3]) - (now[:3, :3] @ c + now[:3, 3])
+    end = start.copy()
+    end[:3] += axis * float(end_shift @ axis)
+    return start, end
+
+
 def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds: float = 5.0,
                 modes: int | None = None, backend: str = "auto",
                 progress=None) -> SeatingResult:
@@ -298,7 +329,7 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
     called as the simulation advances.
     """
     from engine.devices import TrajectoryDevice
-    from engine.pose import pose_to_matrix, relative_pose, rotate_about
+    from engine.pose import pose_to_matrix, relative_pose
     from engine.runtime import EngineLoop, open_scene
     from engine.sim import build_simulation
 
@@ -317,19 +348,11 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
         width = float(np.ptp(handle.parts[1].vertices @ (seat[:3, :3].T @ lateral)))
     else:
         width = float(case.width)
-    start = np.array(handle.start_pose, float)
-    start[:3] += OFFSET_FRACTION * width * lateral
-    tilt = math.radians(TILT_DEGREES) * tilt_axis
-    if case.centre is None:
-        start[3:] += tilt
-    else:
-        m = pose_to_matrix(start)
-        start = rotate_about(start, tilt, m[:3, :3] @ np.asarray(case.centre, float) + m[:3, 3])
+    start, end = misaimed_push(np.array(handle.start_pose, float), target, axis, lateral,
+                               tilt_axis, width, case.centre)
     handle = replace(handle, start_pose=start)
     k = int(modes if modes is not None else handle.scene.modes)
     sim, model = build_simulation(handle, prepare=True, backend=backend, modes=k)
-    end = start.copy()
-    end[:3] += axis * float((target[:3] - start[:3]) @ axis)
     device = TrajectoryDevice(np.array([[0.0, *start], [PUSH_SECONDS, *end]]))
     total = int(round(seconds / sim.dt))
     chunk = max(1, int(round(0.1 / sim.dt)))

@@ -313,3 +313,32 @@ def test_every_family_seats_guided_without_tipping(generated, family):
     assert r.position_error <= r.position_tolerance, r
     assert r.tilt_deg <= r.angle_tolerance_deg, r
     assert not r.tipped, r
+
+
+def test_the_misaimed_push_ends_with_the_fit_centre_at_the_seat_depth():
+    from bench.seating import OFFSET_FRACTION, TILT_DEGREES, misaim, misaimed_push
+    from engine.pose import pose_to_matrix
+
+    axis = np.array([2.0, -1.0, 2.0]) / 3
+    lateral, tilt_axis = misaim(axis)
+    target = np.array([120.0, -340.0, 75.0, 0.4, -1.1, 0.3])  # the file origin far off
+    centre = np.array([-150.0, 80.0, 210.0])                  # part 2's, in its own frame
+    back = target.copy()
+    back[:3] -= 40.0 * axis
+    start, end = misaimed_push(back, target, axis, lateral, tilt_axis, 20.0, centre)
+
+    def at(pose):
+        m = pose_to_matrix(pose)
+        return m[:3, :3] @ centre + m[:3, 3], m[:3, :3]
+
+    (c_seat, r_seat), (c_start, r_start), (c_end, r_end) = at(target), at(start), at(end)
+    # the centre starts 40 back and 3 % of the width aside; ends at the depth, still aside
+    np.testing.assert_allclose(c_start - c_seat, -40.0 * axis + OFFSET_FRACTION * 20 * lateral,
+                               atol=1e-9)
+    np.testing.assert_allclose(c_end - c_seat, OFFSET_FRACTION * 20 * lateral, atol=1e-9)
+    # turned by the misaim about the tilt axis, in part 1's frame, and not further
+    from scipy.spatial.transform import Rotation
+
+    turn = Rotation.from_matrix(r_end @ r_seat.T).as_rotvec()
+    np.testing.assert_allclose(turn, math.radians(TILT_DEGREES) * tilt_axis, atol=1e-12)
+    np.testing.assert_allclose(r_start, r_end)
