@@ -90,6 +90,27 @@ def _error_location(exc: BaseException) -> tuple[str | None, int | None]:
     return (str(file) if file else None), (int(line) if line is not None else None)
 
 
+def _in_scene(args: argparse.Namespace, exc: BaseException) -> BaseException | None:
+    """The error at its scene file's line when it is about a key the scene sets, else None.
+
+    Some ranges are checked once the parts are loaded (inertia against the mesh's, kappa
+    against its default, a pose against the part's size): the message then names the key
+    but not where it is written.
+    """
+    from engine.errors import InputError
+
+    if not isinstance(exc, InputError) or getattr(exc, "path", None):
+        return None
+    scene = getattr(args, "scene", None) or getattr(args, "part", None)
+    if not scene or not str(scene).lower().endswith(".toml"):
+        return None
+    if getattr(args, "start", None) is not None and str(exc).startswith("proxy pose"):
+        return None  # the pose came from --start
+    from engine.scene.reader import locate_late_error
+
+    return locate_late_error(scene, str(exc))
+
+
 def _print_json_error(message: str, file: str | None, line: int | None) -> None:
     import json
 
@@ -167,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
         # Every engine error meant for the user is a ValueError/OSError subclass with a message
         # that names the problem and the fix; a traceback would only hide it. A refusal for
         # memory (ResourceError) answers a bad input too (a grid too fine): exit 2 as well.
-        return fail(exc, str(exc), 2)
+        located = _in_scene(args, exc)
+        return fail(located or exc, str(located or exc), 2)
     except MemoryError as exc:
         # an allocation no estimate foresaw: still one line and the fix
         return fail(exc, f"out of memory ({exc or 'allocation failed'}); use a coarser grid "

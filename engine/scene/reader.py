@@ -81,6 +81,14 @@ PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance", "unit", "pivo
 AXES_WORDS = {"all": AXES, "translation": AXES[:3], "rotation": AXES[3:]}
 
 _HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+#: Largest rotation vector of any pose, in radians: beyond it the angle's double precision
+#: is coarser than 1e-12 rad per 1e4 rad, and a sine of it is meaningless (1e300 rad used
+#: to overflow into NaN). The simulation's guard holds the proxy to the same bound.
+MAX_ROTATION_VECTOR = 1e4
+#: Largest distance of a pose from the origin, in the scene's unit (a light year in
+#: millimetres is 1e19): past it a number is a typo, and its square overflows at 1e154.
+MAX_POSE_TRANSLATION = 1e20
+
 #: Where a table sits in a TOML file: ``()`` the top level, ``("descriptor",)`` a table,
 #: ``("part", 1)`` the second ``[[part]]`` (names, and indices into arrays of tables).
 TablePath: TypeAlias = tuple[str | int, ...]
@@ -211,7 +219,20 @@ class _Table:
             what = ("six numbers (tx, ty, tz, rx, ry, rz; rotation vector in radians)" if n == 6
                     else f"{n} numbers")
             raise self._bad(key, what, None)
-        return np.array(value, dtype=np.float64)
+        out = np.array(value, dtype=np.float64)
+        if n == 6:  # a pose: numbers a rotation and a distance can be computed from
+            if math.hypot(*out[3:]) > MAX_ROTATION_VECTOR:
+                raise self.fail(key, f"{self.label}: {key} has a rotation vector of "
+                                f"{math.hypot(*out[3:]):.3g} rad, above "
+                                f"{MAX_ROTATION_VECTOR:g} (beyond it the angle has lost "
+                                "its precision)", "rotations are rotation vectors in radians: "
+                                "reduce it modulo 2 pi")
+            if math.hypot(*out[:3]) > MAX_POSE_TRANSLATION:
+                raise self.fail(key, f"{self.label}: {key} puts the part "
+                                f"{math.hypot(*out[:3]):.3g} from the origin, beyond "
+                                f"{MAX_POSE_TRANSLATION:g} in any unit", "check the numbers "
+                                "and the scene's units")
+        return out
 
     def string(self, key: str, default: D) -> str | D:
         """A non-empty string."""
@@ -252,6 +273,10 @@ class _Table:
         try:
             return cls(**values)
         except InputError as exc:
+            if key is None:  # the key the message names, if the table sets it (UDP `port`)
+                key = next((k for k in self.values if isinstance(k, str)
+                            and re.search(rf"(?<![\w-]){re.escape(k)}(?![\w-])", str(exc))),
+                           None)
             raise self.fail(key, f"{self.label}: {exc}", "correct the value") from None
 
 
@@ -542,3 +567,44 @@ def _parts(top: _Table, data: dict[str, object], p: Path
             center_of_mass=None if com is None else tuple(float(x) for x in com),
         ))
     return parts, tuple(masses)
+
+
+#: Range errors raised after reading (they need the parts' meshes: the inertia against the
+#: mesh's own, kappa against its scale-free default, a pose against the part's size, the
+#: spacing against its longest side): the start of the message -> the key it is about.
+_LATE_ERRORS: tuple[tuple[re.Pattern[str], TablePath, str], ...] = (
+    (re.compile(r"^kappa\b"), ("simulation",), "kappa"),
+    (re.compile(r"^(spacing|grid)\b"), ("descriptor",), "spacing"),
+    (re.compile(r"^grid\b"), ("descriptor",), "grid"),
+    (re.compile(r"^padding\b"), ("descriptor",), "padding"),
+    (re.compile(r"^part inertia\b"), ("part", -1), "inertia"),
+    (re.compile(r"^(part )?mass\b"), ("part", -1), "mass"),
+    (re.compile(r"^proxy pose\b"), ("part", -1), "pose"),
+    (re.compile(r"^gravity\b"), ("effects",), "gravity"),
+)
+
+
+def locate_late_error(path: str | os.PathLike, message: str) -> SceneError | None:
+    """A :class:`SceneError` at ``FILE:LINE`` for a range error found after reading, or None.
+
+    ``message`` is an ``InputError``'s text that names a scene key first (``kappa = ...``,
+    ``part inertia ...``, ``proxy pose ...``); the line is that key's in the scene file, in
+    the moving (last) ``[[part]]`` for a part's key. None when the message names no key
+    the file sets (the value came from an option or a default).
+    """
+    p = Path(path)
+    try:
+        text = decode_text(read_input(p, what="scene file", limit=MAX_SCENE_BYTES), p,
+                           what="scene file")
+    except InputError:
+        return None
+    parts = len(re.findall(r"^\s*\[\[\s*part\s*\]\]", text, re.M))
+    for pattern, table, key in _LATE_ERRORS:
+        if not pattern.search(message):
+            continue
+        where = (table[0], parts - 1) if table[-1] == -1 else table
+        line = key_line(text, where, key)
+        if line is None or key_line(text, where) == line:  # the key is not set there
+            continue
+        return SceneError(f"{p}:{line}: {message}", path=str(p), line=line)
+    return None

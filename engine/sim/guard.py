@@ -23,6 +23,7 @@ import numpy as np
 from engine.correlation import Evaluation
 from engine.errors import Diverged, InputError
 from engine.params import Physics
+from engine.scene.reader import MAX_ROTATION_VECTOR as SCENE_MAX_ROTATION_VECTOR
 from engine.sim.body import BodyState, RigidBody
 
 
@@ -49,9 +50,8 @@ MAX_STEP_RADIANS = 1.0
 #: A proxy farther than this many part lengths from part 1's origin is out of reach (the
 #: coupling's force on the part would be that many lengths times its stiffness).
 MAX_PROXY_LENGTHS = 1000.0
-#: Largest rotation vector of a proxy pose, in radians: beyond it the angle's double
-#: precision is coarser than 1e-12 rad per 1e4 rad, and a sine of it is meaningless.
-MAX_ROTATION_VECTOR = 1e4
+#: Largest rotation vector of a proxy pose, in radians: the bound on a scene's poses.
+MAX_ROTATION_VECTOR = SCENE_MAX_ROTATION_VECTOR
 
 
 def check_proxy_pose(pose: np.ndarray, length: float, what: str = "proxy pose") -> np.ndarray:
