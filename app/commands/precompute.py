@@ -199,16 +199,20 @@ def _describe(rec: dict) -> str:
 
 def _run_part(args: argparse.Namespace, path: Path) -> int:
     from engine.descriptor import descriptor_for_part, grid_for_part
+    from engine.errors import InputError
     from engine.files import check_output
     from engine.loading import load_part
     from engine.params import DEFAULT_PADDING
 
-    if args.output:
+    stem = path.stem if args.body is None else f"{path.stem}-{args.body}"
+    if args.output and Path(args.output).is_dir():
+        output = Path(args.output) / f"{stem}.npz"  # a folder: the default name inside it
+    elif args.output:
         output = Path(args.output)
-        if output.suffix != ".npz":
-            output = output.with_name(output.name + ".npz")
+        if output.suffix != ".npz":  # never a name the user did not write
+            raise InputError(f"{output}: a descriptor file ends in .npz; give -o a name "
+                             f"such as {output.with_suffix('.npz').name}, or a folder")
     else:
-        stem = path.stem if args.body is None else f"{path.stem}-{args.body}"
         output = Path.cwd() / f"{stem}.npz"
     check_output(output, force=args.force, inputs=[path], what="descriptor")
     part = load_part(path, tolerance=args.tolerance, body=args.body)

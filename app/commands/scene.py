@@ -71,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{f}: no such part file; give the path of a STEP, STL, OBJ, PLY "
                              "or OFF file")
     out = Path(args.output)
-    if out.suffix.lower() != ".toml":
-        out = out.with_suffix(".toml")
+    if out.suffix.lower() != ".toml":  # never a name the user did not write
+        raise InputError(f"{out}: a scene file ends in .toml; give -o a name such as "
+                         f"{out.with_suffix('.toml').name}")
     check_output(out, force=args.force, inputs=files, what="scene")
     push = out.with_name(out.stem + "_push.csv")
     check_output(push, force=args.force, inputs=files, what="trajectory")
