@@ -1031,6 +1031,8 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
         raise PartError(f"{path}: the file is empty; export the part again")
     if path.suffix.lower() == ".stl":
         _check_stl(path)
+    elif path.suffix.lower() == ".obj":
+        _check_obj(path)
     try:
         loaded = trimesh.load(str(path), process=False)
     except ImportError as exc:  # trimesh guesses a text encoding with an optional module
@@ -1068,6 +1070,28 @@ def _load_mesh(path: Path, unit: str | None = None) -> Part:
     v, f, warnings = check_mesh(vertices, faces, source=str(path))
     return Part(name=path.stem, vertices=v, faces=f, source=str(path),
                 unit=unit or "unspecified", warnings=warnings)
+
+
+#: An OBJ face line with a vertex index 0 (OBJ counts from 1; negative counts from the end).
+_OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t](?:[^\n]*[ \t])?[-+]?0+(?=[/ \t\r\n]|$)", re.M)
+
+
+def _check_obj(path: Path) -> None:
+    """Raise for a face that names vertex 0: OBJ counts from 1, so the file is damaged.
+
+    trimesh reads index 0 as the last vertex (0 - 1 = -1), which makes a wrong triangle
+    out of a damaged file without a word.
+    """
+    data = read_input(path, what="part file", limit=MAX_PART_BYTES)
+    m = _OBJ_ZERO_INDEX.search(data)
+    if m is None:
+        return
+    line = data.count(b"\n", 0, m.start()) + 1
+    text = data[m.start():data.find(b"\n", m.start()) if b"\n" in data[m.start():]
+                else len(data)].decode("utf-8", "replace").strip()
+    raise PartError(f"{path}:{line}: the face {text[:60]!r} names vertex 0, but OBJ counts "
+                    "vertices from 1: the file is damaged or was written by a faulty "
+                    "exporter; re-export it")
 
 
 def _check_stl(path: Path) -> None:

@@ -115,7 +115,11 @@ def run(args: argparse.Namespace) -> int:
                       "curvature": joint.curvature, "step": joint.step,
                       "angle_deg": float(np.degrees(joint.angle))},
         "hold": {"point": [float(x) for x in held], "source": hold_source},
+        # the repairs made to the parts (duplicates dropped, holes): what was evaluated
+        "notes": [str(w) for part in handle.parts for w in part.warnings],
     }
+    for note in out["notes"]:
+        print(f"note: {note}", file=sys.stderr)
     if args.json:
         print(json.dumps(out))
         return 0
