@@ -49,9 +49,9 @@ def interference(fixed: tuple[np.ndarray, np.ndarray], moving: tuple[np.ndarray,
     Points of either surface (its vertices and ``samples`` random points) that lie inside
     the other part, and how far inside. Touching faces give rounding-sized depths.
 
-    The meshes are measured scaled to about a hundred units across: the winding numbers'
-    tree has absolute thresholds made for millimetres, and gives points on the surface of
-    a part in metres as inside.
+    The meshes are measured scaled to about a hundred units across: trimesh's closest-point
+    search has absolute tolerances, and on a part in metres it gave distances of 0.1 mm
+    for points touching the surface.
     """
     from engine.pose import pose_to_matrix
 
