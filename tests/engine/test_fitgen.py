@@ -262,9 +262,29 @@ def test_scene_new_wrote_the_pair_as_given(generated, family):
     np.testing.assert_allclose(handle.scene.insertion_axis, t.insertion_axis, atol=1e-9)
     assert [Path(p.file).name for p in handle.scene.parts] == [t.fixed_file, t.moving_file]
     assert (pair.folder / "scene_push.csv").is_file()
-    text = pair.scene.read_text()
-    for key in ("free_axes", "seat_tolerance", "hold"):  # no hand settings
-        assert key not in text
+
+
+def test_scene_new_gets_the_files_unit_pose_and_axis_and_nothing_else(monkeypatch, tmp_path):
+    _gmsh_or_skip()
+    import app.cli
+    from bench.fitgen import generate
+
+    calls = []
+    real_main = app.cli.main
+
+    def spy(argv=None):
+        calls.append(list(argv))
+        return real_main(argv)
+
+    monkeypatch.setattr(app.cli, "main", spy)
+    pairs = generate(2, SEED, tmp_path / "set")
+    assert len(calls) == 2
+    for argv, pair in zip(calls, pairs, strict=True):
+        assert argv[:2] == ["scene", "new"]
+        options = [a for a in argv[2:] if a.startswith("--") or a == "-o"]
+        assert options == ["-o", "--unit", "--assembled", "--insertion-axis"]
+        assert len(argv) == 2 + 2 + 2 + 2 + 7 + 4  # files, -o, --unit, 6 + 3 numbers
+        assert argv[argv.index("--unit") + 1] == pair.truth.unit
 
 
 @pytest.mark.parametrize("family", list(FAMILIES))
