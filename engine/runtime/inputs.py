@@ -15,10 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.devices import Device, DeviceError, MouseDevice, open_device
+from engine.devices import Device, DeviceError, MouseDevice, TrajectoryDevice, open_device
 from engine.runtime.frames import encode_device_name
 from engine.runtime.messages import DeviceEvent, ErrorEvent, Event, SetDevice
 from engine.sim import Simulation
+from engine.sim.guard import (
+    MAX_PROXY_STEP_LENGTHS,
+    MAX_PROXY_STEP_RADIANS,
+    check_proxy_pose,
+    limit_proxy_step,
+)
 
 __all__ = ["DeviceSlot"]
 
@@ -49,6 +55,11 @@ class DeviceSlot:
     def _use(self, device: Device) -> None:
         self.device = device
         self.refused = 0  # poses of this device the simulation refused (out of reach)
+        # the proxy follows a device other than the mouse and a scripted trajectory (both
+        # the user's own, replayed exactly) at a bounded pace: see limit_proxy_step
+        self.paced = not isinstance(device, (MouseDevice, TrajectoryDevice))
+        self.target: np.ndarray | None = None  # where a paced proxy is still going
+        self.jumped = False
         self.mouse = device if isinstance(device, MouseDevice) else None
         self.name_code = encode_device_name(device.name)
         # clamp the rendered force to the device's maximum unless the scene set a lower one
@@ -74,12 +85,43 @@ class DeviceSlot:
         except Exception as exc:  # noqa: BLE001 -- a driver's failure must not stop the loop
             self._fall_back(f"{self.device.name}: {exc}")
             return
+        if self.paced:  # a jump of a device's pose is followed at a bounded pace
+            if pose is not None:
+                try:  # a target out of reach is refused whole, not approached
+                    self.target = check_proxy_pose(pose, self.sim.physics.length)
+                except ValueError as exc:
+                    self.target = None
+                    self._refuse(pose, exc)
+                    return
+            if self.target is None:
+                return
+            pose, short = limit_proxy_step(self.sim.proxy_pose, self.target,
+                                           self.sim.physics.length)
+            if not short:
+                self.target = None
+            elif not self.jumped and self._big_jump():
+                self.jumped = True
+                name = self.device.name
+                self.events.append(DeviceEvent(name, True, (
+                    f"{name}'s pose jumped "
+                    f"{np.linalg.norm(self.target[:3] - self.sim.proxy_pose[:3]):.4g} in one "
+                    "reading; the proxy follows it at most "
+                    f"{MAX_PROXY_STEP_LENGTHS:g} part lengths and {MAX_PROXY_STEP_RADIANS:g} "
+                    "rad per step (later jumps are followed without a message)"), name))
         if pose is None:
             return
         try:
             self.sim.set_proxy(pose)
         except ValueError as exc:  # a device's pose must not stop the loop
+            self.target = None
             self._refuse(pose, exc)
+
+    def _big_jump(self) -> bool:
+        """Whether the paced target is more than a part length or half a radian away."""
+        assert self.target is not None
+        gap = self.target - self.sim.proxy_pose
+        return bool(np.linalg.norm(gap[:3]) > self.sim.physics.length
+                    or np.linalg.norm(gap[3:]) > 0.5)
 
     def _refuse(self, pose: np.ndarray, exc: ValueError) -> None:
         """Handle a pose the simulation refused; the loop goes on either way.
