@@ -704,7 +704,8 @@ def _plot_generated(results: list[SeatingResult], path: str, seed: int) -> None:
     axes[0].invert_yaxis()
     axes[0].set_xlim(0, 100)
     axes[0].set_xlabel("% of the family's pairs")
-    axes[0].legend(loc="lower right", fontsize="small")
+    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize="small",
+                   frameon=False)
     for guidance, marker in (("skeletal", "o"), ("collision", "x")):
         rows = [r for r in results if r.guidance == guidance]
         if not rows:
