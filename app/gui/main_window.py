@@ -599,8 +599,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.slice_view.set_descriptors(())
         self.landscape_view.set_landscape(None)
         self.landscape_view.canvas.clear("landscape not computed yet")
-        self.params.load_config(handle.config, scene.modes, scene.descriptor.sigma,
-                                scene.descriptor.penalty)
+        self.params.load_config(handle.config, scene.modes, scene.descriptor)
         self._update_kappa()
         if self.session.engine is None:
             self.statusBar().showMessage(
@@ -643,7 +642,7 @@ class MainWindow(QtWidgets.QMainWindow):
                                  f"({command.modes ** 3:,} modes)", reports_fraction=False)
         elif isinstance(command, runtime.SetDescriptorParams):
             self.tasks.start("descriptors", f"recomputing descriptors (sigma "
-                             f"{command.sigma:.3g}, penalty {command.penalty:.3g})")
+                             f"{command.params.sigma:.3g}, penalty {command.params.penalty:.3g})")
         elif isinstance(command, runtime.SetEffects):
             old = self._effects
             new = command.effects

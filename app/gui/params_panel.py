@@ -24,7 +24,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import SliderField
 from engine import runtime
-from engine.params import AXES, CONTROLS, GUIDANCE, CouplingParams, Effects
+from engine.params import AXES, CONTROLS, GUIDANCE, CouplingParams, DescriptorParams, Effects
 
 
 class ParamsPanel(QtWidgets.QWidget):
@@ -43,6 +43,9 @@ class ParamsPanel(QtWidgets.QWidget):
         self._cost_modes = 0
         self._effects = Effects()
         self._coupling = CouplingParams()
+        #: The scene's descriptor parameters: a recompute sends them with the panel's sigma
+        #: and penalty, whole (the object built here reaches the kernels).
+        self._descriptor = DescriptorParams()
         # gravity in scene units per s^2 (mm until a scene says otherwise)
         self._gravity_vector: tuple[float, float, float] = (0.0, 0.0, -9810.0)
         lay = QtWidgets.QVBoxLayout(self)
@@ -175,16 +178,17 @@ class ParamsPanel(QtWidgets.QWidget):
         lay.addStretch(1)
 
     # ------------------------------------------------------------------ from the scene
-    def load_config(self, config, modes: int, sigma: float, penalty: float) -> None:
-        """Show a scene's settings without sending anything."""
+    def load_config(self, config, modes: int, descriptor: DescriptorParams) -> None:
+        """Show a scene's settings (its SimConfig, K, ``[descriptor]``) without sending anything."""
         self.modes.setValueSilently(modes)
         self._pose_us.clear()
         self.pose_cost.setText("-")
         self.set_truncation_profile(None)
         self.recompute_cost.setText("a change recomputes both descriptors")
         self._show_modes(modes)
-        self.sigma.setValueSilently(sigma)
-        self.penalty.setValueSilently(penalty)
+        self._descriptor = descriptor
+        self.sigma.setValueSilently(descriptor.sigma)
+        self.penalty.setValueSilently(descriptor.penalty)
         self._coupling = config.coupling
         self.coupling.setValueSilently(config.coupling.frequency_hz)
         kappa = config.simulation.kappa
@@ -324,9 +328,9 @@ class ParamsPanel(QtWidgets.QWidget):
 
     def _send_descriptor_params(self) -> None:
         self.set_progress(0.0, "starting recompute")
-        self.command.emit(
-            runtime.SetDescriptorParams(sigma=self.sigma.value(), penalty=self.penalty.value())
-        )
+        params = replace(self._descriptor, sigma=self.sigma.value(),
+                         penalty=self.penalty.value())
+        self.command.emit(runtime.SetDescriptorParams(params=params))
 
     def _cancel(self) -> None:
         self.command.emit(runtime.CancelRecompute())

@@ -3,7 +3,7 @@
 What the user asked for, the background jobs that build it, and the hand-over between two
 steps.
 
-Data: the desired state (effects, coupling, kappa, K, descriptor sigma and penalty) and the
+Data: the desired state (effects, coupling, kappa, K, descriptor parameters) and the
 descriptors in use (``engine.descriptor.Descriptor`` of part 1 and part 2). Everything that
 costs more than a step (descriptors, correlators, spectra, landscapes, a new K) is a frozen
 request to the :class:`engine.runtime.jobs.JobWorker`; cheap changes (physics gains, free
@@ -22,7 +22,7 @@ import numpy as np
 
 from engine.correlation import Correlator, LocalSpectral
 from engine.errors import Cancelled
-from engine.params import CouplingParams, Effects, Physics
+from engine.params import CouplingParams, DescriptorParams, Effects, Physics
 from engine.runtime.handover import Handover
 from engine.runtime.job_process import JobProcess, JobProcessGone
 from engine.runtime.jobs import (
@@ -95,16 +95,16 @@ class Guidance:
         self.effects = sim.effects
         self.coupling: CouplingParams | None = None
         self.kappa: float | None = None  # None: the scale-invariant default
-        self.sigma: float | None = None
-        self.penalty: float | None = None
+        #: The descriptor parameters asked for (SetDescriptorParams); None: the scene's.
+        self.descriptor: DescriptorParams | None = None
         self.modes = int(sim.field.modes)
         # a field built before the loop lends its descriptors to a new K, as one built in it
         self.descriptors: tuple[Descriptor, ...] = (
             () if model is None else model.descriptors_of(sim.field))
         self.recompute: float | None = None  # fraction done of a descriptor job
         self.ready_message = ""
-        self._in_use: tuple[str, float | None, float | None] = (
-            self.effects.guidance if self.descriptors else "", None, None)
+        self._in_use: tuple[str, DescriptorParams | None] = (
+            self.effects.guidance if self.descriptors else "", None)
         self._field_id = 0  # newest field request
         self._field_task = ""
         self._physics_dirty = False
@@ -132,10 +132,9 @@ class Guidance:
         self.modes = int(modes)
         self._request("field")
 
-    def set_descriptor_params(self, sigma: float | None, penalty: float | None) -> None:
-        """New descriptor parameters: recompute in the background."""
-        self.sigma = self.sigma if sigma is None else float(sigma)
-        self.penalty = self.penalty if penalty is None else float(penalty)
+    def set_descriptor_params(self, params: DescriptorParams) -> None:
+        """New descriptor parameters (the scene's replaced whole): recompute in the background."""
+        self.descriptor = params
         self._request("descriptors")
 
     def set_effects(self, effects: Effects) -> None:
@@ -168,7 +167,7 @@ class Guidance:
         self._field_id = 0
         self.handover.drop()
         self.recompute = None
-        _, self.sigma, self.penalty = self._in_use
+        _, self.descriptor = self._in_use
         if self._deferred:  # a K or rotation change waited for the cancelled job
             self._deferred = False
             self._request("field")
@@ -187,7 +186,7 @@ class Guidance:
             # it is applied to the field they make (see _field)
             self._deferred = True
             return
-        key = (self.effects.guidance, self.sigma, self.penalty)
+        key = (self.effects.guidance, self.descriptor)
         # only a new K or rotation lock reuses the descriptors in use; "descriptors" computes
         # them (a new sigma, or the scene's own after a coarse first field)
         reuse = self.descriptors if key == self._in_use and task == "field" else ()
@@ -197,8 +196,9 @@ class Guidance:
         rot = self.sim.state.rotation.copy()
         rot.setflags(write=False)
         request = FieldRequest(
-            next_id(), task, self.effects, self._physics().kappa, rot, self.modes,
-            self.sigma, self.penalty, reuse, current.backend if current is not None else "",
+            id=next_id(), task=task, effects=self.effects, kappa=self._physics().kappa,
+            locked_rotation=rot, modes=self.modes, descriptor=self.descriptor,
+            descriptors=reuse, backend=current.backend if current is not None else "",
             correlator=current if reuse else None, coarse_first=coarse_first,
         )
         self._field_id, self._field_task = request.id, task
@@ -302,7 +302,7 @@ class Guidance:
             self.model.geometric_rotation = r.stiffness
         self._physics_dirty = True
         self.descriptors = r.descriptors
-        self._in_use = (req.effects.guidance, req.sigma, req.penalty)
+        self._in_use = (req.effects.guidance, req.descriptor)
         if req.task == "correlator":
             message = self.ready_message
             if r.coarse_grid is not None:
@@ -315,9 +315,8 @@ class Guidance:
         elif req.task == "field":  # built without progress reports: say that it is done
             self.events.append(ProgressEvent("field", 1.0, "done"))
         elif req.task == "descriptors":
-            sigma, penalty = req.sigma or 0.0, req.penalty or 0.0
-            if r.descriptors:
-                sigma, penalty = r.descriptors[0].params.sigma, r.descriptors[0].params.penalty
+            params = r.descriptors[0].params if r.descriptors else req.descriptor
+            sigma, penalty = (0.0, 0.0) if params is None else (params.sigma, params.penalty)
             self.events.append(DescriptorsSwapped(r.descriptors, float(sigma), float(penalty),
                                                   r.seconds))
             if self._deferred or req.modes != self.modes or req.effects != self.effects:

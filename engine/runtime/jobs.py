@@ -39,7 +39,7 @@ import numpy as np
 from engine.backend import spare_cores
 from engine.correlation import Correlator
 from engine.errors import Cancelled
-from engine.params import CouplingParams, Effects, Physics, SimConfig
+from engine.params import CouplingParams, DescriptorParams, Effects, Physics, SimConfig
 from engine.runtime.pacing import drop_realtime_priority, raise_thread_priority
 from engine.sim import (
     GeometricField,
@@ -105,8 +105,7 @@ class FieldModel(Protocol):
         kappa: float,
         locked_rotation: np.ndarray,
         *,
-        sigma: float | None = None,
-        penalty: float | None = None,
+        descriptor: DescriptorParams | None = None,
         modes: int | None = None,
         grid: int | None = None,
         progress: Callable[[float], None] | None = None,
@@ -119,15 +118,15 @@ class FieldModel(Protocol):
         """The descriptors of ``fld`` if this model built it before any loop, else ()."""
         ...
 
-    def first_grid(self, effects: Effects, *, sigma: float | None = None,
-                   penalty: float | None = None) -> int | None:
+    def first_grid(self, effects: Effects, *,
+                   descriptor: DescriptorParams | None = None) -> int | None:
         """The coarse grid of a first field, or None when the scene's own is quick."""
         ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FieldRequest:
-    """Build the geometric field for these inputs.
+    """Build the geometric field for these inputs (built by keyword only).
 
     Attributes
     ----------
@@ -141,8 +140,9 @@ class FieldRequest:
         The part's rotation when the request was made (used when rotation is locked).
     modes : int
         K, modes per axis.
-    sigma, penalty : float or None
-        Descriptor parameters replacing the scene's (None: the scene's).
+    descriptor : DescriptorParams or None
+        The descriptor parameters as the user asked for them (the window's panel builds
+        them; they reach the kernels as they are); None: the scene's.
     descriptors : tuple of Descriptor
         Reuse these (only K or the rotation lock changed); empty: compute them.
     backend : str
@@ -163,8 +163,7 @@ class FieldRequest:
     kappa: float
     locked_rotation: np.ndarray
     modes: int
-    sigma: float | None = None
-    penalty: float | None = None
+    descriptor: DescriptorParams | None = None
     descriptors: tuple[Descriptor, ...] = ()
     backend: str = ""
     correlator: Correlator | None = None
@@ -255,10 +254,10 @@ def build_field(
                                 locked_rotation=r.locked_rotation)
         descs: tuple[Descriptor, ...] = (d1, d2)
     else:
-        coarse = (model.first_grid(r.effects, sigma=r.sigma, penalty=r.penalty)
+        coarse = (model.first_grid(r.effects, descriptor=r.descriptor)
                   if r.coarse_first else None)
         fld, descs = model.field(
-            r.effects, r.kappa, r.locked_rotation, sigma=r.sigma, penalty=r.penalty,
+            r.effects, r.kappa, r.locked_rotation, descriptor=r.descriptor,
             modes=r.modes, progress=progress, cancel=cancel,
             **({} if coarse is None else {"grid": coarse}),
         )

@@ -363,7 +363,7 @@ class EngineLoop:
         elif isinstance(cmd, SetEffects):
             g.set_effects(cmd.effects)
         elif isinstance(cmd, SetDescriptorParams):
-            g.set_descriptor_params(cmd.sigma, cmd.penalty)
+            g.set_descriptor_params(cmd.params)
         elif isinstance(cmd, CancelRecompute):
             g.cancel_recompute()
         elif isinstance(cmd, SetDevice):

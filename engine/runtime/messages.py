@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from engine.params import CouplingParams, Effects
+from engine.params import CouplingParams, DescriptorParams, Effects
 
 if TYPE_CHECKING:
     from engine.correlation import Landscape
@@ -167,15 +167,17 @@ class SetModes:
 
 @dataclass(frozen=True)
 class SetDescriptorParams:
-    """Recompute descriptors with new sigma and/or penalty in the background.
+    """Recompute descriptors with these parameters in the background.
 
-    The old descriptors stay in use until the new ones are ready; progress arrives as
-    :class:`ProgressEvent` (task ``"descriptors"``) and in ``Frame.recompute``; the swap as
-    :class:`DescriptorsSwapped`. A newer request supersedes (cancels) a running one.
+    ``params`` replaces the scene's ``[descriptor]`` whole: the window's panel builds it
+    from the scene's (``dataclasses.replace(scene.descriptor, sigma=...)``), and the same
+    object reaches the descriptor kernels. The old descriptors stay in use until the new
+    ones are ready; progress arrives as :class:`ProgressEvent` (task ``"descriptors"``) and
+    in ``Frame.recompute``; the swap as :class:`DescriptorsSwapped`. A newer request
+    supersedes (cancels) a running one.
     """
 
-    sigma: float | None = None
-    penalty: float | None = None
+    params: DescriptorParams
 
 
 @dataclass(frozen=True)

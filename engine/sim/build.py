@@ -40,6 +40,7 @@ from engine.params import (
     MASS_RANGE,
     MAX_KAPPA_FACTOR,
     CouplingParams,
+    DescriptorParams,
     Effects,
     HapticLimits,
     MassSpec,
@@ -644,21 +645,21 @@ class SceneModel:
         self,
         effects: Effects,
         *,
-        sigma: float | None = None,
-        penalty: float | None = None,
+        descriptor: DescriptorParams | None = None,
         grid: int | None = None,
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
     ) -> tuple[Descriptor, Descriptor]:
         """The two descriptors for ``effects.guidance`` (skeletal or collision-only).
 
-        ``grid`` replaces the scene's sampling (samples along the largest part's longest
-        side) for a coarse first field.
+        ``descriptor`` replaces the scene's ``[descriptor]`` whole (None: the scene's); it
+        reaches the kernels as it is. ``grid`` replaces its sampling (samples along the
+        largest part's longest side) for a coarse first field.
         """
         from engine.descriptor.collision import collision_descriptor
         from engine.descriptor.store import descriptors_for_scene
 
-        scene = self._scene_with(sigma, penalty, grid)
+        scene = self._scene_with(descriptor, grid)
         # the backend is the registry's choice for the descriptor (engine.backend.resolve:
         # an OpenCL device that cannot build its kernel is passed over there); an error
         # while computing is an error, not a reason to compute again elsewhere
@@ -671,13 +672,8 @@ class SceneModel:
             d2 = collision_descriptor(d2, self.parts[1])
         return d1, d2
 
-    def _scene_with(self, sigma: float | None, penalty: float | None,
-                    grid: int | None) -> Scene:
-        d = self.scene.descriptor
-        if sigma is not None:
-            d = replace(d, sigma=float(sigma))
-        if penalty is not None:
-            d = replace(d, penalty=float(penalty))
+    def _scene_with(self, descriptor: DescriptorParams | None, grid: int | None) -> Scene:
+        d = self.scene.descriptor if descriptor is None else descriptor
         if grid is not None:
             d = replace(d, grid=int(grid), spacing=None, padding=self._padding_for(int(grid)))
         return self.scene if d is self.scene.descriptor else replace(self.scene, descriptor=d)
@@ -696,12 +692,11 @@ class SceneModel:
             self.scene.descriptor, grid=grid, spacing=None)), self.parts)
         return float(self.scene.descriptor.padding) * own / coarse
 
-    def descriptors_cached(self, *, sigma: float | None = None,
-                           penalty: float | None = None) -> bool:
+    def descriptors_cached(self, *, descriptor: DescriptorParams | None = None) -> bool:
         """Whether the scene's descriptors (at its own grid) are in the cache already."""
         from engine.descriptor.store import descriptors_cached
 
-        return descriptors_cached(self._scene_with(sigma, penalty, None), list(self.parts))
+        return descriptors_cached(self._scene_with(descriptor, None), list(self.parts))
 
     def descriptors_of(self, fld: GeometricField) -> tuple[Descriptor, ...]:
         """The descriptors of ``fld`` if :func:`build_simulation` built it here, else ().
@@ -712,8 +707,8 @@ class SceneModel:
             return self.prepared[1]
         return ()
 
-    def first_grid(self, effects: Effects, *, sigma: float | None = None,
-                   penalty: float | None = None) -> int | None:
+    def first_grid(self, effects: Effects, *,
+                   descriptor: DescriptorParams | None = None) -> int | None:
         """The grid of a scene's first field (None: the scene's own, at once).
 
         :data:`COARSE_GRID` while the scene's own descriptors are finer and not cached.
@@ -722,7 +717,7 @@ class SceneModel:
         finer = d.spacing is not None or d.grid is None or d.grid > COARSE_GRID
         if effects.guidance == "none" or not self.has_pair or not finer:
             return None
-        return None if self.descriptors_cached(sigma=sigma, penalty=penalty) else COARSE_GRID
+        return None if self.descriptors_cached(descriptor=descriptor) else COARSE_GRID
 
     def check_memory(self) -> None:
         """Refuse a scene whose correlation FFT would not fit (ResourceError), before work.
@@ -746,8 +741,7 @@ class SceneModel:
         kappa: float,
         locked_rotation: np.ndarray,
         *,
-        sigma: float | None = None,
-        penalty: float | None = None,
+        descriptor: DescriptorParams | None = None,
         modes: int | None = None,
         grid: int | None = None,
         progress: Callable[[float], None] | None = None,
@@ -765,8 +759,8 @@ class SceneModel:
         kappa : float
         locked_rotation : (3, 3) float64
             The part's rotation, used when the effects lock rotation.
-        sigma, penalty : float, optional
-            Descriptor parameters replacing the scene's.
+        descriptor : DescriptorParams, optional
+            Replacing the scene's ``[descriptor]`` whole (as the window's panel built it).
         modes : int, optional
             K (default: this model's).
         grid : int, optional
@@ -786,7 +780,7 @@ class SceneModel:
 
         self.check_memory()  # before minutes of descriptors, not at the FFT after them
         d1, d2 = self.descriptors(
-            effects, sigma=sigma, penalty=penalty, grid=grid, progress=stage(0.0, 0.9),
+            effects, descriptor=descriptor, grid=grid, progress=stage(0.0, 0.9),
             cancel=cancel
         )
         if cancel is not None and cancel():

@@ -35,8 +35,7 @@ def _open_and_save(qtbot, scene_path: Path, out: Path):
     scene = load_scene(scene_path)
     panel = ParamsPanel()
     qtbot.addWidget(panel)
-    panel.load_config(scene.config, scene.modes, scene.descriptor.sigma,
-                      scene.descriptor.penalty)
+    panel.load_config(scene.config, scene.modes, scene.descriptor)
     saved = write_scene(SimpleNamespace(scene=scene), out, **panel.scene_settings())
     return scene, load_scene(saved), panel
 
@@ -107,8 +106,7 @@ def test_a_scale_free_kappa_is_saved_as_the_default(qtbot, tmp_path):
     scene = load_scene(path)
     panel = ParamsPanel()
     qtbot.addWidget(panel)
-    panel.load_config(scene.config, scene.modes, scene.descriptor.sigma,
-                      scene.descriptor.penalty)
+    panel.load_config(scene.config, scene.modes, scene.descriptor)
     assert panel.scene_settings()["kappa"] == 2.5
     panel.kappa_default.setChecked(True)  # back to the scale-free default
     saved = write_scene(SimpleNamespace(scene=scene), tmp_path / "s.toml",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import re
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from PySide6 import QtCore
 from app.gui import colormap
 from app.gui.slice_view import slice_values
 from engine import runtime
+from engine.params import SIGMA_GRID_MAX
 
 
 @pytest.fixture
@@ -199,7 +201,9 @@ def test_failed_recompute_and_missing_device_are_reported_and_the_session_goes_o
     win = ready_window
     old = win.slice_view._descriptors
     win.params.set_progress(0.0)  # as after a request from the panel
-    win.session.send(runtime.SetDescriptorParams(sigma=-1.0))  # no valid descriptor has this
+    # a sigma the parameters allow but no descriptor on a grid does (above SIGMA_GRID_MAX)
+    params = replace(win.session.handle.scene.descriptor, sigma=2 * SIGMA_GRID_MAX)
+    win.session.send(runtime.SetDescriptorParams(params=params))
     wait_until(lambda: win.last_error is not None, 30000, "the recompute's error")
     assert "sigma" in win.last_error.lower()
     assert win.params.progress.format() == "recompute failed"

@@ -63,7 +63,8 @@ def held_field(correlator, full_us=2000.0):
     """A new field built at I, timed at ``full_us`` (K = 8), and its response."""
     fld = RotationCacheField(correlator.with_modes(8), 1.0, np.eye(3))
     fld.full_us = full_us
-    request = FieldRequest(1, "field", Effects(), 1.0, np.eye(3), 8)
+    request = FieldRequest(id=1, task="field", effects=Effects(), kappa=1.0,
+                           locked_rotation=np.eye(3), modes=8)
     return fld, FieldResponse(1, request, fld)
 
 

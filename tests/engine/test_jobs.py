@@ -32,7 +32,8 @@ def test_a_k_change_cuts_the_spectra_in_use_again(model, rotation, monkeypatch):
         raise AssertionError("a K change rebuilt the spectra")
 
     monkeypatch.setattr(correlator_module, "build_spectra", no_spectra)
-    request = FieldRequest(1, "field", effects, kappa, np.eye(3), 12, descriptors=descriptors,
+    request = FieldRequest(id=1, task="field", effects=effects, kappa=kappa,
+                           locked_rotation=np.eye(3), modes=12, descriptors=descriptors,
                            correlator=old)
     response = build_field(model, request)
     assert response.error is None
@@ -61,7 +62,8 @@ def test_without_the_correlator_in_use_the_spectra_are_built(model, monkeypatch)
     real = correlator_module.build_spectra
     monkeypatch.setattr(correlator_module, "build_spectra",
                         lambda *a, **k: calls.append(1) or real(*a, **k))
-    build_field(model, FieldRequest(2, "field", effects, kappa, np.eye(3), 12,
+    build_field(model, FieldRequest(id=2, task="field", effects=effects, kappa=kappa,
+                                    locked_rotation=np.eye(3), modes=12,
                                     descriptors=descriptors))
     assert calls
 
@@ -75,7 +77,8 @@ def test_a_rotation_cache_field_is_handed_over_at_the_rotation_the_part_has_now(
     kappa = model.physics(effects).kappa
     field, descriptors = model.field(effects, kappa, np.eye(3))
     turned = rotation_matrix(np.array([0.0, 2e-2, 0.0]))
-    request = FieldRequest(3, "field", effects, kappa, np.eye(3), 12, descriptors=descriptors,
+    request = FieldRequest(id=3, task="field", effects=effects, kappa=kappa,
+                           locked_rotation=np.eye(3), modes=12, descriptors=descriptors,
                            correlator=field.correlator)
     late = build_field(model, request, rotation_now=lambda: turned).field
     assert isinstance(late, RotationCacheField)
@@ -256,8 +259,9 @@ def test_a_descriptor_job_leaves_the_stiffness_in_use_alone(model):
     before = model.geometric_rotation
     model.geometric_rotation = in_use = 123.0
     try:
-        response = build_field(model, FieldRequest(4, "descriptors", effects, kappa,
-                                                   np.eye(3), 12))
+        response = build_field(model, FieldRequest(id=4, task="descriptors", effects=effects,
+                                                   kappa=kappa, locked_rotation=np.eye(3),
+                                                   modes=12))
         assert model.geometric_rotation == in_use
     finally:
         model.geometric_rotation = before

@@ -110,10 +110,10 @@ class FakeModel:
 
     coarse = None  # the grid first_grid answers (None: the scene's descriptors are cached)
 
-    def first_grid(self, effects, *, sigma=None, penalty=None):
+    def first_grid(self, effects, *, descriptor=None):
         return self.coarse
 
-    def field(self, effects, kappa, rot, *, sigma=None, penalty=None, modes=None, grid=None,
+    def field(self, effects, kappa, rot, *, descriptor=None, modes=None, grid=None,
               progress=None, cancel=None):
         for i in range(10):
             if cancel is not None and cancel():
@@ -122,11 +122,13 @@ class FakeModel:
             if progress:
                 progress((i + 1) / 10)
         c = logged_well(modes=modes or 16, rotation=effects.rotation)
-        c.sigma = sigma
+        c.sigma = None if descriptor is None else descriptor.sigma
+        c.descriptor = descriptor
         c.grid = grid
         self.built.append(c)
         fld = (CorrelatorField(c, kappa) if effects.rotation else LandscapeField(c, rot, kappa))
-        return fld, (tiny_descriptor(sigma or 0.5, penalty or 3.0), tiny_descriptor())
+        d = descriptor or DescriptorParams()
+        return fld, (tiny_descriptor(d.sigma, d.penalty), tiny_descriptor())
 
 
 def fake_correlator(fixed, moving, *, modes, rotation, backend, kappa):
@@ -332,7 +334,7 @@ def test_set_modes_never_runs_on_the_loop_thread(rotation):
 def test_recompute_in_background_keeps_old_field_until_swap():
     loop, old, model = make_loop(realtime=True)
     loop.start()
-    loop.send(rt.SetDescriptorParams(sigma=0.8))
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.8)))
     assert wait_for(lambda: model.built, 5.0)
     assert wait_for(lambda: loop.sim.field.correlator is model.built[0], 2.0)
     saw_recompute = [f.recompute for f in loop.poll_frames() if f.recompute is not None]
@@ -353,7 +355,7 @@ def test_recompute_can_be_cancelled():
     loop, old, model = make_loop(realtime=True)
     model.delay = 1.0
     loop.start()
-    loop.send(rt.SetDescriptorParams(penalty=5.0))
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(penalty=5.0)))
     time.sleep(0.15)
     loop.send(rt.CancelRecompute())
     assert wait_for(lambda: any(isinstance(e, rt.ProgressEvent) and e.message == "cancelled"
@@ -367,9 +369,9 @@ def test_a_newer_request_supersedes_the_running_one():
     loop, old, model = make_loop(realtime=True)
     model.delay = 0.5
     loop.start()
-    loop.send(rt.SetDescriptorParams(sigma=0.6))
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.6)))
     time.sleep(0.1)
-    loop.send(rt.SetDescriptorParams(sigma=0.9))
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.9)))
     assert wait_for(lambda: loop.sim.field.correlator is not old, 5.0)
     time.sleep(0.3)
     events = loop.poll_events()
@@ -434,7 +436,7 @@ def test_lost_device_falls_back_to_mouse_and_keeps_running():
 def test_errors_in_commands_become_events():
     loop, _, _ = make_loop(realtime=False)
     loop.guidance.model = None
-    loop.send(rt.SetDescriptorParams(sigma=1.0))
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=1.0)))
     loop.run(max_steps=2)
     errs = [e for e in loop.poll_events() if isinstance(e, rt.ErrorEvent)]
     assert errs and not errs[0].fatal
@@ -526,7 +528,7 @@ def test_a_real_time_engine_loop_leaves_its_job_threads_at_ordinary_priority(mon
     loop.start()
     try:
         assert wait_for(lambda: loop.frames_published > 5)
-        loop.send(rt.SetDescriptorParams(sigma=0.7))
+        loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.7)))
         assert wait_for(lambda: "job" in seen, 5.0)
     finally:
         loop.stop()
@@ -759,7 +761,7 @@ def test_switch_interval_is_short_only_while_a_job_runs():
     try:
         assert wait_for(lambda: loop.frames_published > 5)
         assert sys.getswitchinterval() == base  # idle worker: the process's own interval
-        loop.send(rt.SetDescriptorParams(sigma=0.7))
+        loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.7)))
         assert wait_for(lambda: abs(sys.getswitchinterval() - 1e-4) < 1e-9, 2.0)
         assert wait_for(lambda: loop.sim.field.correlator in model.built, 5.0)
         assert wait_for(lambda: sys.getswitchinterval() == base, 2.0)
@@ -838,7 +840,7 @@ def test_an_uncached_scene_is_draggable_on_a_coarse_field_first():
 def test_a_k_change_does_not_cancel_descriptors_being_computed():
     loop, _, model = make_loop(realtime=True)
     loop.start()
-    loop.send(rt.SetDescriptorParams(sigma=0.8))
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.8)))
     assert wait_for(lambda: loop.guidance.recompute is not None, 2.0)
     loop.send(rt.SetModes(20))
     assert wait_for(lambda: loop.sim.field.modes == 20, 10.0)

@@ -204,7 +204,7 @@ def test_recompute_and_rate_override_hold_through_every_command(small_scene, tra
             assert steps_at_4ms(mark), command
         # a recompute: progress in the frames and events, then the swap with descriptors
         mark = len(seen.frames)
-        engine.send(rt.SetDescriptorParams(sigma=0.7))
+        engine.send(rt.SetDescriptorParams(params=replace(handle.scene.descriptor, sigma=0.7)))
         assert seen.wait(lambda: seen.of(rt.DescriptorsSwapped), 120.0)
         swapped = seen.of(rt.DescriptorsSwapped)[0]
         assert swapped.sigma == pytest.approx(0.7) and len(swapped.descriptors) == 2

@@ -376,7 +376,7 @@ def test_a_coarse_first_field_reaches_no_farther_than_the_scenes_own(small_peg_s
     from engine.sim.build import SceneModel
 
     model = SceneModel(rt.open_scene(small_peg_scene), modes=8, backend="numba")
-    coarse = model._scene_with(None, None, 8)  # the scene's grid is 16
+    coarse = model._scene_with(None, 8)  # the scene's grid is 16
 
     def reach(scene):
         return scene.descriptor.padding * scene_spacing(scene, model.parts)
