@@ -115,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
                       "curvature": joint.curvature, "step": joint.step,
                       "angle_deg": float(np.degrees(joint.angle))},
         "hold": {"point": [float(x) for x in held], "source": hold_source},
+        # the settings the scene leaves open, chosen from the parts, and why
+        "chosen": [{"key": key, "value": value, "reason": reason}
+                   for key, value, reason in scene.chosen],
         # the repairs made to the parts (duplicates dropped, holes): what was evaluated
         "notes": [str(w) for part in handle.parts for w in part.warnings],
     }
@@ -145,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")
+    for key, value, reason in scene.chosen:
+        print(f"chosen     {key} = {value}: {reason}")
     return 0
 
 

@@ -41,8 +41,9 @@ def run(args: argparse.Namespace) -> int:
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.scene import load_scene
+    from engine.sim.auto import complete_scene
 
-    scene = load_scene(args.scene)
+    scene, _ = complete_scene(load_scene(args.scene))  # what it leaves open, from the parts
     if args.modes is not None:
         from engine.params import check_modes
 

@@ -248,11 +248,12 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
     from engine.errors import InputError
     from engine.files import check_output
     from engine.scene import load_scene, load_scene_parts
+    from engine.sim.auto import complete_scene
 
     if args.body is not None or args.tolerance is not None:
         raise ValueError("--body and --tolerance apply to part files; a scene sets them per "
                          "[[part]] (body = ..., tolerance = ...)")
-    scene = load_scene(path)
+    scene, _ = complete_scene(load_scene(path))  # what it leaves open, chosen from the parts
     d = scene.descriptor
     if args.grid is not None:
         d = replace(d, grid=args.grid, spacing=None)

@@ -43,15 +43,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                      "frame (default: 0 0 -1, down)")
     new.add_argument("--grid", type=int, default=None,
                      help="descriptor samples along the largest part's longest side (default: "
-                     "64; the descriptor's cost grows with its cube)")
+                     "chosen from the fit's width; the descriptor's cost grows with its cube)")
     new.add_argument("--modes", type=int, default=None,
-                     help="Fourier modes per axis K (default 16; tight fits need 24 to 48)")
+                     help="Fourier modes per axis K (default: chosen from the fit's width, "
+                     "within what the loop affords on this machine)")
     new.add_argument("--force", action="store_true", help="replace an existing scene file")
     new.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Write the scene; print where part 2 starts and what to run next. Returns 0."""
+    from dataclasses import replace
     from pathlib import Path
 
     import numpy as np
@@ -61,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from engine.params import LENGTH_UNITS, CorrelationParams, DescriptorParams
     from engine.scene import PartSpec, Scene
     from engine.scene.writer import save_scene
+    from engine.sim.auto import complete_scene
 
     if args.unit not in LENGTH_UNITS:
         raise InputError(f"--unit {args.unit!r} is not a known unit; use one of "
@@ -86,23 +89,28 @@ def run(args: argparse.Namespace) -> int:
     descriptor = DescriptorParams() if args.grid is None else DescriptorParams(grid=args.grid)
     correlation = (CorrelationParams() if args.modes is None
                    else CorrelationParams(modes=args.modes))
-
-    def scene_with(start: np.ndarray) -> Scene:
-        parts = (PartSpec(name=files[0].stem, file=files[0], pose=np.zeros(6), fixed=True),
-                 PartSpec(name=files[1].stem, file=files[1], pose=start, fixed=False))
-        return Scene(path=out.resolve(), name=f"{files[1].stem} into {files[0].stem}",
-                     parts=parts, assembled_pose=assembled, units=args.unit,
-                     insertion_axis=axis, descriptor=descriptor, correlation=correlation)
-
-    draft = scene_with(assembled)
+    # what the user gave; the rest is chosen from the parts
+    given = frozenset(key for key, value in (("descriptor.grid", args.grid),
+                                             ("correlation.modes", args.modes))
+                      if value is not None)
+    parts = (PartSpec(name=files[0].stem, file=files[0], pose=np.zeros(6), fixed=True),
+             PartSpec(name=files[1].stem, file=files[1], pose=assembled, fixed=False))
+    draft = Scene(path=out.resolve(), name=f"{files[1].stem} into {files[0].stem}",
+                  parts=parts, assembled_pose=assembled, units=args.unit,
+                  insertion_axis=axis, descriptor=descriptor, correlation=correlation,
+                  given=given)
+    draft, _ = complete_scene(draft)
     back = clear_distance(draft, axis)
     start = assembled.copy()
     start[:3] -= back * axis
-    written = save_scene(scene_with(start), out)
+    moving = replace(draft.parts[1], pose=start)
+    written = save_scene(replace(draft, parts=(draft.parts[0], moving)), out)
     rows = ["t,tx,ty,tz,rx,ry,rz", "0," + ",".join(f"{v:.9g}" for v in start),
             f"{PUSH_SECONDS:g}," + ",".join(f"{v:.9g}" for v in assembled)]
     write_text(push, "\n".join(rows) + "\n", what="trajectory")
     print(f"wrote      {written}")
+    for key, value, reason in draft.chosen:
+        print(f"chose      {key} = {value}: {reason}")
     print(f"start      part 2 {back:.4g} {args.unit} back from its seat along the insertion "
           "axis, out of part 1's reach (at rest until you move it)")
     print(f"push       {push}: the proxy from the start to the seat in {PUSH_SECONDS:g} s")

@@ -14,7 +14,8 @@ import numpy as np
 from engine.loading import Part
 from engine.params import SimConfig
 from engine.pose import compose, relative_pose
-from engine.scene import Scene, load_scene, load_scene_parts, relative_start_pose
+from engine.scene import Scene, load_scene, relative_start_pose
+from engine.sim.auto import complete_scene
 
 __all__ = ["SceneHandle", "open_scene"]
 
@@ -74,8 +75,8 @@ def open_scene(path: str | Path) -> SceneHandle:
     engine.scene.SceneError, engine.loading.PartError
         ValueError subclasses with the file, the line and the fix.
     """
-    scene = load_scene(path)
-    parts = tuple(load_scene_parts(scene))
+    scene, loaded = complete_scene(load_scene(path))
+    parts = tuple(loaded)
     start = relative_start_pose(scene) if len(scene.parts) >= 2 else np.zeros(6)
     return SceneHandle(
         scene=scene,

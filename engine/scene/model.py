@@ -129,6 +129,14 @@ class Scene:
     config : SimConfig
         The ``[simulation]``, ``[coupling]``, ``[effects]``, ``[device]`` tables and each
         part's mass keys.
+    given : frozenset of str
+        The settings the file gives, as ``"table.key"`` (``"descriptor.grid"``,
+        ``"correlation.modes"``, ``"coupling.angular_stiffness"``, ...); every other
+        setting is the engine's to choose from the parts (:mod:`engine.sim.auto`). None
+        (the default for scenes built in code): every setting counts as given.
+    chosen : tuple of (str, str, str)
+        The settings chosen from the parts, as ``(key, value, reason)``; empty until
+        :func:`engine.sim.auto.complete_scene` fills them.
     """
 
     path: Path
@@ -142,6 +150,8 @@ class Scene:
     descriptor: DescriptorParams = field(default_factory=DescriptorParams)
     correlation: CorrelationParams = field(default_factory=CorrelationParams)
     config: SimConfig = field(default_factory=SimConfig)
+    given: frozenset[str] | None = None
+    chosen: tuple[tuple[str, str, str], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", Path(self.path))
@@ -149,6 +159,10 @@ class Scene:
         object.__setattr__(self, "assembled_pose", _readonly(self.assembled_pose, 6))
         if self.insertion_axis is not None:
             object.__setattr__(self, "insertion_axis", _readonly(self.insertion_axis, 3))
+
+    def gives(self, key: str) -> bool:
+        """Whether the file sets ``key`` (``"descriptor.grid"``), so the engine keeps it."""
+        return self.given is None or key in self.given
 
     @property
     def modes(self) -> int:

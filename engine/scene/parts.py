@@ -43,6 +43,15 @@ def load_scene_parts(scene: Scene) -> list[Part]:
     Each part's ``unit`` becomes the scene's; a line in its ``warnings`` says when it was
     converted, and the unit checks of this module add theirs (each once per scene).
     """
+    return load_scene_parts_and_units(scene)[0]
+
+
+def load_scene_parts_and_units(scene: Scene) -> tuple[list[Part], list[str]]:
+    """:func:`load_scene_parts`, and the unit each part's file was read in.
+
+    The file's unit is what a ``[[part]] tolerance`` is written in (the STEP header's,
+    or the part's ``unit``).
+    """
     parts: list[Part] = []
     units: list[str] = []  # each part's unit before conversion
     kinds: list[str] = []  # where it came from: "part" (its [[part]]), "header", "mesh"
@@ -84,7 +93,7 @@ def load_scene_parts(scene: Scene) -> list[Part]:
         message = out_of_reach(scene, sizes)
         if message is not None:
             parts[1] = _warn(parts[1], f"{scene.path}: {message}")
-    return parts
+    return parts, units
 
 
 #: Poses that keep the parts farther apart than this many times their summed sizes never

@@ -358,9 +358,12 @@ def parse_scene(text: str, path: Path) -> Scene:
         masses=masses,
         units=units,
     )
+    given = frozenset(f"{table}.{key}" for table in ("descriptor", "correlation", "simulation",
+                                                      "coupling")
+                      if isinstance(data.get(table), dict) for key in data[table])
     return Scene(path=p, name=name, units=units, units_declared=units_declared,
                  parts=tuple(parts), assembled_pose=assembled, insertion_axis=axis, seat=seat,
-                 descriptor=descriptor, correlation=correlation, config=config)
+                 descriptor=descriptor, correlation=correlation, config=config, given=given)
 
 
 def _seat(top: _Table) -> SeatSpec:

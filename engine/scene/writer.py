@@ -156,6 +156,32 @@ def _effects(effects: Effects, units: str) -> TomlTable:
     return table
 
 
+def annotate_chosen(text: str, chosen: tuple[tuple[str, str, str], ...]) -> str:
+    """``text`` with ``  # chosen: REASON`` beside each setting chosen from the parts.
+
+    ``chosen`` holds ``(key, value, reason)`` with keys ``"table.key"`` or
+    ``"part.INDEX.key"`` (``Scene.chosen``); a key the text does not hold is skipped.
+    """
+    reasons = {key: reason for key, _, reason in chosen}
+    if not reasons:
+        return text
+    lines = text.split("\n")
+    table, parts = "", -1
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        if stripped == "[[part]]":
+            parts += 1
+            table = f"part.{parts}"
+        elif stripped.startswith("[") and stripped.endswith("]"):
+            table = stripped.strip("[]")
+        elif "=" in stripped and not stripped.startswith("#"):
+            name = stripped.split("=", 1)[0].strip()
+            reason = reasons.get(f"{table}.{name}" if table else name)
+            if reason is not None:
+                lines[i] = f"{line}  # chosen: {reason}"
+    return "\n".join(lines)
+
+
 def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
     """Write a scene as TOML (atomically) and return the path written.
 
@@ -174,7 +200,8 @@ def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
     if out.suffix.lower() != ".toml":
         out = out.with_suffix(".toml")
     out = out.resolve()
-    text = compact_arrays(tomli_w.dumps(scene_to_toml(scene, out.parent)))
+    text = annotate_chosen(compact_arrays(tomli_w.dumps(scene_to_toml(scene, out.parent))),
+                           scene.chosen)
     try:
         # first: the relative part paths are checked through it ("../" needs it to exist)
         out.parent.mkdir(parents=True, exist_ok=True)

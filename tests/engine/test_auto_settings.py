@@ -1,0 +1,172 @@
+"""Settings chosen from the parts: the fit measured at the seat, and what follows from it.
+
+A round peg in a blind bore, modelled with a known clearance, width and depth, is measured
+at its assembled pose; the choices (grid spacing, K, STEP chord tolerance) are checked
+against the measure, against each other (a narrower fit asks for more modes, a tighter one
+for a finer tessellation) and against what the user gives (always kept).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from engine.loading import Part
+
+trimesh = pytest.importorskip("trimesh")
+
+
+def _part(mesh, name: str) -> Part:
+    return Part(name=name, vertices=np.asarray(mesh.vertices, np.float64),
+                faces=np.asarray(mesh.faces, np.int64), source=None, unit="mm")
+
+
+@functools.cache
+def peg_and_bore(diameter: float, clearance: float, *, depth: float = 12.0,
+                 sections: int = 128) -> tuple[Part, Part]:
+    """A block with a blind bore ``diameter + 2 clearance`` wide, and a peg of ``diameter``.
+
+    The bore's floor at z = -depth; the peg's end at its own z = 0; it seats at
+    (0, 0, -depth). Bore and peg are prisms on ``sections``-gons, the bore's circumscribed
+    (its flats, not its corners, at the bore's radius) so the gap is the clearance.
+    """
+    r_bore = 0.5 * diameter + clearance
+    bore = trimesh.creation.cylinder(radius=r_bore / np.cos(np.pi / sections),
+                                     height=depth + 1.0, sections=sections)
+    bore.apply_translation((0, 0, -depth + 0.5 * (depth + 1.0)))
+    block = trimesh.creation.box(extents=(4 * diameter, 4 * diameter, depth + 8.0))
+    block.apply_translation((0, 0, -0.5 * (depth + 8.0)))
+    block = block.difference(bore)
+    peg = trimesh.creation.cylinder(radius=0.5 * diameter, height=2 * depth, sections=sections)
+    peg.apply_translation((0, 0, depth))
+    return _part(block, "block"), _part(peg, "peg")
+
+
+SEAT = np.array([0.0, 0.0, -12.0, 0.0, 0.0, 0.0])
+AXIS = np.array([0.0, 0.0, -1.0])
+
+
+@pytest.mark.parametrize("clearance", [0.02, 0.2])
+def test_the_fit_is_measured_at_the_seat(clearance):
+    from engine.sim.auto import measure_fit
+
+    block, peg = peg_and_bore(10.0, clearance)
+    fit = measure_fit(block, peg, SEAT, AXIS)
+    assert fit.clearance == pytest.approx(clearance, rel=0.15)
+    assert fit.tightest is not None and 0.5 * clearance < fit.tightest <= fit.clearance
+    assert fit.width == pytest.approx(10.0, rel=0.05)
+    # the fit is where the peg is in the bore: across the bore, and down to its floor
+    assert fit.box_lo[2] == pytest.approx(-12.0, abs=0.5)
+    assert fit.box_hi[2] == pytest.approx(0.0, abs=1.0)
+    assert np.all(fit.box_hi[:2] - fit.box_lo[:2] < 10.0 + 4 * clearance)
+
+
+def _scene(block: Part, peg: Part, tmp_path, **given):
+    """A scene in code for the two parts (saved as STL), giving only ``given``."""
+    from engine.params import CorrelationParams, DescriptorParams
+    from engine.scene import PartSpec, Scene
+
+    files = []
+    for part in (block, peg):
+        path = tmp_path / f"{part.name}.stl"
+        trimesh.Trimesh(part.vertices, part.faces, process=False).export(path)
+        files.append(path)
+    specs = (PartSpec(name="block", file=files[0], pose=np.zeros(6), fixed=True),
+             PartSpec(name="peg", file=files[1], pose=SEAT, fixed=False))
+    keys = {"grid": "descriptor.grid", "modes": "correlation.modes"}
+    return Scene(path=tmp_path / "scene.toml", name="fit", parts=specs, assembled_pose=SEAT,
+                 insertion_axis=AXIS,
+                 descriptor=DescriptorParams(grid=given.get("grid", 64)),
+                 correlation=CorrelationParams(modes=given.get("modes", 16)),
+                 given=frozenset(keys[k] for k in given))
+
+
+def test_modes_are_odd_and_capped_by_the_budget(tmp_path):
+    from engine.sim.auto import choose_settings
+
+    block, peg = peg_and_bore(5.0, 0.05)
+    free = choose_settings(_scene(block, peg, tmp_path), [block, peg], budget=(127, "test"))
+    assert free.modes % 2 == 1  # a band symmetric about zero
+    assert "wavelength" in free.reasons["correlation.modes"]
+    capped = choose_settings(_scene(block, peg, tmp_path), [block, peg],
+                             budget=(11, "a test's budget"))
+    assert free.modes > 11 and capped.modes == 11
+    assert "a test's budget" in capped.reasons["correlation.modes"]
+    assert "coarsely" in capped.reasons["correlation.modes"]
+
+
+def test_a_narrower_fit_in_the_same_part_asks_for_more_modes(tmp_path):
+    from engine.sim.auto import choose_settings
+
+    chosen = []
+    for diameter in (20.0, 5.0):
+        block = trimesh.creation.box(extents=(80.0, 80.0, 20.0))
+        block.apply_translation((0, 0, -10.0))
+        radius = (0.5 * diameter + 0.05) / np.cos(np.pi / 128)
+        bore = trimesh.creation.cylinder(radius=radius, height=13.0, sections=128)
+        bore.apply_translation((0, 0, -5.5))
+        _, peg = peg_and_bore(diameter, 0.05)
+        fixed = _part(block.difference(bore), "block")
+        s = choose_settings(_scene(fixed, peg, tmp_path), [fixed, peg], budget=(127, "test"))
+        assert s.fit.width == pytest.approx(diameter, rel=0.05)
+        chosen.append(s)
+    assert chosen[1].modes > chosen[0].modes
+    assert chosen[1].spacing < chosen[0].spacing
+
+
+def test_a_tighter_fit_asks_for_a_finer_tessellation(tmp_path):
+    from engine.sim.auto import choose_settings
+
+    tolerances = []
+    for clearance in (0.2, 0.02):
+        block, peg = peg_and_bore(10.0, clearance)
+        s = choose_settings(_scene(block, peg, tmp_path), [block, peg], budget=(25, "test"))
+        assert s.tolerance is not None and s.tolerance < s.fit.tightest
+        assert "tightest gap" in s.reasons["part.tolerance"]
+        tolerances.append(s.tolerance)
+    assert tolerances[1] < 0.2 * tolerances[0]
+
+
+def test_what_the_user_gives_wins_and_the_rest_is_chosen(tmp_path):
+    from engine.sim.auto import complete_scene
+
+    block, peg = peg_and_bore(10.0, 0.05)
+    given = _scene(block, peg, tmp_path, grid=40, modes=12)
+    scene, parts = complete_scene(given)
+    assert scene.descriptor.grid == 40 and scene.modes == 12 and scene.chosen == ()
+    assert len(parts) == 2
+    chosen, _ = complete_scene(_scene(block, peg, tmp_path, modes=12))
+    assert chosen.modes == 12 and chosen.descriptor.spacing is not None
+    assert [key for key, _, _ in chosen.chosen] == ["descriptor.spacing"]
+    free, _ = complete_scene(_scene(block, peg, tmp_path))
+    keys = [key for key, _, _ in free.chosen]
+    assert keys == ["descriptor.spacing", "correlation.modes"]
+    assert free.modes % 2 == 1 and all(reason for _, _, reason in free.chosen)
+
+
+def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypatch):
+    from app.cli import main
+    from engine.scene import load_scene
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path / "cache"))
+    block, peg = peg_and_bore(10.0, 0.05)
+    scene = _scene(block, peg, tmp_path)
+    out = tmp_path / "new.toml"
+    assert main(["scene", "new", str(scene.parts[0].file), str(scene.parts[1].file), "-o",
+                 str(out), "--assembled", *map(str, SEAT)]) == 0
+    printed = capsys.readouterr().out
+    assert "chose      descriptor.spacing" in printed and "chose      correlation.modes" in printed
+    text = out.read_text()
+    assert text.count("# chosen: ") == 2
+    back = load_scene(out)
+    assert back.modes % 2 == 1 and back.descriptor.spacing is not None
+    # read back, the choices are the file's own: nothing is chosen again
+    assert back.gives("correlation.modes") and back.gives("descriptor.spacing")
+    # a user's --modes is kept, and not annotated
+    out2 = tmp_path / "given.toml"
+    assert main(["scene", "new", str(scene.parts[0].file), str(scene.parts[1].file), "-o",
+                 str(out2), "--assembled", *map(str, SEAT), "--modes", "14"]) == 0
+    assert load_scene(out2).modes == 14
+    assert out2.read_text().count("# chosen: ") == 1
