@@ -900,6 +900,12 @@ class Physics:
         Geometric force gain.
     gravity : (3,) float64
         Gravity acceleration (zeros when off; read-only).
+    k_rot_hard, c_rot_hard : float
+        The rotational coupling beyond ``rot_play``: past that angle between the part and
+        the proxy the spring stiffens from ``k_rot`` to ``k_rot_hard`` (torque/rad) and
+        the damping to ``c_rot_hard``. 0: no stiffening (a linear spring).
+    rot_play : float
+        The angle (rad) within which the coupling turns the part with ``k_rot`` alone.
 
     The time step is not here: :class:`engine.sim.Simulation` owns it, set once.
     """
@@ -916,9 +922,13 @@ class Physics:
     body_c_rot: float = 0.0
     kappa: float = 1.0
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    k_rot_hard: float = 0.0
+    c_rot_hard: float = 0.0
+    rot_play: float = math.pi
 
     def __post_init__(self) -> None:
-        for name in ("k_lin", "c_lin", "k_rot", "c_rot", "body_c_lin", "body_c_rot", "kappa"):
+        for name in ("k_lin", "c_lin", "k_rot", "c_rot", "body_c_lin", "body_c_rot", "kappa",
+                     "k_rot_hard", "c_rot_hard", "rot_play"):
             object.__setattr__(self, name, _at_least("physics", name, getattr(self, name), 0.0))
         for name in ("mass", "length"):
             object.__setattr__(self, name, _positive("physics", name, getattr(self, name)))

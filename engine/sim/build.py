@@ -205,6 +205,12 @@ ROTATION_AUTHORITY = 100.0
 #: in straight (0.33 degree); held at its centre of mass at 1 % it was thrown 44 degrees at
 #: the hole's mouth, which is why this was 0.25 before.
 MIN_ROTATION_FRACTION = 0.01
+#: The hand's play: within this angle of the proxy the lowered rotational spring lets the
+#: fit turn the part into line; past it the spring is the mass-based one again, so a
+#: torque at a hole's mouth cannot throw the part over (with the lowered spring alone
+#: the 16 mm Factory peg turned 62 degrees from the proxy during a push, and the
+#: dovetail's slide 55). The misaim of the seating protocol is 3 degrees.
+HAND_PLAY_RAD = math.radians(3.0)
 #: Rotation step of the finite differences that measure the geometric rotational stiffness.
 STIFFNESS_STEP_RAD = math.radians(0.5)
 
@@ -539,9 +545,9 @@ def resolve_physics(
         kappa = config.simulation.kappa
     if kappa is None:
         kappa = config.simulation.guidance_gain * k_lin / length
-    k_rot = i_mean * omega**2
+    k_rot = k_hand = i_mean * omega**2
     if c.angular_stiffness is not None:
-        k_rot = c.angular_stiffness
+        k_rot = k_hand = c.angular_stiffness
     elif geometric_rotation is not None and geometric_rotation > 0 and kappa > 0:
         k_fit = kappa * geometric_rotation / ROTATION_AUTHORITY
         k_rot = max(min(k_rot, k_fit), MIN_ROTATION_FRACTION * k_rot)
@@ -549,11 +555,14 @@ def resolve_physics(
     c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
         k_rot * i_mean
     )
+    # past the hand's play the hand holds the part: the mass-based stiffness, not lowered
+    c_hand = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
+        k_hand * i_mean)
     zb = config.simulation.body_damping_ratio
     body_c_lin = 2 * zb * math.sqrt(k_lin * mass)
     body_c_rot = 2 * zb * math.sqrt(k_rot * i_mean)
     if not effects.damping:
-        c_lin = c_rot = body_c_lin = body_c_rot = 0.0
+        c_lin = c_rot = c_hand = body_c_lin = body_c_rot = 0.0
     gravity = np.zeros(3) if effects.gravity is None else np.asarray(effects.gravity, float)
     check_range("part mass", mass, MASS_RANGE,
                 "the coupling's gains m (2 pi f)^2 and their square roots overflow or vanish "
@@ -571,6 +580,9 @@ def resolve_physics(
         body_c_rot=float(body_c_rot),
         kappa=float(kappa),
         gravity=gravity,
+        k_rot_hard=float(k_hand) if k_hand > k_rot else 0.0,
+        c_rot_hard=float(c_hand),
+        rot_play=HAND_PLAY_RAD,
     )
     check_physics(physics, default_kappa)
     return physics

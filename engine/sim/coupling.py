@@ -13,6 +13,12 @@ frame), which the proxy places at ``x_proxy = t_proxy + R_proxy c``::
     F_c = k (x_proxy - x) - c v
     T_c = k_r rotvec(R_proxy R^T) - c_r omega
 
+up to the angle ``rot_play`` between the two; past it the spring stiffens to ``k_r'`` (the
+torque ``k_r play + k_r' (angle - play)`` along the same axis) and the damping to ``c_r'``.
+Near a fit the soft spring lets the fit's torque turn the part into line within the hand's
+play; beyond it the hand holds the part, so a torque at a hole's mouth cannot throw it over
+(``engine.sim.build.resolve_physics`` chooses the three).
+
 (damping against the world: robust to jerky mouse input, which has no clean velocity).
 Holding the part at its centre of mass, not at its file's origin, keeps the lever of the
 geometric force against the rotational spring independent of where the file puts the origin.
@@ -61,7 +67,14 @@ def coupling_wrench(
     force, torque : (3,) float64
     """
     force = gains.k_lin * (proxy_point - point) - gains.c_lin * point_velocity
-    torque = gains.k_rot * rotvec_between(proxy_quat, quat) - gains.c_rot * omega
+    r = rotvec_between(proxy_quat, quat)
+    angle = math.sqrt(float(r @ r))
+    play = gains.rot_play
+    if gains.k_rot_hard > gains.k_rot and angle > play:
+        # past the hand's play the spring stiffens: the part follows the proxy's turn
+        spring = (gains.k_rot * play + gains.k_rot_hard * (angle - play)) / angle
+        return force, spring * r - gains.c_rot_hard * omega
+    torque = gains.k_rot * r - gains.c_rot * omega
     return force, torque
 
 
@@ -75,7 +88,13 @@ def coupling_energy(
     """Potential energy of the coupling's springs, ``k |d|^2 / 2 + k_r |r|^2 / 2``."""
     d = proxy_point - point
     r = rotvec_between(proxy_quat, quat)
-    return 0.5 * gains.k_lin * float(d @ d) + 0.5 * gains.k_rot * float(r @ r)
+    linear = 0.5 * gains.k_lin * float(d @ d)
+    angle = math.sqrt(float(r @ r))
+    play = gains.rot_play
+    if gains.k_rot_hard > gains.k_rot and angle > play:
+        past = angle - play
+        return linear + gains.k_rot * play * (0.5 * play + past) + 0.5 * gains.k_rot_hard * past**2
+    return linear + 0.5 * gains.k_rot * angle**2
 
 
 def clamp_norm(vector: np.ndarray, limit: float) -> np.ndarray:

@@ -5,6 +5,7 @@ scale invariance of the defaults, and switched-off work not being done.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -376,3 +377,78 @@ def test_a_model_switch_s_energy_is_taken_back_from_the_turning():
         else:
             assert after == pytest.approx(0.0, abs=1e-15)
             assert sim.taken_back == pytest.approx(before, rel=1e-9)
+
+
+def _turned(angle_deg: float, axis=(0.3, -0.5, 0.8)) -> np.ndarray:
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    return rotvec_to_quaternion(math.radians(angle_deg) * a)
+
+
+def test_past_the_hands_play_the_rotational_spring_stiffens_continuously():
+    from engine.sim import coupling_energy
+
+    play = math.radians(3.0)
+    gains = Physics(k_lin=0.0, c_lin=0.0, k_rot=2.0, c_rot=0.0, k_rot_hard=200.0,
+                    c_rot_hard=0.0, rot_play=play)
+    linear = Physics(k_lin=0.0, c_lin=0.0, k_rot=2.0, c_rot=0.0)
+    zero, proxy = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
+    for angle in (1.0, 2.9):  # within the play: the soft spring alone
+        q = _turned(angle)
+        soft = coupling_wrench(gains, zero, q, zero, zero, zero, proxy)[1]
+        np.testing.assert_allclose(soft, coupling_wrench(linear, zero, q, zero, zero, zero,
+                                                         proxy)[1])
+    # continuous at the play, then the stiff spring's slope
+    just = [np.linalg.norm(coupling_wrench(gains, zero, _turned(math.degrees(play) + d), zero,
+                                           zero, zero, proxy)[1]) for d in (-1e-6, 1e-6)]
+    assert just[0] == pytest.approx(just[1], rel=1e-4)
+    beyond = np.linalg.norm(coupling_wrench(gains, zero, _turned(5.0), zero, zero, zero,
+                                            proxy)[1])
+    assert beyond == pytest.approx(2.0 * play + 200.0 * math.radians(2.0), rel=1e-6)
+    # the torque is minus the gradient of the coupling's energy, on both sides of the play
+    for angle in (2.0, 4.0, 20.0):
+        r = math.radians(angle) * np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+        torque = coupling_wrench(gains, zero, rotvec_to_quaternion(r), zero, zero, zero,
+                                 proxy)[1]
+        h = 1e-6
+        grad = np.zeros(3)
+        for i in range(3):
+            d = np.zeros(3)
+            d[i] = h
+            plus = coupling_energy(gains, zero, rotvec_to_quaternion(r + d), zero, proxy)
+            minus = coupling_energy(gains, zero, rotvec_to_quaternion(r - d), zero, proxy)
+            grad[i] = (plus - minus) / (2 * h)
+        np.testing.assert_allclose(torque, -grad, rtol=1e-4, atol=1e-9)
+
+
+def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play():
+    """A soft fit lowers the spring; a pull that would turn the part far is held near the
+    proxy: past the hand's play the mass-based spring takes over.
+    """
+    from sim_fakes import SpringCorrelator
+
+    from engine.pose import rotation_matrix
+    from engine.sim import rotational_stiffness
+
+    v, f = box_mesh()
+    config = SimConfig()
+    hand = resolve_physics(config, v, f)
+    pts = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, -1.0, 0.0]])
+    unit = rotational_stiffness(CorrelatorField(SpringCorrelator(pts, pts, 1.0), 1.0),
+                                np.zeros(6))
+    # a pull towards a pose turned 60 degrees about x, a twentieth as stiff as the hand
+    turned = pts @ rotation_matrix(np.array([math.radians(60.0), 0.0, 0.0])).T
+    pull = CorrelatorField(SpringCorrelator(pts, turned, 0.05 * hand.k_rot / unit), 1.0)
+    # the fit measured at the seat is soft: the spring is lowered to its floor
+    phys = resolve_physics(config, v, f, kappa=1.0, geometric_rotation=1e-9)
+    assert phys.k_rot < 0.02 * hand.k_rot
+    assert phys.k_rot_hard == pytest.approx(hand.k_rot)
+    assert phys.rot_play == pytest.approx(math.radians(3.0))
+    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    angles = {}
+    for name, gains in (("with the play", phys), ("lowered alone", replace(phys, k_rot_hard=0.0))):
+        sim = Simulation(body, gains, config.effects, pull, np.zeros(6))
+        sim.set_proxy(np.zeros(6))
+        sim.run(6000)
+        angles[name] = math.degrees(float(np.linalg.norm(sim.part_pose()[3:])))
+    assert angles["lowered alone"] > 30.0  # thrown most of the way
+    assert angles["with the play"] < 8.0  # held: the play, plus 5 % of the rest
