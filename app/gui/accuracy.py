@@ -1,20 +1,21 @@
 """The accuracy indicator's worker: the truncation profile of the descriptors in use.
 
 The engine sends the descriptors it correlates (``ReadyEvent`` and ``DescriptorsSwapped``
-carry them for the slice views); from them one worker thread computes, once per pair,
+carry them for the slice views); from them a background worker (the engine's one
+interface for background work, :class:`engine.runtime.JobWorker`) computes, once per pair,
 :func:`engine.correlation.truncation.truncation_profile` for the energy and the force: for
 every K the share of the correlation spectrum's weight outside the kept cube. The
 parameter panel then reads the values at any K without asking anyone. A newer pair
-supersedes an older one: its request id is newer, and an answer for an older id is
+supersedes an older one: the worker cancels it, and an answer for an older request id is
 dropped.
 """
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
-
 import numpy as np
 from PySide6 import QtCore
+
+from engine.runtime import JobWorker
 
 
 def profile_of(descriptors) -> np.ndarray | None:
@@ -54,9 +55,8 @@ class AccuracyIndicator(QtCore.QObject):
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accuracy")
+        self._worker = JobWorker(name="skelasm-accuracy")
         self._request = 0
-        self._future: Future | None = None
         # emitted from the worker, delivered on this object's (the GUI's) thread
         self._answered.connect(self._deliver, QtCore.Qt.QueuedConnection)
 
@@ -66,28 +66,28 @@ class AccuracyIndicator(QtCore.QObject):
 
         self._request += 1
         request = self._request
-        if self._future is not None:
-            self._future.cancel()  # not started yet: superseded
         pair = tuple(descriptors)
         if len(pair) < 2 or required_fft_size(pair[0].rho.shape,
                                               pair[-1].rho.shape) ** 3 <= self.inline_points:
+            self._worker.cancel("profile")  # superseded
             self._deliver(request, _profile_or_none(pair))
             return
 
-        def work() -> None:
-            self._answered.emit(request, _profile_or_none(pair))
+        def work(cancelled) -> None:
+            profile = _profile_or_none(pair)
+            if not cancelled():
+                self._answered.emit(request, profile)
 
-        self._future = self._pool.submit(work)
+        self._worker.submit("profile", work)  # cancels the superseded one
 
-    def wait_until_idle(self, timeout: float | None = None) -> None:
-        """Block until the last request has been computed (tests)."""
-        if self._future is not None:
-            self._future.result(timeout)
+    def wait_until_idle(self, timeout: float = 60.0) -> bool:
+        """Wait until the last request has been computed (tests); True when it has."""
+        return self._worker.wait_until_idle(timeout)
 
     def shutdown(self) -> None:
         """Drop what is queued and stop the worker (the window closes)."""
         self._request += 1
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._worker.shutdown(timeout=0.0)
 
     def _deliver(self, request: int, profile) -> None:
         if request == self._request:

@@ -72,6 +72,8 @@ class Session(QtCore.QObject):
         self.loading: str | None = None
         self._tmp = tempfile.TemporaryDirectory(prefix="skelasm-gui-")
         self._generated = 0
+        #: scenes are opened off the GUI thread; a newer open supersedes an older one
+        self._opener = runtime.JobWorker(name="skelasm-open")
         self._loaded.connect(self._on_loaded)
 
     @property
@@ -98,8 +100,8 @@ class Session(QtCore.QObject):
             self.open_failed.emit(str(path), str(exc))
             return
         self.loading = str(path)
-        threading.Thread(target=self._open_worker, args=(scene_path, str(path)),
-                         name="skelasm-open", daemon=True).start()
+        self._opener.submit("open", lambda cancelled: self._open_worker(
+            scene_path, str(path), cancelled))
 
     def open_sync(self, path: str | Path) -> None:
         """Open in the calling thread (command line start-up, tests)."""
@@ -111,13 +113,15 @@ class Session(QtCore.QObject):
             return
         self._on_loaded(handle, None, str(path))
 
-    def _open_worker(self, scene_path: Path, original: str) -> None:
+    def _open_worker(self, scene_path: Path, original: str, cancelled) -> None:
         try:
             handle = runtime.open_scene(scene_path)
         except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
-            self._loaded.emit(None, exc, original)
+            if not cancelled():
+                self._loaded.emit(None, exc, original)
             return
-        self._loaded.emit(handle, None, original)
+        if not cancelled():  # a newer open superseded this one: its answer is dropped
+            self._loaded.emit(handle, None, original)
 
     def _scene_path_for(self, path: Path) -> Path:
         suffix = path.suffix.lower()
@@ -237,6 +241,7 @@ class Session(QtCore.QObject):
 
     def close(self) -> None:
         """Stop the engine, wait for its background workers and remove the temporary files."""
+        self._opener.shutdown(timeout=0.0)  # a scene still loading is dropped
         if self.engine is not None:
             self.engine.stop()
             self.engine = None

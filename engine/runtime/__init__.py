@@ -17,6 +17,7 @@ date with commands), :mod:`~engine.runtime.inputs` (the device),
 from engine.runtime.api import DEFAULT_SWITCH_INTERVAL, EngineHandle, Transport, start_engine
 from engine.runtime.benchmark import AnalyticWell, bench_proxy_motion, bench_trajectory
 from engine.runtime.frames import FRAME_WIDTH, SLOTS, FrameRing, pack_frame, unpack_frame
+from engine.runtime.jobs import BackgroundWork, JobWorker
 from engine.runtime.loop import EngineLoop
 from engine.runtime.messages import (
     COMMAND_TYPES,
@@ -57,6 +58,7 @@ __all__ = [
     "REALTIME_PRIORITY",
     "SLOTS",
     "AnalyticWell",
+    "BackgroundWork",
     "CancelRecompute",
     "Command",
     "DescriptorsSwapped",
@@ -68,6 +70,7 @@ __all__ = [
     "Event",
     "Frame",
     "FrameRing",
+    "JobWorker",
     "LandscapeFailed",
     "LandscapeReady",
     "Pause",

@@ -14,6 +14,14 @@ slicer uses): a newer request of the same kind supersedes the older one, which i
 the loop drops any response whose id is not the newest it asked for. Nothing here runs on
 the loop thread; the loop only collects finished responses between two steps.
 
+:class:`BackgroundWork` is the one interface for background work (``submit(kind, run)``
+superseding the same kind, ``cancel``, ``wait_until_idle``, ``shutdown``): the engine's
+jobs and the window's own (opening a scene, the accuracy indicator) submit through a
+:class:`JobWorker`, and a distributed driver implements the same four verbs. Two
+executors stay special on purpose: the refresh lane below (milliseconds, priority raised
+while the loop waits for it) and the job process (:mod:`engine.runtime.job_process`, the
+correlator's spectral work out of the loop's interpreter, behind ``Correlator.spectral``).
+
 Rotation-cache refreshes (:class:`RefreshRequest`: a field and the part's rotation) have a
 lane of their own (:class:`RefreshLane`, one thread): they take milliseconds and are asked
 for every few milliradians of rotation, so they must not queue behind a descriptor job of
@@ -32,7 +40,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -317,17 +325,44 @@ class _Job:
 DISPOSE_WAIT = 0.05
 
 
+@runtime_checkable
+class BackgroundWork(Protocol):
+    """The one interface for background work: one slot per kind, superseded work cancelled.
+
+    napari's layer slicer works so. A ``run`` takes a ``cancelled()`` callable, returns a
+    response (None: nothing to answer; a response is delivered as the implementation
+    says) and may raise ``engine.errors.Cancelled`` once ``cancelled()`` turns True.
+    """
+
+    def submit(self, kind: str, run: Callable[[Callable[[], bool]], Any]) -> None:
+        """Queue ``run`` as the newest job of ``kind``, cancelling the older one."""
+        ...
+
+    def cancel(self, kind: str) -> bool:
+        """Cancel the job of ``kind``; True if one was pending or running."""
+        ...
+
+    def wait_until_idle(self, timeout: float) -> bool:
+        """Wait for the submitted jobs; True when none is left."""
+        ...
+
+    def shutdown(self, timeout: float = 2.0) -> None:
+        """Cancel every job and stop."""
+        ...
+
+
 class JobWorker:
-    """One background thread for the engine's jobs.
+    """One background thread for jobs: :class:`BackgroundWork` on a thread.
 
     Finished responses queue up for the loop (:meth:`responses`).
 
-    Each job has a kind (``"field"``, ``"landscape"``); :meth:`submit` cancels the pending or
-    running job of the same kind before queueing the new one.
+    Each job has a kind (``"field"``, ``"landscape"``; the window's ``"open"``,
+    ``"profile"``); :meth:`submit` cancels the pending or running job of the same kind
+    before queueing the new one. ``name`` names the thread.
     """
 
-    def __init__(self) -> None:
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="skelasm-jobs")
+    def __init__(self, name: str = "skelasm-jobs") -> None:
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
         self._jobs: dict[str, _Job] = {}
         self._done: queue.SimpleQueue[Response] = queue.SimpleQueue()
         self._closed = False
