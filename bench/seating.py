@@ -609,9 +609,12 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
             bar.end()
             _say(results[-1])
         return results
+    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+    # fresh interpreters: a fork would copy this process's numba and OpenCL threads' state
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn) as pool:
         futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend): (c, g)
                    for c, g in jobs}
         bar.begin(0, f"{args.workers} runs at a time")
