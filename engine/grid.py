@@ -128,9 +128,14 @@ class Grid:
         return np.asarray(self.origin) + self.spacing * (np.asarray(self.shape) - 1)
 
     @property
-    def center(self) -> np.ndarray:
+    def centre(self) -> np.ndarray:
         """(3,) float64: the midpoint between the first and the last sample."""
         return 0.5 * (np.asarray(self.origin) + self.upper)
+
+    @property
+    def center(self) -> np.ndarray:
+        """Deprecated spelling of :attr:`centre`."""
+        return self.centre
 
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sample coordinates along x, y and z: three 1D float64 arrays."""

@@ -890,7 +890,7 @@ class Physics:
     mass : float
     inertia : (3, 3) float64
         Inertia tensor about the centre of mass, in the part's own frame (read-only).
-    center : (3,) float64
+    centre : (3,) float64
         Centre of mass in the part's own frame (read-only).
     length : float
         The part's characteristic length L (largest bounding-box side).
@@ -916,7 +916,7 @@ class Physics:
     c_rot: float
     mass: float = 1.0
     inertia: np.ndarray = field(default_factory=lambda: np.eye(3))
-    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    centre: np.ndarray = field(default_factory=lambda: np.zeros(3))
     length: float = 1.0
     body_c_lin: float = 0.0
     body_c_rot: float = 0.0
@@ -933,8 +933,13 @@ class Physics:
         for name in ("mass", "length"):
             object.__setattr__(self, name, _positive("physics", name, getattr(self, name)))
         object.__setattr__(self, "inertia", _readonly(self.inertia, (3, 3)))
-        object.__setattr__(self, "center", _readonly(self.center, (3,)))
+        object.__setattr__(self, "centre", _readonly(self.centre, (3,)))
         object.__setattr__(self, "gravity", _readonly(self.gravity, (3,)))
+
+    @property
+    def center(self) -> np.ndarray:
+        """Deprecated spelling of :attr:`centre`."""
+        return self.centre
 
 
 @dataclass(frozen=True)

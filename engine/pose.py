@@ -158,14 +158,14 @@ def origin_to_pivot(pose: np.ndarray, pivot: np.ndarray) -> np.ndarray:
     return np.concatenate([p[:3] - c + rotation_matrix(p[3:]) @ c, p[3:]])
 
 
-def rotate_about(pose: np.ndarray, rotvec: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """(6,) origin pose after turning a placed part by ``rotvec`` about the point ``center``.
+def rotate_about(pose: np.ndarray, rotvec: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(6,) origin pose after turning a placed part by ``rotvec`` about the point ``centre``.
 
-    ``rotvec`` (3,) and ``center`` (3,) are in the frame the pose maps into (world, or part
+    ``rotvec`` (3,) and ``centre`` (3,) are in the frame the pose maps into (world, or part
     1's frame for a relative pose): the rotation a drag applies about the part's centre.
     """
     p = np.asarray(pose, dtype=np.float64).reshape(6)
-    c = np.asarray(center, dtype=np.float64).reshape(3)
+    c = np.asarray(centre, dtype=np.float64).reshape(3)
     r = rotation_matrix(rotvec)
     turned = r @ rotation_matrix(p[3:])
     return np.concatenate([r @ (p[:3] - c) + c, rotation_vector(turned)])

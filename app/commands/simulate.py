@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     target = np.asarray(handle.assembled_pose, float)
     error_pose = relative_pose(target, final)
     moving = handle.parts[-1]
-    seat = seat_state(final, target, sim.physics.center, handle.scene.seat,
+    seat = seat_state(final, target, sim.physics.centre, handle.scene.seat,
                       float(np.linalg.norm(np.ptp(moving.vertices, axis=0))))
     units = QuantityUnits.of(handle.scene.units)
     stats = period_stats(np.asarray(loop.periods))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.gui import colormap
+from app.gui import colourmap
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class FieldCanvas(QtWidgets.QWidget):
         self._rgb: np.ndarray | None = None
         self._extent = (0.0, 1.0, 0.0, 1.0)
         self._range = (0.0, 1.0)
-        self._lut = colormap.table("diverging")
+        self._lut = colourmap.table("diverging")
         self._segments = np.zeros((0, 2, 2))
         self._markers: list[Marker] = []
         self._axis_names = ("u", "v")
@@ -75,7 +75,7 @@ class FieldCanvas(QtWidgets.QWidget):
         if values.ndim != 2:
             raise ValueError(f"a field to show must be 2D, got shape {values.shape}")
         self._values = values
-        rgb = colormap.apply(values.T[::-1], lo, hi, lut)  # rows: v from top to bottom
+        rgb = colourmap.apply(values.T[::-1], lo, hi, lut)  # rows: v from top to bottom
         self._rgb = np.ascontiguousarray(rgb)
         h, w, _ = self._rgb.shape
         self._image = QtGui.QImage(self._rgb.data, w, h, 3 * w, QtGui.QImage.Format_RGB888)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from PySide6 import QtWidgets
 
-from app.gui import colormap
+from app.gui import colourmap
 from app.gui.canvas import FieldCanvas, Marker
 from engine import pose as posemath
 from engine.params import QuantityUnits
@@ -51,7 +51,7 @@ class LandscapeView(QtWidgets.QWidget):
         self.units = QuantityUnits.of("mm")
         self.modes: int | None = None  # the K the engine uses now
         self._progress: str | None = None
-        self._lut = colormap.table("diverging")
+        self._lut = colourmap.table("diverging")
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(2, 2, 2, 2)
         row = QtWidgets.QHBoxLayout()

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
-from app.gui import colormap, geometry
+from app.gui import colourmap, geometry
 from app.gui.canvas import FieldCanvas
 
 COMPONENTS = ("imaginary", "real", "magnitude")
@@ -43,8 +43,8 @@ class SliceView(QtWidgets.QWidget):
         self._descriptors: tuple = ()
         self._meshes: list = []  # (name, vertices, faces) per part
         self._world: list[np.ndarray] = []  # (4, 4) world transform per part
-        self._lut_div = colormap.table("diverging")
-        self._lut_seq = colormap.table("sequential")
+        self._lut_div = colourmap.table("diverging")
+        self._lut_seq = colourmap.table("sequential")
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(2, 2, 2, 2)
         row = QtWidgets.QHBoxLayout()
@@ -180,9 +180,9 @@ class SliceView(QtWidgets.QWidget):
         values = self.current_values()
         comp = self.component.currentText()
         if comp == "magnitude":
-            lo, hi, lut = 0.0, colormap.symmetric_range(values)[1], self._lut_seq
+            lo, hi, lut = 0.0, colourmap.symmetric_range(values)[1], self._lut_seq
         else:
-            (lo, hi), lut = colormap.symmetric_range(values), self._lut_div
+            (lo, hi), lut = colourmap.symmetric_range(values), self._lut_div
         uv = [k for k in range(3) if k != a]
         g = d.grid
         lo_g, hi_g = np.asarray(g.origin), g.upper

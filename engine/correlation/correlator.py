@@ -213,8 +213,8 @@ class Correlator:
             raise ValueError(f"fft_size must be even and cover both grids, got {size}")
         h = g1.spacing
         geometry = PairGeometry(
-            centre_fixed=np.asarray(g1.center, dtype=np.float64),
-            centre_moving=np.asarray(g2.center, dtype=np.float64),
+            centre_fixed=np.asarray(g1.centre, dtype=np.float64),
+            centre_moving=np.asarray(g2.centre, dtype=np.float64),
             half_fixed=0.5 * h * (np.asarray(g1.shape, dtype=np.float64) - 1),
             half_moving=0.5 * h * (np.asarray(g2.shape, dtype=np.float64) - 1),
             spacing=h, size=size, kappa=float(kappa), rotation=bool(rotation))

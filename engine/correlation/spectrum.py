@@ -177,7 +177,7 @@ def compute_spectrum(
     return Spectrum(
         values=arrays["values"],
         moments=arrays.get("moments"),
-        centre=np.asarray(grid.center, dtype=np.float64),
+        centre=np.asarray(grid.centre, dtype=np.float64),
         spacing=h,
         size=int(size),
         from_cache=hit,

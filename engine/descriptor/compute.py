@@ -364,7 +364,7 @@ def compute_descriptor(
     triangles = _triangles(vertices, faces)
     _check_memory(grid.size, f"a {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} grid")
     be = resolve_backend(backend)
-    centre = grid.center
+    centre = grid.centre
     local = _localise(triangles, centre, grid.spacing, use_tree)
     if method == "adaptive":
 

@@ -35,29 +35,34 @@ class RigidBody:
     mass : float
     inertia : (3, 3) float64
         About the centre of mass, in the part's own frame.
-    center : (3,) float64
+    centre : (3,) float64
         Centre of mass in the part's own frame.
     """
 
     mass: float
     inertia: np.ndarray
-    center: np.ndarray
+    centre: np.ndarray
 
     def __post_init__(self) -> None:
         inertia = np.array(self.inertia, dtype=np.float64).reshape(3, 3)
-        center = np.array(self.center, dtype=np.float64).reshape(3)
+        centre = np.array(self.centre, dtype=np.float64).reshape(3)
         if not (self.mass > 0 and math.isfinite(self.mass)):
             raise ValueError(f"mass must be positive and finite, got {self.mass!r}")
         if np.any(np.linalg.eigvalsh(0.5 * (inertia + inertia.T)) <= 0):
             raise ValueError("inertia must be symmetric positive definite")
         inertia.setflags(write=False)
-        center.setflags(write=False)
+        centre.setflags(write=False)
         object.__setattr__(self, "mass", float(self.mass))
         object.__setattr__(self, "inertia", inertia)
-        object.__setattr__(self, "center", center)
+        object.__setattr__(self, "centre", centre)
         inv = np.linalg.inv(inertia)
         inv.setflags(write=False)
         object.__setattr__(self, "_inv_inertia", inv)
+
+    @property
+    def center(self) -> np.ndarray:
+        """Deprecated spelling of :attr:`centre`."""
+        return self.centre
 
     @property
     def inv_inertia(self) -> np.ndarray:
@@ -102,7 +107,7 @@ class BodyState:
         p = np.asarray(pose, dtype=np.float64).reshape(6)
         q = rotvec_to_quaternion(p[3:])
         R = quaternion_to_matrix(q)
-        return cls(p[:3] + R @ body.center, q)
+        return cls(p[:3] + R @ body.centre, q)
 
     @property
     def rotation(self) -> np.ndarray:
@@ -111,7 +116,7 @@ class BodyState:
 
     def origin(self, body: RigidBody) -> np.ndarray:
         """(3,) position of the part's origin."""
-        return self.com - self._R @ body.center
+        return self.com - self._R @ body.centre
 
     def pose(self, body: RigidBody) -> np.ndarray:
         """(6,) pose of the part's origin (translation, rotation vector)."""
@@ -119,7 +124,7 @@ class BodyState:
 
     def origin_velocity(self, body: RigidBody) -> np.ndarray:
         """(3,) velocity of the part's origin."""
-        return self.velocity - cross3(self.omega, self._R @ body.center)
+        return self.velocity - cross3(self.omega, self._R @ body.centre)
 
     def copy(self) -> BodyState:
         """An independent copy of the state."""
@@ -209,7 +214,7 @@ def kick(
         velocity and angular velocity are zeroed.
     """
     R = state.rotation
-    arm = R @ body.center  # (3,) origin -> centre of mass
+    arm = R @ body.centre  # (3,) origin -> centre of mass
     # torque about the centre of mass of a force applied at the origin
     torque_com = torque - cross3(arm, force)
     state.velocity = state.velocity + (dt / body.mass) * force
@@ -245,7 +250,7 @@ def drift(
     """
     locked_origin = None
     if translation_mask is not None and not translation_mask.all():
-        locked_origin = state.com - state.rotation @ body.center
+        locked_origin = state.com - state.rotation @ body.centre
     state.com = state.com + dt * state.velocity
     omega = state.omega
     if omega[0] != 0.0 or omega[1] != 0.0 or omega[2] != 0.0:
@@ -264,10 +269,10 @@ def drift(
         state.omega = omega
     if locked_origin is not None:
         assert translation_mask is not None
-        origin = state.com - state._R @ body.center
+        origin = state.com - state._R @ body.centre
         keep = translation_mask == 0
         origin[keep] = locked_origin[keep]
-        state.com = origin + state._R @ body.center
+        state.com = origin + state._R @ body.centre
 
 
 def step(

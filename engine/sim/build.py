@@ -570,7 +570,7 @@ def resolve_physics(
     physics = Physics(
         mass=mass,
         inertia=inertia,
-        center=center,
+        centre=center,
         length=length,
         k_lin=float(k_lin),
         c_lin=float(c_lin),
@@ -590,7 +590,7 @@ def resolve_physics(
 
 def rigid_body(physics: Physics) -> RigidBody:
     """The moving part's constant properties."""
-    return RigidBody(physics.mass, physics.inertia, physics.center)
+    return RigidBody(physics.mass, physics.inertia, physics.centre)
 
 
 # ---------------------------------------------------------------------------------------------

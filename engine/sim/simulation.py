@@ -81,7 +81,7 @@ class Simulation:
     ):
         self.body = body
         #: The coupling's attachment point in the part's own frame.
-        self.hold = np.array(body.center if hold is None else hold, np.float64).reshape(3)
+        self.hold = np.array(body.centre if hold is None else hold, np.float64).reshape(3)
         self.follow = follow
         self.effects = effects
         self.field = field
@@ -235,7 +235,7 @@ class Simulation:
         e = kinetic_energy(self.body, self.state) + self.sample.energy
         e -= float(self._gravity_force @ self.state.com)
         if self.coupled:
-            lever = self.state.rotation @ (self.hold - self.body.center)
+            lever = self.state.rotation @ (self.hold - self.body.centre)
             e += coupling_energy(self.physics, self.state.com + lever, self.state.quat,
                                  self._proxy_hold, self._proxy_q)
         return e
@@ -255,11 +255,11 @@ class Simulation:
         origin, scaled and clamped).
         """
         state, body, sample, p = self.state, self.body, self.sample, self.physics
-        arm = state.rotation @ body.center  # (3,) origin -> centre of mass
+        arm = state.rotation @ body.centre  # (3,) origin -> centre of mass
         at_com = self._gravity_force  # (3,) forces acting at the centre of mass
         torque = sample.torque if sample.torque is not None else _ZERO3
         if self.coupled:
-            lever = state.rotation @ (self.hold - body.center)  # centre of mass -> hold
+            lever = state.rotation @ (self.hold - body.centre)  # centre of mass -> hold
             fc, tc = coupling_wrench(
                 p, state.com + lever, state.quat, state.velocity + cross3(state.omega, lever),
                 state.omega, self._proxy_hold, self._proxy_q,

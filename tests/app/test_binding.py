@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from PySide6 import QtCore, QtWidgets
 
-from app.gui import colormap
+from app.gui import colourmap
 from app.gui.canvas import FieldCanvas, Marker
 from app.gui.strip_chart import StripChart
 
@@ -127,7 +127,7 @@ def test_field_canvas_repaints_keep_none_alive(shown):
     canvas = shown(FieldCanvas())
     u, v = np.meshgrid(np.linspace(-1, 1, 40), np.linspace(-1, 1, 30), indexing="ij")
     canvas.set_field(np.exp(-(u**2 + v**2)), (-1, 1, -1, 1), 0.0, 1.0,
-                     colormap.table("sequential"), axis_names=("x", "y"), bar_label="rho")
+                     colourmap.table("sequential"), axis_names=("x", "y"), bar_label="rho")
     canvas.set_segments(np.array([[[-0.5, -0.5], [0.5, 0.5]], [[-0.5, 0.5], [0.5, -0.5]]]))
     canvas.set_markers([Marker(0.0, 0.0, "cross", "white", "minimum"),
                         Marker(0.3, -0.2, "star", "yellow", "part"),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.gui import colormap, geometry
+from app.gui import colourmap, geometry
 from app.gui.slice_view import slice_values
 from engine import pose as posemath
 
@@ -63,20 +63,20 @@ def test_rotate_about_keeps_the_centre_fixed():
     assert np.allclose((m_out @ q_x)[:3], centre + [0, 1, 0])
 
 
-def test_colormap_diverging_is_centred():
-    lut = colormap.table("diverging")
+def test_colourmap_diverging_is_centred():
+    lut = colourmap.table("diverging")
     assert lut.shape == (256, 3) and lut.dtype == np.uint8
-    rgb = colormap.apply(np.array([[-1.0, 0.0, 1.0]]), -1.0, 1.0, lut)
+    rgb = colourmap.apply(np.array([[-1.0, 0.0, 1.0]]), -1.0, 1.0, lut)
     assert rgb[0, 0, 2] > rgb[0, 0, 0]  # negative: blue
     assert rgb[0, 2, 0] > rgb[0, 2, 2]  # positive: red
     assert np.ptp(rgb[0, 1].astype(int)) < 10  # zero: grey
     with pytest.raises(ValueError, match="valid: diverging, sequential"):
-        colormap.table("rainbow")
+        colourmap.table("rainbow")
 
 
 def test_symmetric_range_ignores_medial_axis_spikes():
     values = np.concatenate([np.linspace(-1, 1, 1000), [500.0]])
-    lo, hi = colormap.symmetric_range(values)
+    lo, hi = colourmap.symmetric_range(values)
     assert lo == -hi and 0.9 < hi < 1.1
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from app.gui import colormap
+from app.gui import colourmap
 from app.gui.slice_view import slice_values
 from engine import runtime
 from engine.params import SIGMA_GRID_MAX
@@ -121,8 +121,8 @@ def test_slice_view_shows_the_descriptor_and_follows_the_plane(ready_window, qtb
     d = view._descriptors[0]
     k = view.offset.value()
     values = slice_values(d.rho, 2, k, "imaginary")
-    lo, hi = colormap.symmetric_range(values)
-    expect = colormap.apply(values.T[::-1], lo, hi, colormap.table("diverging"))
+    lo, hi = colourmap.symmetric_range(values)
+    expect = colourmap.apply(values.T[::-1], lo, hi, colourmap.table("diverging"))
     assert np.array_equal(rgb, expect)
     # the outline of the plate is drawn on it
     assert len(view.canvas._segments) > 0

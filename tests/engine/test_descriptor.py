@@ -158,8 +158,8 @@ def test_opencl_float_accumulation_matches_numpy(opencl_backend):
 
     v, f = MESHES["icosphere"]()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=8, padding=2)
-    local = d._localise(v[f], grid.center, grid.spacing, True)
-    points = (grid.points().reshape(-1, 3) - grid.center) / grid.spacing
+    local = d._localise(v[f], grid.centre, grid.spacing, True)
+    points = (grid.points().reshape(-1, 3) - grid.centre) / grid.spacing
     params = DescriptorParams()
     ref = d._run(local, points, 2, params, d.resolve_backend("numba"))
     evaluate = OpenCLDescriptor(opencl_backend, double=False).prepare(
@@ -183,8 +183,8 @@ def test_opencl_launches_split_a_chunk_into_work_groups(opencl_backend, monkeypa
 
     v, f = MESHES["icosphere"]()
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=12, padding=2)
-    local = d._localise(v[f], grid.center, grid.spacing, True)
-    points = ((grid.points().reshape(-1, 3) - grid.center) / grid.spacing)[:999]
+    local = d._localise(v[f], grid.centre, grid.spacing, True)
+    points = ((grid.points().reshape(-1, 3) - grid.centre) / grid.spacing)[:999]
     assert len(points) % 2  # odd: the chunk does not fill its last group
     params = DescriptorParams()
     runner = OpenCLDescriptor.for_backend(opencl_backend)  # the shared one: one kernel
@@ -470,14 +470,14 @@ def test_distances_run_over_the_uncut_triangles(name, descriptor_backend):
 
     v, f = _cad(name)
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=14, padding=2)
-    local = d._localise(v[f], grid.center, grid.spacing, True)
+    local = d._localise(v[f], grid.centre, grid.spacing, True)
     assert local.tree.n_triangles > 2 * len(f)  # slivers were cut for the sum
     assert local.surface.n_triangles == len(f)  # and left whole for the distance
     rng = np.random.default_rng(3)
     pts = grid.points().reshape(-1, 3)
-    pts = (pts[rng.choice(len(pts), 400, replace=False)] - grid.center) / grid.spacing
+    pts = (pts[rng.choice(len(pts), 400, replace=False)] - grid.centre) / grid.spacing
     tree = d._run(local, pts, 1, DescriptorParams(), descriptor_backend)
-    brute = d._run(d._localise(v[f], grid.center, grid.spacing, False), pts, 1,
+    brute = d._run(d._localise(v[f], grid.centre, grid.spacing, False), pts, 1,
                    DescriptorParams(), d.resolve_backend("numba"))  # fmt: skip
     np.testing.assert_allclose(tree[:, 2], brute[:, 2], atol=2e-4 * np.abs(brute[:, 2]).max())
 
@@ -547,9 +547,9 @@ def test_hints_from_coarse_samples_change_no_value(name):
     else:
         v, f = _cad("peg")
     grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=16, padding=3)
-    local = compute._localise(compute._triangles(v, f), grid.center, grid.spacing, True)
+    local = compute._localise(compute._triangles(v, f), grid.centre, grid.spacing, True)
     be = compute.resolve_backend("numba")
-    xs, ys, zs = ((a - c) / grid.spacing for a, c in zip(grid.axes(), grid.center, strict=True))
+    xs, ys, zs = ((a - c) / grid.spacing for a, c in zip(grid.axes(), grid.centre, strict=True))
     xs, ys, zs = (adaptive._odd(a) for a in (xs, ys, zs))
     shape = (len(xs), len(ys), len(zs))
     pts = adaptive._points(xs, ys, zs)

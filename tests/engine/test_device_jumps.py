@@ -37,7 +37,7 @@ def make_sim():
     mesh = trimesh.creation.box(extents=(10.0, 10.0, 30.0))  # a peg, 30 mm long
     config = SimConfig(effects=Effects())
     phys = resolve_physics(config, np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     return Simulation(body, phys, config.effects, NullField(), np.zeros(6),
                       dt=config.simulation.dt)
 

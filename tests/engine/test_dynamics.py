@@ -24,10 +24,10 @@ def test_free_flight_is_exact_for_constant_force():
     f = np.array([1.0, -2.0, 0.5])
     dt, n = 1e-3, 1000
     for _ in range(n):
-        step(body, state, f + np.cross(state.rotation @ body.center, f) * 0, np.zeros(3), dt)
+        step(body, state, f + np.cross(state.rotation @ body.centre, f) * 0, np.zeros(3), dt)
     # symplectic Euler: x_n = x0 + a dt^2 n(n+1)/2
     a = f / body.mass
-    expected = body.center + a * dt * dt * n * (n + 1) / 2
+    expected = body.centre + a * dt * dt * n * (n + 1) / 2
     np.testing.assert_allclose(state.com, expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(state.velocity, a * n * dt, rtol=1e-12)
 

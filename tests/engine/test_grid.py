@@ -20,7 +20,7 @@ def test_grid_for_bounds_covers_box_with_padding():
     # at least three free cells on every side, and the grid is centred on the box
     assert np.all(np.asarray(grid.origin) <= lower - 3 * grid.spacing + 1e-9)
     assert np.all(grid.upper >= upper + 3 * grid.spacing - 1e-9)
-    np.testing.assert_allclose(grid.center, 0.5 * (lower + upper))
+    np.testing.assert_allclose(grid.centre, 0.5 * (lower + upper))
 
 
 def test_grid_for_bounds_by_spacing_matches_samples():

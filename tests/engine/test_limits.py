@@ -263,7 +263,7 @@ def test_opencl_chunks_grow_past_a_fixed_launch_latency(monkeypatch):
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     grid = grid_for_bounds(v.min(0), v.max(0), samples=40, padding=4)
-    local = compute._localise(compute._triangles(v, f), grid.center, grid.spacing, True)
+    local = compute._localise(compute._triangles(v, f), grid.centre, grid.spacing, True)
     points = grid.points().reshape(-1, 3)
     out = compute._run(local, points, 2, compute.DescriptorParams(), backend)
     assert out.shape == (len(points), 4) and sum(sizes) == len(points)

@@ -169,7 +169,7 @@ def make_loop(realtime=True, effects=None, **kw):
     model = FakeModel()
     effects = effects or Effects()
     phys = model.physics(effects)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     corr = logged_well(rotation=effects.rotation)
     fld = (CorrelatorField(corr, phys.kappa) if effects.rotation
            else LandscapeField(corr, np.eye(3), phys.kappa))

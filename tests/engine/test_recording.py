@@ -25,7 +25,7 @@ def make_sim():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     phys = resolve_physics(SimConfig(), v, f)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     return Simulation(body, phys, Effects(), CorrelatorField(spring_well(), phys.kappa),
                       np.zeros(6))
 

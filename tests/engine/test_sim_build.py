@@ -203,7 +203,7 @@ def test_hold_point_is_the_middle_of_the_fit(tmp_path):
     # build_simulation holds the part there
     sim, _ = build_simulation(peg_in_plate(tmp_path, start_z=8.0), prepare=False)
     np.testing.assert_allclose(sim.hold, [0, 0, -2], atol=1e-9)
-    np.testing.assert_allclose(sim.body.center, 0.0, atol=1e-9)
+    np.testing.assert_allclose(sim.body.centre, 0.0, atol=1e-9)
 
 
 def housing_with_a_flange_hole(size=40.0, height=50.0, flange=5.0, hole=8.2, wall=3.0):
@@ -362,7 +362,7 @@ def test_a_new_field_resolves_the_physics_without_measuring_the_mesh_again(monke
     assert second.k_rot < first.k_rot  # the new fit was applied
     direct = resolve_physics(model.config, model.moving.vertices, model.moving.faces,
                              kappa=first.kappa, geometric_rotation=1e-6)
-    for name in ("k_lin", "c_lin", "k_rot", "c_rot", "mass", "kappa", "inertia", "center"):
+    for name in ("k_lin", "c_lin", "k_rot", "c_rot", "mass", "kappa", "inertia", "centre"):
         assert np.allclose(getattr(second, name), getattr(direct, name)), name
 
 
@@ -412,7 +412,7 @@ def test_a_hold_point_that_follows_the_fit_gives_the_part_no_energy():
     effects = replace(config.effects, damping=False, gravity=None)
     phys = resolve_physics(config, peg, peg_faces, effects=effects)
     phys = replace(phys, k_lin=4 * phys.k_lin, k_rot=4 * phys.k_rot)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     proxy = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 2 past the seat: the point slides
     gains = []
     for follow, take_back in ((None, True), (rule, True), (rule, False)):

@@ -36,7 +36,7 @@ def test_values_and_moments_equal_direct_sums():
     size = 8
     spec = compute_spectrum(rho, grid, size, moments=True, use_cache=False)
     points = grid.points().reshape(-1, 3)
-    centre = grid.center
+    centre = grid.centre
     h = grid.spacing
     for k in [(0, 0, 0), (1, -2, 3), (-4, 3, -1), (2, 2, 2)]:
         w = np.asarray(k) / (size * h)
@@ -64,7 +64,7 @@ def test_gaussian_has_its_closed_form_transform():
     kx, ky, kz = np.meshgrid(k, k, k, indexing="ij")
     w = np.stack([kx, ky, kz], -1) / (32 * grid.spacing)
     expected = (2 * np.pi * s * s) ** 1.5 * np.exp(
-        -2 * np.pi**2 * s * s * np.sum(w * w, -1) - 2j * np.pi * w @ (mu - grid.center)
+        -2 * np.pi**2 * s * s * np.sum(w * w, -1) - 2j * np.pi * w @ (mu - grid.centre)
     )
     assert np.abs(spec.values - expected).max() < 1e-4 * np.abs(expected).max()
 
@@ -125,7 +125,7 @@ def test_refined_table_equals_direct_sums_at_fractional_frequencies():
     assert table.shape == (2 * radius + 2,) * 3 + (8,)
     values = table.view(np.complex64)  # (B, B, B, 4)
     points = grid.points().reshape(-1, 3)
-    centre = grid.center
+    centre = grid.centre
     h = grid.spacing
     coarse = compute_spectrum(rho, grid, size, use_cache=False)
     for j in [(0, 0, 0), (1, -2, 3), (-7, 5, 8), (4, 4, -1), (3, 0, 0)]:
