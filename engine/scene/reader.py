@@ -273,10 +273,13 @@ class _Table:
         try:
             return cls(**values)
         except InputError as exc:
-            if key is None:  # the key the message names, if the table sets it (UDP `port`)
-                key = next((k for k in self.values if isinstance(k, str)
-                            and re.search(rf"(?<![\w-]){re.escape(k)}(?![\w-])", str(exc))),
-                           None)
+            # the line of the key the message names first, if the table sets it (UDP
+            # `port`, `padding` of a [descriptor], `mass` of a [[part]]), else ``key``'s
+            named = [(m.start(), k) for k in self.values if isinstance(k, str)
+                     for m in [re.search(rf"(?<![\w-]){re.escape(k)}(?![\w-])", str(exc))]
+                     if m is not None]
+            if named:
+                key = min(named)[1]
             raise self.fail(key, f"{self.label}: {exc}", "correct the value") from None
 
 
