@@ -211,6 +211,11 @@ MIN_ROTATION_FRACTION = 0.01
 #: the 16 mm Factory peg turned 62 degrees from the proxy during a push, and the
 #: dovetail's slide 55). The misaim of the seating protocol is 3 degrees.
 HAND_PLAY_RAD = math.radians(3.0)
+#: How stiff the hand is past its play: its natural frequency about the part's weakest
+#: principal axis times the time step (stable below 2 for the integrator; 0.5 is a hundred
+#: times the mass-based spring of a compact part at 1 kHz, so a torque that turned the
+#: part a degree past the play with the mass-based spring turns it a hundredth of one).
+HAND_OMEGA_DT = 0.5
 #: Rotation step of the finite differences that measure the geometric rotational stiffness.
 STIFFNESS_STEP_RAD = math.radians(0.5)
 
@@ -555,9 +560,14 @@ def resolve_physics(
     c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
         k_rot * i_mean
     )
-    # past the hand's play the hand holds the part: the mass-based stiffness, not lowered
+    # past the hand's play the hand holds the part: as stiff as the step allows (never
+    # softer than the mass-based spring), damped critically about the weakest axis
+    i_min = float(np.min(np.linalg.eigvalsh(np.asarray(inertia, float))))
+    dt = 1.0 / config.simulation.rate_hz
+    if c.angular_stiffness is None:
+        k_hand = max(k_hand, (HAND_OMEGA_DT / dt) ** 2 * i_min)
     c_hand = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
-        k_hand * i_mean)
+        k_hand * i_min)
     zb = config.simulation.body_damping_ratio
     body_c_lin = 2 * zb * math.sqrt(k_lin * mass)
     body_c_rot = 2 * zb * math.sqrt(k_rot * i_mean)
