@@ -607,9 +607,14 @@ class MainWindow(QtWidgets.QMainWindow):
         else:
             self.tasks.start("correlator")
             self.params.set_progress(0.0, "preparing descriptors %p%", cancellable=False)
+            chosen = "; ".join(f"{key} = {value}" for key, value, _ in scene.chosen)
             self.statusBar().showMessage(
                 f"{title}: preparing descriptors and correlation tables (the first time a "
-                "scene opens this can take minutes; they are cached)")
+                "scene opens this can take minutes; they are cached)"
+                + (f"; chosen from the parts: {chosen}" if chosen else ""))
+        # what the scene left open and the engine chose, with why (hover the parameters)
+        self.params.setToolTip("\n".join(f"{key} = {value}: chosen, {reason}"
+                                          for key, value, reason in scene.chosen))
         if not Path(handle.path).name.startswith("generated_"):
             self._remember(str(handle.path))
 
