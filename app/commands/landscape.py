@@ -43,13 +43,14 @@ def run(args: argparse.Namespace) -> int:
     from engine.scene import load_scene
     from engine.sim.auto import complete_scene
 
-    scene, _ = complete_scene(load_scene(args.scene))  # what it leaves open, from the parts
-    if args.modes is not None:
+    if args.modes is not None:  # the options first: a bad one costs nothing
         from engine.params import check_modes
 
         check_modes(args.modes, "--modes")
     if args.rotation is not None:
         check_rotation_vector(args.rotation, "--rotation")
+    check_image_output(args.output, force=args.force, inputs=[args.scene])  # parts: below
+    scene, _ = complete_scene(load_scene(args.scene))  # what it leaves open, from the parts
     check_image_output(args.output, force=args.force,
                        inputs=[scene.path, *(spec.file for spec in scene.parts)])
     fitted = np.asarray(scene.assembled_pose, dtype=float)

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from app.commands.arguments import finite_float, positive_float
+from app.commands.arguments import check_rotation_vector, finite_float, positive_float
 from app.commands.poses import add_about_argument, typed_pose
 from engine.backend import choices
 
@@ -68,11 +68,20 @@ def run(args: argparse.Namespace) -> int:
     from engine.seat import seat_state
     from engine.sim import build_simulation, evaluator_name
 
-    handle = open_scene(args.scene)
     if args.modes is not None:  # 0 would be taken for "the scene's"
         from engine.params import check_modes
 
         check_modes(args.modes, "--modes")
+    if args.start is not None:
+        check_rotation_vector(args.start[3:], "--start")
+    if args.trajectory:  # a device, a FIFO or a folder is refused before the scene's work
+        from engine.files import MAX_TRAJECTORY_BYTES, input_problem
+
+        problem = input_problem(args.trajectory, what="trajectory file",
+                                limit=MAX_TRAJECTORY_BYTES)
+        if problem:
+            raise InputError(problem)
+    handle = open_scene(args.scene)
     inputs = [handle.path, *(spec.file for spec in handle.scene.parts)]
     if args.log:  # before any work: a bad path costs nothing, an input is never replaced
         check_output(args.log, force=args.force, what="log",
