@@ -377,7 +377,9 @@ def dovetail(rng: np.random.Generator) -> FitDesign:
         f"{top:g} wide at the top, {depth:g} deep, {'open both ends' if through else 'stopped'}"
         f"; clearance {c:g} normal to the flanks, {floor:g} under the tenon",
         names=("way", "slide"), fixed=fixed, moving=moving, nominal=top, clearance=2 * c,
-        radial_play=max(play_x, play_y), angular_play=math.atan(2 * c / min(slide, top)),
+        # the largest turn: about the flanks' common normal (yaw), sideways play at each end;
+        # a roll or pitch about the centre drives the cap into the face it rests on
+        radial_play=max(play_x, play_y), angular_play=math.atan(2 * play_x / slide),
         min_gap=c, free_translations=(Z,) if through else (),
         centre=(0.0, 0.0, low + slide / 2), extra={"through": through})
 
@@ -418,7 +420,7 @@ def tslot(rng: np.random.Generator) -> FitDesign:
         f"{under - c:g} in {under:g} (clearance {c:g}), "
         f"{'open both ends' if through else 'stopped'}",
         names=("table", "tslide"), fixed=fixed, moving=moving, nominal=neck, clearance=c,
-        radial_play=c / 2, angular_play=math.atan(c / min(slide, under)), min_gap=c / 2,
+        radial_play=c / 2, angular_play=math.atan(c / slide), min_gap=c / 2,  # yaw, as dovetail
         free_translations=(Z,) if through else (), centre=(0.0, 0.0, low + slide / 2),
         extra={"through": through})
 

@@ -160,7 +160,7 @@ def make_pair(seed: int, index: int, root: Path) -> GeneratedPair:
         unit=unit, fixed_file=parts[0].file.name, moving_file=parts[1].file.name,
         formats=formats, open_mesh=open_mesh, nominal=fit.nominal * scale,
         clearance=fit.clearance * scale, radial_play=fit.radial_play * scale,
-        angular_play_deg=math.degrees(fit.angular_play),
+        angular_play_deg=math.degrees(fit.angular_play), min_gap=fit.min_gap * scale,
         free_translations=vectors(fit.free_translations),
         free_rotations=vectors(fit.free_rotations),
         insertion_axis=tuple(_clean(axis)), lateral=tuple(_clean(lateral)), width=width,

@@ -17,7 +17,7 @@ import numpy as np
 #: Name of the truth file beside each scene.
 TRUTH_FILE = "fit.json"
 #: Bumped when what the generator models changes (the same seed then gives other pairs).
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,8 @@ class FitTruth:
         from its centred seat before contact.
     angular_play_deg : float
         Largest turn of part 2 from its seat about a constrained axis (small-angle estimate).
+    min_gap : float
+        Smallest gap anywhere in the fit at the centred seat (a key's side, a flank).
     free_translations, free_rotations : tuple of (3,) tuple
         Unit vectors (part 1's frame) of the directions the fit leaves free.
     insertion_axis, lateral : (3,) tuple
@@ -77,6 +79,7 @@ class FitTruth:
     clearance: float
     radial_play: float
     angular_play_deg: float
+    min_gap: float
     free_translations: tuple[tuple[float, float, float], ...]
     free_rotations: tuple[tuple[float, float, float], ...]
     insertion_axis: tuple[float, float, float]
