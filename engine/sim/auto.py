@@ -20,7 +20,10 @@ count K, the STEP chord tolerance and the rest follow from the parts:
      :data:`GRID_RANGE` samples along the longest side;
    - K: the odd count whose band reaches that wavelength on the pair's FFT lattice, at most
      the machine's budget (:func:`modes_budget`): the loop's rate with the per-pose sum of
-     ``K^3`` modes on the CPU at hand, more on a GPU;
+     ``K^3`` modes on the CPU at hand, more on a GPU. Where the budget's band would only
+     half-resolve the fit (its shortest wavelength between :data:`NEAR_WAVELENGTHS` and
+     :data:`OUTLINE_WAVELENGTHS` of the fit's width), K is lowered until that wavelength is
+     :data:`OUTLINE_WAVELENGTHS` widths: the part is drawn in by its outline;
    - sigma, the padding and the penalty keep the engine's defaults (scale-free), and the
      coupling holds the part at the middle of the fit (``engine.sim.build.hold_point``).
 
@@ -59,6 +62,15 @@ FLUSH_FRACTION = 1e-5
 #: the fit. The hand-tuned real pairs seated with 2.1 (the 5 mm pin) to 6.4 (the 20 mm
 #: shaft) across.
 WAVELENGTH_PER_WIDTH = 0.4
+#: Where the budget's band would half-resolve the fit, its shortest wavelength is kept at
+#: this many times the fit's width. On the real pairs made into scenes by `scene new`,
+#: K = 17 (1.5 to 1.6 widths on the Factory 12 and 8 mm pegs) seated all six measured;
+#: K = 25 (1.0 to 1.1 widths there) left three of them 2 to 6 degrees tilted; the 16 mm
+#: peg seated at both (0.5 and 0.8 widths).
+OUTLINE_WAVELENGTHS = 1.5
+#: A band whose shortest wavelength is within this many widths of the fit is near enough
+#: to resolving it: the budget's K is kept.
+NEAR_WAVELENGTHS = 0.8
 #: Cells per shortest wavelength: the descriptor is sampled finely enough for the band.
 CELLS_PER_WAVELENGTH = 5.0
 #: Samples along the longest side of the largest part: a floor that keeps the part's shape,
@@ -249,7 +261,19 @@ def choose_settings(scene: Scene, parts: list[Part], *, fit: FitMeasure | None =
         scene.config.simulation.rate_hz)
     k_max = min(k_max, _odd_at_most(size))
     modes = max(MIN_MODES, min(need, k_max))
-    if need > k_max:
+    shortest = size * spacing / max(1, k_max // 2)  # the budget's shortest wavelength
+    if need > k_max and NEAR_WAVELENGTHS * fit.width < shortest < OUTLINE_WAVELENGTHS * fit.width:
+        # the budget's band would half-resolve the fit: keep it smooth at the fit's scale,
+        # so the part is drawn in by its outline (a band whose shortest wavelength is near
+        # the fit's width rings there and can hold the part tilted)
+        half_outline = max(1, math.floor(size * spacing / (OUTLINE_WAVELENGTHS * fit.width)))
+        modes = max(MIN_MODES, min(2 * half_outline + 1, k_max))
+        reasons["correlation.modes"] = (
+            f"the fit's width {fit.width:.4g} {unit} asks for {need}, more than {k_max} "
+            f"({budget_why}), whose band would half-resolve it: the shortest wavelength is "
+            f"kept at {OUTLINE_WAVELENGTHS:g} times the fit's width, so the part is drawn in "
+            "by its outline")
+    elif need > k_max:
         reasons["correlation.modes"] = (
             f"{budget_why}; the fit's width {fit.width:.4g} {unit} asks for {need}, so the "
             "fit is resolved coarsely")

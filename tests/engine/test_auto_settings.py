@@ -170,3 +170,40 @@ def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypa
                  str(out2), "--assembled", *map(str, SEAT), "--modes", "14"]) == 0
     assert load_scene(out2).modes == 14
     assert out2.read_text().count("# chosen: ") == 1
+
+
+def test_a_band_that_would_half_resolve_the_fit_is_kept_at_its_outline(tmp_path):
+    """Over every budget, the chosen band's shortest wavelength is never between 0.8 and 1.5
+    widths of the fit: a band that would half-resolve the fit keeps to its outline.
+    """
+    from engine.sim.auto import (
+        NEAR_WAVELENGTHS,
+        OUTLINE_WAVELENGTHS,
+        WAVELENGTH_PER_WIDTH,
+        _fft_size,
+        choose_settings,
+        measure_fit,
+    )
+
+    block = trimesh.creation.box(extents=(80.0, 80.0, 20.0))
+    block.apply_translation((0, 0, -10.0))
+    bore = trimesh.creation.cylinder(radius=2.55 / np.cos(np.pi / 128), height=13.0,
+                                     sections=128)
+    bore.apply_translation((0, 0, -5.5))
+    _, peg = peg_and_bore(5.0, 0.05)
+    fixed = _part(block.difference(bore), "block")
+    scene = _scene(fixed, peg, tmp_path)
+    fit = measure_fit(fixed, peg, SEAT, AXIS)
+    regimes = set()
+    for budget in range(9, 128, 2):
+        s = choose_settings(scene, [fixed, peg], fit=fit, budget=(budget, "test"))
+        span = _fft_size([fixed, peg], s.spacing, scene.descriptor.padding) * s.spacing
+        shortest = span / (s.modes // 2) / s.fit.width  # in widths of the fit
+        assert s.modes <= budget and s.modes % 2 == 1
+        assert not NEAR_WAVELENGTHS < shortest < OUTLINE_WAVELENGTHS, (budget, shortest)
+        reason = s.reasons["correlation.modes"]
+        regimes.add("outline" if "outline" in reason else "coarsely" if "coarsely" in reason
+                    else "resolved")
+        if "wavelength of" in reason:
+            assert shortest <= WAVELENGTH_PER_WIDTH + 1e-9
+    assert {"outline", "coarsely"} <= regimes  # (resolved: this fit asks for more than 127)
