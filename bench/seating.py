@@ -688,7 +688,7 @@ def _plot_generated(results: list[SeatingResult], path: str, seed: int) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator
 
     families = sorted({r.family for r in results}, key=[r.family for r in results].index)
     fig, axes = plt.subplots(1, 2, figsize=(13, 0.5 * len(families) + 2.5), dpi=110)
@@ -722,8 +722,10 @@ def _plot_generated(results: list[SeatingResult], path: str, seed: int) -> None:
     axes[1].axhline(1, color="k", ls="--", lw=1)
     axes[1].set_xscale("log")
     axes[1].set_yscale("log")
-    axes[1].xaxis.set_minor_formatter(NullFormatter())  # labels at the decades only
-    axes[1].yaxis.set_minor_formatter(NullFormatter())
+    for scale in (axes[1].xaxis, axes[1].yaxis):  # 0.1, 0.2, 0.5, 1, 2, 5, 10: no crowding
+        scale.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        scale.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+        scale.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     axes[1].set_xlabel("position error / its tolerance (log)")
     axes[1].set_ylabel("tilt / its tolerance (log)")
     axes[1].legend(loc="upper left")
