@@ -81,7 +81,7 @@ def test_missing_device_falls_back_to_mouse(tmp_path, capsys):
 def test_missing_trajectory_file(tmp_path, capsys):
     assert main(["simulate", str(PEG), "--trajectory", str(tmp_path / "no.csv"),
                  "--guidance", "none"]) == 2
-    assert "no.csv: cannot open the trajectory file" in capsys.readouterr().err
+    assert "no.csv: no such trajectory file" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------
