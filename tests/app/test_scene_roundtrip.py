@@ -157,3 +157,31 @@ def test_no_gui_control_carries_its_own_range():
             f"{name}:{node.lineno}: a SliderField not built from CONTROLS[...]")
         assert not any(isinstance(a, ast.Constant) and isinstance(a.value, (int, float))
                        for a in node.args[1:]), f"{name}:{node.lineno}: a numeric literal"
+
+
+@pytest.fixture(scope="module")
+def generated_scenes(tmp_path_factory) -> list[Path]:
+    """Scenes as a generated set makes them: ``skelasm scene new`` on two part files, every
+    setting it chooses itself (bench.fitgen makes its scenes so).
+    """
+    from app.cli import main
+
+    out = []
+    for pair in ("peg_in_hole", "dovetail"):
+        scene = load_scene(ROOT / "assets" / pair / "scene.toml")
+        files = [str(p.file) for p in scene.parts]
+        target = tmp_path_factory.mktemp(pair) / "scene.toml"
+        pose = [repr(float(x)) for x in scene.assembled_pose]
+        argv = ["scene", "new", *files, "-o", str(target), "--force", "--assembled", *pose]
+        assert main(argv) == 0, argv
+        out.append(target)
+    return out
+
+
+@pytest.mark.slow
+def test_opening_and_saving_a_generated_scene_changes_no_value(qtbot, tmp_path,
+                                                               generated_scenes):
+    for path in generated_scenes:
+        scene, again, _panel = _open_and_save(qtbot, path, tmp_path / f"{path.parent.name}.toml")
+        assert scene_to_toml(again, tmp_path) == scene_to_toml(scene, tmp_path), path
+        assert again.modes == scene.modes and again.descriptor == scene.descriptor
