@@ -69,5 +69,16 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
         correlation=(scene.correlation if modes is None
                      else replace(scene.correlation, modes=int(modes))),
         config=config,
+        given=_given_after(handle.scene, changes, modes),
     )
     return save_scene(scene, path)
+
+
+def _given_after(scene, changes: dict[str, float], modes: int | None) -> frozenset[str] | None:
+    """The scene's given keys, plus those the window changed (they are the user's now)."""
+    if scene.given is None:
+        return None
+    changed = {f"descriptor.{k}" for k, v in changes.items() if getattr(scene.descriptor, k) != v}
+    if modes is not None and int(modes) != scene.correlation.modes:
+        changed.add("correlation.modes")
+    return frozenset(scene.given) | changed

@@ -164,8 +164,11 @@ class Session(QtCore.QObject):
             if moving.name == first.name:
                 moving = replace(moving, name=f"{moving.name} (moving)")
             config = replace(scene.config, masses=scene.config.masses[:1])
+            # a new pair: its grid and K are chosen from the two parts (engine.sim.auto)
+            given = frozenset(scene.given or ()) - {"descriptor.grid", "descriptor.spacing",
+                                                    "correlation.modes"}
             generated = replace(scene, path=out, name=name, parts=(first, moving),
-                                config=config)
+                                config=config, given=given, chosen=())
         else:
             generated = Scene(path=out, name=name, units_declared=False,
                               assembled_pose=np.zeros(6), config=SimConfig(),

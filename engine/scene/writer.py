@@ -76,8 +76,10 @@ def _given(obj: DataclassInstance) -> TomlTable:
 def scene_to_toml(scene: Scene, folder: Path) -> TomlTable:
     """The TOML tables of ``scene`` as a dict, files relative to ``folder``.
 
-    ``[descriptor]`` and ``[correlation]`` are always written in full; the simulation tables
-    only when they differ from their defaults.
+    ``[descriptor]`` and ``[correlation]`` hold what the scene's file gave and what the
+    engine chose from the parts (``Scene.given``, ``Scene.chosen``; everything for a scene
+    built in code), so a setting left to the engine stays the engine's; the simulation
+    tables are written when they differ from their defaults.
     """
     data: TomlTable = {"name": scene.name}
     if scene.units_declared:
@@ -90,9 +92,20 @@ def scene_to_toml(scene: Scene, folder: Path) -> TomlTable:
     if scene.seat.distance is not None or scene.seat.angle_deg != SeatSpec().angle_deg:
         data["seat_tolerance"] = [scene.seat.distance if scene.seat.distance is not None
                                   else 0.0, scene.seat.angle_deg]
-    data["descriptor"] = _given(scene.descriptor)
-    data["correlation"] = {k: v for k, v in _given(scene.correlation).items()
-                           if k in CORRELATION_KEYS}
+    chosen = {key for key, _, _ in scene.chosen}
+
+    def written(table: str, key: str) -> bool:
+        # what the scene's file gave or the engine chose; everything for a scene built in code
+        name = f"{table}.{key}"
+        return scene.given is None or name in scene.given or name in chosen
+
+    descriptor = {k: v for k, v in _given(scene.descriptor).items() if written("descriptor", k)}
+    if descriptor:
+        data["descriptor"] = descriptor
+    correlation = {k: v for k, v in _given(scene.correlation).items()
+                   if k in CORRELATION_KEYS and written("correlation", k)}
+    if correlation:
+        data["correlation"] = correlation
     config = scene.config
     if config.simulation != SimulationParams():
         data["simulation"] = _given(config.simulation)

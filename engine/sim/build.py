@@ -52,6 +52,7 @@ from engine.params import (
 )
 from engine.pose import rotation_matrix
 from engine.sim.body import RigidBody
+from engine.sim.coupling import hand_stiffness
 from engine.sim.fields import GeometricField, NullField, field_correlator, field_for_effects
 from engine.sim.simulation import Simulation
 
@@ -211,11 +212,6 @@ MIN_ROTATION_FRACTION = 0.01
 #: the 16 mm Factory peg turned 62 degrees from the proxy during a push, and the
 #: dovetail's slide 55). The misaim of the seating protocol is 3 degrees.
 HAND_PLAY_RAD = math.radians(3.0)
-#: How stiff the hand is past its play: its natural frequency about the part's weakest
-#: principal axis times the time step (stable below 2 for the integrator; 0.5 is a hundred
-#: times the mass-based spring of a compact part at 1 kHz, so a torque that turned the
-#: part a degree past the play with the mass-based spring turns it a hundredth of one).
-HAND_OMEGA_DT = 0.5
 #: Rotation step of the finite differences that measure the geometric rotational stiffness.
 STIFFNESS_STEP_RAD = math.radians(0.5)
 
@@ -560,12 +556,12 @@ def resolve_physics(
     c_rot = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
         k_rot * i_mean
     )
-    # past the hand's play the hand holds the part: as stiff as the step allows (never
-    # softer than the mass-based spring), damped critically about the weakest axis
+    # past the hand's play the hand holds the part: as stiff as the scene's step allows
+    # (never softer than the mass-based spring; a longer step lowers it, Simulation), damped
+    # critically about the weakest axis
     i_min = float(np.min(np.linalg.eigvalsh(np.asarray(inertia, float))))
-    dt = 1.0 / config.simulation.rate_hz
     if c.angular_stiffness is None:
-        k_hand = max(k_hand, (HAND_OMEGA_DT / dt) ** 2 * i_min)
+        k_hand = max(k_hand, hand_stiffness(inertia, 1.0 / config.simulation.rate_hz))
     c_hand = c.angular_damping if c.angular_damping is not None else 2 * zeta * math.sqrt(
         k_hand * i_min)
     zb = config.simulation.body_damping_ratio

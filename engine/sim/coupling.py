@@ -78,6 +78,38 @@ def coupling_wrench(
     return force, torque
 
 
+#: How stiff the hand is past its play: its natural frequency about the part's weakest
+#: principal axis times the time step (the integrator is stable below 2; 0.5 is about a
+#: hundred times the mass-based spring of a compact part at 1 kHz).
+HAND_OMEGA_DT = 0.5
+
+
+def hand_stiffness(inertia: np.ndarray, dt: float) -> float:
+    """The stiffest spring past the hand's play that a step of ``dt`` integrates stably.
+
+    ``(HAND_OMEGA_DT / dt)^2 I_min`` for the part's inertia tensor ``inertia`` (3, 3).
+    """
+    i_min = float(np.min(np.linalg.eigvalsh(np.asarray(inertia, np.float64))))
+    return (HAND_OMEGA_DT / dt) ** 2 * max(i_min, 0.0)
+
+
+def for_step(gains: Physics, dt: float) -> Physics:
+    """``gains`` with the spring past the hand's play no stiffer than a step of ``dt`` allows.
+
+    The gains are resolved for the scene's rate; a loop run at a lower rate (a longer step)
+    would integrate them unstably, so the spring and its damping come down to the step.
+    """
+    cap = hand_stiffness(gains.inertia, dt)
+    if gains.k_rot_hard <= cap or gains.k_rot_hard <= gains.k_rot:
+        return gains
+    from dataclasses import replace
+
+    k = max(cap, gains.k_rot)
+    i_min = float(np.min(np.linalg.eigvalsh(np.asarray(gains.inertia, np.float64))))
+    damping = 2.0 * math.sqrt(k * max(i_min, 0.0)) if gains.c_rot_hard > 0 else 0.0
+    return replace(gains, k_rot_hard=k if k > gains.k_rot else 0.0, c_rot_hard=damping)
+
+
 def coupling_energy(
     gains: Physics,
     point: np.ndarray,

@@ -20,7 +20,7 @@ from engine.correlation import Evaluation
 from engine.params import Effects, HapticLimits, Physics, SimulationParams
 from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
 from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy
-from engine.sim.coupling import coupling_energy, coupling_wrench, haptic_reaction
+from engine.sim.coupling import coupling_energy, coupling_wrench, for_step, haptic_reaction
 from engine.sim.fields import ZERO_EVALUATION, GeometricField
 from engine.sim.guard import check_motion, check_proxy_pose
 
@@ -104,10 +104,17 @@ class Simulation:
         if not (value > 0 and math.isfinite(value)):
             raise ValueError(f"the time step must be positive and finite, got {value!r}")
         self._dt = value
+        if hasattr(self, "_resolved"):  # a new step: the hand's spring follows it
+            self.physics = for_step(self._resolved, value)
 
     def set_physics(self, physics: Physics) -> None:
-        """New gains, kappa and gravity (the time step is kept)."""
-        self.physics = physics
+        """New gains, kappa and gravity (the time step is kept).
+
+        The coupling's spring past the hand's play comes down to what the step integrates
+        stably (:func:`engine.sim.coupling.for_step`).
+        """
+        self._resolved = physics
+        self.physics = for_step(physics, self._dt)
         self._gravity_force = self.body.mass * np.asarray(physics.gravity, np.float64)
         self.field.kappa = physics.kappa
         self._sample_fresh = False  # kappa may have changed
