@@ -461,7 +461,8 @@ def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play(
 
 def test_the_hands_spring_comes_down_to_a_longer_step():
     """Gains resolved for 1 kHz, run at 250 Hz: the spring past the play is lowered to what
-    the step integrates (sqrt(k / I_min) dt = 0.5), and raised back at the scene's step."""
+    the step integrates (sqrt(k / I_min) dt = 0.5), and raised back at the scene's step.
+    """
     from engine.sim.coupling import HAND_OMEGA_DT
 
     v, f = box_mesh()
