@@ -252,3 +252,28 @@ def test_space_pauses_the_engine(make_window, wait_until, qtbot):
     win.params.pause.click()  # the panel's button resumes, and the menu follows
     assert not win.pause_action.isChecked()
     wait_until(lambda: win.latest_frame.step > step, 5000, "steps after resuming")
+
+
+def test_the_window_shows_the_settings_chosen_from_the_parts(make_window, tmp_path,
+                                                              wait_until):
+    """A scene that leaves the grid and K to the engine: the window lists the choices."""
+    import trimesh
+
+    plate = trimesh.creation.box(extents=(20, 20, 3))
+    plate.apply_translation((0, 0, -1.5))
+    plate.export(tmp_path / "plate.stl")
+    block = trimesh.creation.box(extents=(8, 8, 8))
+    block.apply_translation((0, 0, 4))
+    block.export(tmp_path / "block.stl")
+    (tmp_path / "scene.toml").write_text(
+        'name = "Chosen"\nunits = "mm"\nassembled_pose = [0, 0, 0, 0, 0, 0]\n'
+        'insertion_axis = [0, 0, -1]\n\n'
+        '[[part]]\nname = "plate"\nfile = "plate.stl"\npose = [0, 0, 0, 0, 0, 0]\n'
+        "fixed = true\n\n"
+        '[[part]]\nname = "block"\nfile = "block.stl"\npose = [0, 0, 8, 0, 0, 0]\n')
+    win = make_window(tmp_path / "scene.toml")
+    wait_until(lambda: win.session.handle is not None, 20000, "the scene")
+    chosen = win.session.handle.scene.chosen
+    assert [key for key, _, _ in chosen] == ["descriptor.spacing", "correlation.modes"]
+    tip = win.params.toolTip()
+    assert "correlation.modes = " in tip and "chosen, " in tip

@@ -207,3 +207,29 @@ def test_a_band_that_would_half_resolve_the_fit_is_kept_at_its_outline(tmp_path)
         if "wavelength of" in reason:
             assert shortest <= WAVELENGTH_PER_WIDTH + 1e-9
     assert {"outline", "coarsely"} <= regimes  # (resolved: this fit asks for more than 127)
+
+
+@pytest.mark.slow
+def test_evaluate_reports_the_choices_of_a_scene_that_leaves_them_open(tmp_path, capsys,
+                                                                      monkeypatch):
+    import json
+
+    from app.cli import main
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path / "cache"))
+    block, peg = peg_and_bore(10.0, 0.1)
+    scene = _scene(block, peg, tmp_path)
+    (tmp_path / "open.toml").write_text(
+        'name = "left open"\nunits = "mm"\nassembled_pose = [0, 0, -12, 0, 0, 0]\n'
+        "insertion_axis = [0, 0, -1]\n\n"
+        f'[[part]]\nname = "block"\nfile = "{scene.parts[0].file.name}"\n'
+        "pose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n"
+        f'[[part]]\nname = "peg"\nfile = "{scene.parts[1].file.name}"\n'
+        "pose = [0, 0, 5, 0, 0, 0]\n")
+    assert main(["evaluate", str(tmp_path / "open.toml"), "--json", "--repeat", "1",
+                 "--backend", "numba"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    keys = [c["key"] for c in out["chosen"]]
+    assert keys == ["descriptor.spacing", "correlation.modes"]
+    assert out["modes"] == int(out["chosen"][1]["value"]) and out["modes"] % 2 == 1
+    assert all(c["reason"] for c in out["chosen"])
