@@ -79,9 +79,13 @@ def coupling_wrench(
 
 
 #: How stiff the hand is past its play: its natural frequency about the part's weakest
-#: principal axis times the time step (the integrator is stable below 2; 0.5 is about a
-#: hundred times the mass-based spring of a compact part at 1 kHz).
-HAND_OMEGA_DT = 0.5
+#: principal axis times the time step (the integrator is stable below 2; 1 is about four
+#: hundred times the mass-based spring of a compact part at 1 kHz). At 0.5 generated pairs
+#: turned up to 0.84 degree past the play at a hole's mouth, at 1 up to 0.2.
+HAND_OMEGA_DT = 1.0
+#: Its damping ratio about that axis: the damping term's share of a step, ``c dt / I``, is
+#: ``2 ratio omega dt`` = 1, well inside the explicit step's limit of 2.
+HAND_DAMPING_RATIO = 0.5
 
 
 def hand_stiffness(inertia: np.ndarray, dt: float) -> float:
@@ -106,7 +110,8 @@ def for_step(gains: Physics, dt: float) -> Physics:
 
     k = max(cap, gains.k_rot)
     i_min = float(np.min(np.linalg.eigvalsh(np.asarray(gains.inertia, np.float64))))
-    damping = 2.0 * math.sqrt(k * max(i_min, 0.0)) if gains.c_rot_hard > 0 else 0.0
+    damping = (2.0 * HAND_DAMPING_RATIO * math.sqrt(k * max(i_min, 0.0))
+               if gains.c_rot_hard > 0 else 0.0)
     return replace(gains, k_rot_hard=k if k > gains.k_rot else 0.0, c_rot_hard=damping)
 
 

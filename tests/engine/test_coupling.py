@@ -444,8 +444,11 @@ def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play(
     assert phys.k_rot < 0.02 * hand.k_rot
     # past the play: as stiff as the step allows about the weakest axis, stiffer than the
     # mass-based spring
+    from engine.sim.coupling import HAND_OMEGA_DT
+
     i_min = float(np.min(np.linalg.eigvalsh(phys.inertia)))
-    assert math.sqrt(phys.k_rot_hard / i_min) * config.simulation.dt == pytest.approx(0.5)
+    assert math.sqrt(phys.k_rot_hard / i_min) * config.simulation.dt == pytest.approx(
+        HAND_OMEGA_DT)
     assert phys.k_rot_hard > 10 * hand.k_rot
     assert phys.rot_play == pytest.approx(math.radians(3.0))
     body = RigidBody(phys.mass, phys.inertia, phys.center)
@@ -461,7 +464,8 @@ def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play(
 
 def test_the_hands_spring_comes_down_to_a_longer_step():
     """Gains resolved for 1 kHz, run at 250 Hz: the spring past the play is lowered to what
-    the step integrates (sqrt(k / I_min) dt = 0.5), and raised back at the scene's step.
+    the step integrates (sqrt(k / I_min) dt = HAND_OMEGA_DT), and raised back at the
+    scene's step.
     """
     from engine.sim.coupling import HAND_OMEGA_DT
 
