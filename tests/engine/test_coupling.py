@@ -483,3 +483,27 @@ def test_the_hands_spring_comes_down_to_a_longer_step():
     sim.set_proxy(np.array([0.0, 0.0, 0.0, math.radians(30.0), 0.0, 0.0]))
     sim.run(2000)
     assert abs(math.degrees(float(np.linalg.norm(sim.part_pose()[3:]))) - 30.0) < 1.0
+
+
+def test_an_undamped_part_swinging_past_the_hands_play_keeps_its_energy():
+    """Damping off, a part tumbling through the stiff spring past the play: the step's
+    error stays bounded (measured: 1.6e-4 drift over 8 s, 1.2 % spread; a linear spring
+    4e-6 and 0.07 %).
+    """
+    v, f = box_mesh((1.0, 1.0, 6.0))
+    config = SimConfig()
+    effects = replace(config.effects, damping=False, gravity=None)
+    phys = resolve_physics(config, v, f, effects=effects)
+    assert phys.k_rot_hard > 10 * phys.k_rot
+    sim = Simulation(RigidBody(phys.mass, phys.inertia, phys.centre), phys, effects,
+                     NullField(), np.zeros(6), dt=1e-3)
+    sim.state.velocity = np.array([0.5, -0.3, 5.0])
+    sim.state.omega = np.array([5.0, 2.5, 0.0])
+    e0 = sim.total_energy()
+    energies = []
+    for _ in range(8000):
+        sim.step()
+        energies.append(sim.total_energy())
+    energies = np.array(energies)
+    assert abs(energies[-1000:].mean() - energies[:1000].mean()) / e0 < 1e-3
+    assert (energies.max() - energies.min()) / e0 < 0.03
