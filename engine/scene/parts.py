@@ -2,7 +2,7 @@
 
 Each part has a unit: the ``unit`` of its ``[[part]]`` if given, else the one its STEP
 header declares; a mesh file (STL, OBJ, PLY, OFF) carries none and is read in the scene's
-unit. Every part is converted into the scene's unit. Three checks warn, once per scene:
+unit. Every part is converted into the scene's unit. Four checks warn, once per scene:
 
 - a scene that declares no ``units`` and holds a mesh part without a ``unit`` (the mesh is
   read as millimetres, which is wrong for the many OBJ files drawn in metres);
@@ -12,7 +12,9 @@ unit. Every part is converted into the scene's unit. Three checks warn, once per
   read as millimetres. The message names the part, the unit it was read in and where that
   came from, the unit that would explain it, and the ``unit`` line that fixes it;
 - poses that keep the parts many times their size apart (``units = "m"`` over poses
-  written in millimetres): the energy is 0 wherever part 2 goes.
+  written in millimetres): the energy is 0 wherever part 2 goes;
+- poses that move part 2 by a sliver of the parts' size (``units = "um"`` over poses
+  written in millimetres, with parts converted from their files): the parts overlap.
 """
 
 from __future__ import annotations
@@ -90,9 +92,10 @@ def load_scene_parts_and_units(scene: Scene) -> tuple[list[Part], list[str]]:
         message = unit_mismatch(sizes, pair, units[:2], kinds[:2], scene.units)
         if message is not None:
             parts[1] = _warn(parts[1], f"{scene.path}: {message}")
-        message = out_of_reach(scene, sizes)
-        if message is not None:
-            parts[1] = _warn(parts[1], f"{scene.path}: {message}")
+        for check in (out_of_reach, too_near):
+            message = check(scene, sizes)
+            if message is not None:
+                parts[1] = _warn(parts[1], f"{scene.path}: {message}")
     return parts, units
 
 
@@ -122,6 +125,34 @@ def out_of_reach(scene: Scene, sizes: list[float]) -> str | None:
             f"{sizes[1]:.4g} {u}): their densities never meet there and the energy is 0. "
             f"Poses are read in the scene's unit ({u}); if they were written in another, "
             "correct `units` or the poses")
+
+
+#: Poses whose translations are all under this fraction of the smaller part's size, and not
+#: all zero, betray poses written in a larger unit than the scene's (millimetres under
+#: ``units = "um"``): the parts, converted from their files, are far larger than the moves.
+POSE_NEAR = 0.01
+
+
+def too_near(scene: Scene, sizes: list[float]) -> str | None:
+    """A warning when the scene's poses move part 2 by a sliver of the parts' size, else None.
+
+    Parameters
+    ----------
+    scene : Scene
+    sizes : list of 2 float
+        Largest bounding-box side of each part, in the scene's unit.
+    """
+    start = float(np.linalg.norm(scene.parts[1].pose[:3] - scene.parts[0].pose[:3]))
+    seat = float(np.linalg.norm(np.asarray(scene.assembled_pose, float)[:3]))
+    near = POSE_NEAR * min(sizes)
+    if not near > 0 or max(start, seat) == 0 or max(start, seat) >= near:
+        return None
+    u = scene.units
+    return (f"part 2 starts {start:.4g} {u} from part 1 and is assembled {seat:.4g} {u} from "
+            f"it, under {100 * POSE_NEAR:g} % of the parts' sizes ({sizes[0]:.4g} and "
+            f"{sizes[1]:.4g} {u}): the parts overlap wherever part 2 goes. Poses are read in "
+            f"the scene's unit ({u}); if they were written in a larger one, correct `units` "
+            "or the poses")
 
 
 _SOURCES = {"part": "its [[part]] unit", "header": "its STEP header",

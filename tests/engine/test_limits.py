@@ -422,6 +422,22 @@ def test_poses_out_of_reach_of_the_parts_warn(folder, capsys):
     assert not any("never meet" in w for p in parts for w in p.warnings)
 
 
+def test_poses_a_sliver_of_the_parts_warn(folder):
+    # units = "um" over poses written in millimetres: the STEP parts, converted from their
+    # millimetres, are 40,000 um; the poses move the peg by 5 and 15 um
+    path = scene(folder, name="micrometres.toml")
+    path.write_text(path.read_text().replace('units = "mm"', 'units = "um"'))
+    from engine.scene import load_scene, load_scene_parts
+
+    parts = load_scene_parts(load_scene(path))
+    warning = parts[1].warnings[-1]
+    assert "part 2 starts 5 um from part 1 and is assembled 15 um from it" in warning
+    assert "the parts overlap" in warning and "units" in warning
+    # the same scene in millimetres gives no such warning
+    parts = load_scene_parts(load_scene(scene(folder)))
+    assert not any("overlap wherever" in w for p in parts for w in p.warnings)
+
+
 # --------------------------------------------------------------------------- divergence
 def _free_body_sim(k_lin: float, start=(0.0, 0.0, 0.0, 0, 0, 0)):
     from engine.params import Effects
