@@ -81,7 +81,8 @@ def coupling_wrench(
 #: How stiff the hand is past its play: its natural frequency about the part's weakest
 #: principal axis times the time step (the integrator is stable below 2; 1 is about four
 #: hundred times the mass-based spring of a compact part at 1 kHz). At 0.5 generated pairs
-#: turned up to 0.84 degree past the play at a hole's mouth, at 1 up to 0.2.
+#: turned up to 0.84 degree past the misaim and their play (seed 61523), at 1 up to 0.15
+#: (seed 77291).
 HAND_OMEGA_DT = 1.0
 #: Its damping ratio about that axis: the damping term's share of a step, ``c dt / I``, is
 #: ``2 ratio omega dt`` = 1, well inside the explicit step's limit of 2.
