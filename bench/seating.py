@@ -399,6 +399,8 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
 # ---------------------------------------------------------------------------- command
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``skelasm bench seating``."""
+    from engine.backend import choices
+
     parser.add_argument("--pairs", nargs="*", default=None, metavar="NAME",
                         help="folders of assets/real (default: every pair)")
     parser.add_argument("--guidance", choices=("skeletal", "collision", "both"),
@@ -407,7 +409,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="simulated seconds per run (the push takes the first 2)")
     parser.add_argument("--modes", type=int, default=None,
                         help="modes per axis K (default: each scene's)")
-    parser.add_argument("--backend", default="auto", help="per-pose backend")
+    parser.add_argument("--backend", default="auto", choices=choices("per_pose"),
+                        help="per-pose backend (auto: the registry's first that works here)")
     parser.add_argument("-o", "--output", default="bench_seating.png", help="plot (PNG)")
     parser.add_argument("--generated", type=int, default=None, metavar="N",
                         help="instead of assets/real: N unseen pairs from the fit generator "
