@@ -64,13 +64,14 @@ FLUSH_FRACTION = 1e-5
 WAVELENGTH_PER_WIDTH = 0.4
 #: Where the budget's band would half-resolve the fit, its shortest wavelength is kept at
 #: this many times the fit's width. On the real pairs made into scenes by `scene new`,
-#: K = 17 (1.5 to 1.6 widths on the Factory 12 and 8 mm pegs) seated all six measured;
-#: K = 25 (1.0 to 1.1 widths there) left three of them 2 to 6 degrees tilted; the 16 mm
-#: peg seated at both (0.5 and 0.8 widths).
+#: K = 17 (1.5 to 1.6 widths on the Factory 12 mm rectangular and 8 mm round pegs) seated
+#: them; K = 25 (1.0 to 1.1 widths there) left them 2 to 6 degrees tilted; the 16 mm peg
+#: seated at both (0.5 and 0.8 widths), the bundled peg at K = 25 (0.87 widths) and not at
+#: K = 13 (1.5).
 OUTLINE_WAVELENGTHS = 1.5
 #: A band whose shortest wavelength is within this many widths of the fit is near enough
 #: to resolving it: the budget's K is kept.
-NEAR_WAVELENGTHS = 0.8
+NEAR_WAVELENGTHS = 0.9
 #: Cells per shortest wavelength: the descriptor is sampled finely enough for the band.
 CELLS_PER_WAVELENGTH = 5.0
 #: Samples along the longest side of the largest part: a floor that keeps the part's shape,
@@ -256,6 +257,7 @@ def choose_settings(scene: Scene, parts: list[Part], *, fit: FitMeasure | None =
         why = (f"five cells per shortest wavelength of the band, {WAVELENGTH_PER_WIDTH:g} of "
                f"the fit's width {fit.width:.4g} {unit}")
     reasons["descriptor.spacing"] = why
+    spacing = float(f"{spacing:.4g}")  # as written into the scene: K follows from it
     padding = scene.descriptor.padding
     size = _fft_size(parts, spacing, padding)
     half = math.ceil(size * spacing / wavelength)  # |k| reaching the wavelength
@@ -290,7 +292,6 @@ def choose_settings(scene: Scene, parts: list[Part], *, fit: FitMeasure | None =
         reasons["part.tolerance"] = (
             f"a third of the fit's tightest gap ({fit.tightest:.3g} {unit}; median clearance "
             f"{fit.clearance:.3g} {unit}): the tessellated parts stay apart")
-    spacing = float(f"{spacing:.4g}")
     tolerance = None if tolerance is None else float(f"{tolerance:.3g}")
     return Settings(spacing=float(spacing), modes=int(modes), tolerance=tolerance,
                     reasons=reasons, fit=fit)

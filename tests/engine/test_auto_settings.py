@@ -173,7 +173,7 @@ def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypa
 
 
 def test_a_band_that_would_half_resolve_the_fit_is_kept_at_its_outline(tmp_path):
-    """Over every budget, the chosen band's shortest wavelength is never between 0.8 and 1.5
+    """Over every budget, the chosen band's shortest wavelength is never between 0.9 and 1.5
     widths of the fit: a band that would half-resolve the fit keeps to its outline.
     """
     from engine.sim.auto import (
