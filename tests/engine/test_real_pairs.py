@@ -48,7 +48,7 @@ NOT_SEATING: dict[str, str] = {
     "iso_sleeve_30_H7g6_thinwall": "K 25: 4.40 %, 6.01 deg (the 1 mm wall is below the band)",
     "iso_spigot_50_H7h6": "K 19: 8.49 %, 5.8 mm short of its seat",
     "keyed_hub_20": "K 25: 2.83 %, 1.13 mm short of the collar",
-    "rect_peg_10x16_H7g6": "K 13: 10.1 %, 1.34 mm into the pocket's floor, 6.10 deg",
+    "rect_peg_10x16_H7g6": "K 25: 9.26 %, 1.48 mm into the pocket's floor",
 }
 
 
