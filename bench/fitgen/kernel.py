@@ -11,7 +11,9 @@ from __future__ import annotations
 import math
 import os
 import re
+import signal
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -38,17 +40,39 @@ def require_gmsh():
     return gmsh
 
 
+#: Signals whose handling gmsh's initialisation changes behind Python's back: it stops
+#: ignoring SIGPIPE (a later write to a dead child's pipe then kills the whole process, as
+#: it did a test run) and takes SIGINT from Python's handler.
+_KEPT_SIGNALS = ("SIGPIPE", "SIGINT", "SIGTERM", "SIGHUP")
+
+
+def _restore_signals(saved: dict[int, object]) -> None:
+    """Install the Python-level handlers ``saved`` again at the operating system's level."""
+    for number, handler in saved.items():
+        if handler is not None:
+            signal.signal(number, handler)  # type: ignore[arg-type]
+
+
 @contextmanager
 def session() -> Iterator[object]:
-    """Initialise gmsh for modelling in millimetres, silent; finalised on exit."""
+    """Initialise gmsh for modelling in millimetres, silent; finalised on exit.
+
+    The process's signal handling is put back as it was after gmsh's initialisation and
+    after its finalisation (main thread only).
+    """
     gmsh = require_gmsh()
+    main = threading.current_thread() is threading.main_thread()
+    saved = {getattr(signal, n): signal.getsignal(getattr(signal, n))
+             for n in _KEPT_SIGNALS if hasattr(signal, n)} if main else {}
     gmsh.initialize(["-noenv"], readConfigFiles=False)
+    _restore_signals(saved)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setString("Geometry.OCCTargetUnit", "MM")
         yield gmsh
     finally:
         gmsh.finalize()
+        _restore_signals(saved)
 
 
 @contextmanager

@@ -392,3 +392,24 @@ def test_the_misaimed_push_ends_with_the_fit_centre_at_the_seat_depth():
 def test_the_expected_failures_name_families():
     assert set(NOT_SEATING) <= set(FAMILIES)
     assert all(reason.startswith("K ") for reason in NOT_SEATING.values())
+
+
+def test_a_gmsh_session_leaves_the_process_signal_handling_as_it_was():
+    """Gmsh's initialisation stops ignoring SIGPIPE behind Python's back: a later write to a
+    dead child's pipe then killed the whole test run.
+    """
+    import signal
+
+    pytest.importorskip("gmsh")
+    from bench.fitgen import kernel
+
+    def ignored(number: int) -> bool:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("SigIgn:"):
+                return bool(int(line.split()[1], 16) >> (number - 1) & 1)
+        pytest.skip("no /proc/self/status here to read the signal mask from")
+
+    before = ignored(signal.SIGPIPE), signal.getsignal(signal.SIGINT)
+    with kernel.session():
+        assert ignored(signal.SIGPIPE) == before[0]
+    assert (ignored(signal.SIGPIPE), signal.getsignal(signal.SIGINT)) == before
