@@ -105,6 +105,13 @@ def load_scene_parts_and_units(scene: Scene) -> tuple[list[Part], list[str]]:
 POSE_REACH = 10.0
 
 
+def _distances(scene: Scene) -> tuple[float, float]:
+    """How far part 2 starts from part 1, and how far it is assembled from it."""
+    start = float(np.linalg.norm(scene.parts[1].pose[:3] - scene.parts[0].pose[:3]))
+    seat = float(np.linalg.norm(np.asarray(scene.assembled_pose, float)[:3]))
+    return start, seat
+
+
 def out_of_reach(scene: Scene, sizes: list[float]) -> str | None:
     """A warning when the scene's poses keep part 2 out of part 1's reach, else None.
 
@@ -115,8 +122,7 @@ def out_of_reach(scene: Scene, sizes: list[float]) -> str | None:
         Largest bounding-box side of each part, in the scene's unit.
     """
     reach = POSE_REACH * (sizes[0] + sizes[1])
-    start = float(np.linalg.norm(scene.parts[1].pose[:3] - scene.parts[0].pose[:3]))
-    seat = float(np.linalg.norm(np.asarray(scene.assembled_pose, float)[:3]))
+    start, seat = _distances(scene)
     if not (reach > 0) or min(start, seat) <= reach:
         return None
     u = scene.units
@@ -142,8 +148,7 @@ def too_near(scene: Scene, sizes: list[float]) -> str | None:
     sizes : list of 2 float
         Largest bounding-box side of each part, in the scene's unit.
     """
-    start = float(np.linalg.norm(scene.parts[1].pose[:3] - scene.parts[0].pose[:3]))
-    seat = float(np.linalg.norm(np.asarray(scene.assembled_pose, float)[:3]))
+    start, seat = _distances(scene)
     near = POSE_NEAR * min(sizes)
     if not near > 0 or max(start, seat) == 0 or max(start, seat) >= near:
         return None

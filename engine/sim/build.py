@@ -52,7 +52,7 @@ from engine.params import (
 )
 from engine.pose import rotation_matrix
 from engine.sim.body import RigidBody
-from engine.sim.coupling import HAND_DAMPING_RATIO, hand_stiffness
+from engine.sim.coupling import HAND_DAMPING_RATIO, hand_stiffness, weakest_inertia
 from engine.sim.fields import GeometricField, NullField, field_correlator, field_for_effects
 from engine.sim.simulation import Simulation
 
@@ -559,7 +559,7 @@ def resolve_physics(
     # past the hand's play the hand holds the part: as stiff as the scene's step allows
     # (never softer than the mass-based spring; a longer step lowers it, Simulation), damped
     # at HAND_DAMPING_RATIO about the weakest axis
-    i_min = float(np.min(np.linalg.eigvalsh(np.asarray(inertia, float))))
+    i_min = weakest_inertia(inertia)
     if c.angular_stiffness is None:
         k_hand = max(k_hand, hand_stiffness(inertia, 1.0 / config.simulation.rate_hz))
     c_hand = c.angular_damping if c.angular_damping is not None else (

@@ -89,13 +89,17 @@ HAND_OMEGA_DT = 1.0
 HAND_DAMPING_RATIO = 0.5
 
 
+def weakest_inertia(inertia: np.ndarray) -> float:
+    """The smallest principal moment of an inertia tensor (3, 3), at least 0."""
+    return max(float(np.min(np.linalg.eigvalsh(np.asarray(inertia, np.float64)))), 0.0)
+
+
 def hand_stiffness(inertia: np.ndarray, dt: float) -> float:
     """The stiffest spring past the hand's play that a step of ``dt`` integrates stably.
 
     ``(HAND_OMEGA_DT / dt)^2 I_min`` for the part's inertia tensor ``inertia`` (3, 3).
     """
-    i_min = float(np.min(np.linalg.eigvalsh(np.asarray(inertia, np.float64))))
-    return (HAND_OMEGA_DT / dt) ** 2 * max(i_min, 0.0)
+    return (HAND_OMEGA_DT / dt) ** 2 * weakest_inertia(inertia)
 
 
 def for_step(gains: Physics, dt: float) -> Physics:
@@ -110,9 +114,8 @@ def for_step(gains: Physics, dt: float) -> Physics:
     from dataclasses import replace
 
     k = max(cap, gains.k_rot)
-    i_min = float(np.min(np.linalg.eigvalsh(np.asarray(gains.inertia, np.float64))))
-    damping = (2.0 * HAND_DAMPING_RATIO * math.sqrt(k * max(i_min, 0.0))
-               if gains.c_rot_hard > 0 else 0.0)
+    # the damping keeps its ratio: it scales with the square root of the stiffness
+    damping = gains.c_rot_hard * math.sqrt(k / gains.k_rot_hard)
     return replace(gains, k_rot_hard=k if k > gains.k_rot else 0.0, c_rot_hard=damping)
 
 
