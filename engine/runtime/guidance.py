@@ -31,9 +31,11 @@ from engine.runtime.jobs import (
     FieldResponse,
     JobWorker,
     LandscapeResponse,
+    NearResponse,
     RefreshLane,
     Response,
     build_field,
+    build_near,
     next_id,
 )
 from engine.runtime.landscapes import Landscapes
@@ -203,6 +205,7 @@ class Guidance:
         )
         self._field_id, self._field_task = request.id, task
         self.handover.drop()  # a field held back is superseded
+        self.worker.cancel("near")  # the field first; its swap asks for the level again
         report = task != "field"
         self.recompute = 0.0 if task == "descriptors" else None
 
@@ -224,6 +227,26 @@ class Guidance:
                 return FieldResponse(request.id, request, error=exc)
 
         self.worker.submit("field", run)
+
+    def _request_near(self, effects: Effects, descriptors: tuple[Descriptor, ...]) -> None:
+        """Build the fine level where the parts meet for ``descriptors`` (the worker)."""
+        model = self.model
+        if model is None or effects.guidance != "skeletal" or len(descriptors) < 2:
+            return
+        self.worker.submit("near", lambda cancelled: build_near(model, effects, descriptors,
+                                                                cancelled))
+
+    def _near(self, r: NearResponse) -> None:
+        """Add a finished fine level, if it is for the descriptors in use."""
+        if not all(a is b for a, b in zip(r.descriptors, self.descriptors, strict=False)) \
+                or len(r.descriptors) != len(self.descriptors):
+            return  # superseded
+        if r.error is not None:
+            self.events.append(ErrorEvent(
+                f"the fine level where the parts meet could not be built ({r.error}); the "
+                "guidance goes on without it", type(r.error).__name__))
+            return
+        self.sim.set_near(r.near)
 
     def _rotation_now(self) -> np.ndarray:
         """The part's rotation as the loop last stepped it (any thread).
@@ -268,6 +291,8 @@ class Guidance:
         for response in self.worker.responses():
             if isinstance(response, LandscapeResponse):
                 self.landscapes.deliver(response)
+            elif isinstance(response, NearResponse):
+                self._near(response)
             else:
                 self._field(response)
         held = self.handover.due(self.sim.state.rotation)
@@ -294,7 +319,14 @@ class Guidance:
         if isinstance(self.sim.field, RotationCacheField):
             self.refresh_lane.forget(self.sim.field)
         self.worker.dispose(self.sim.field)  # its arrays are freed there, not in a period
+        same = (len(r.descriptors) == len(self.descriptors)
+                and all(a is b for a, b in zip(r.descriptors, self.descriptors, strict=True)))
         self.sim.set_field(r.field)
+        if not same:
+            self.sim.set_near(None)
+        if self.sim.near is None and r.coarse_grid is None:
+            # the fine level for these descriptors, in the background (a new K keeps it)
+            self._request_near(req.effects, tuple(r.descriptors))
         if not attached:
             self.attach(r.field)
         self.offload(r.field)

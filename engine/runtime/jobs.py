@@ -37,7 +37,7 @@ import queue
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
@@ -59,6 +59,7 @@ from engine.sim import (
 
 if TYPE_CHECKING:
     from engine.correlation import Landscape
+    from engine.correlation.near import NearField
     from engine.correlation.rotation_cache import RotationCache
     from engine.descriptor import Descriptor
 
@@ -66,6 +67,7 @@ __all__ = [
     "FieldModel",
     "FieldRequest",
     "FieldResponse",
+    "NearResponse",
     "JobWorker",
     "LandscapeRequest",
     "LandscapeResponse",
@@ -124,6 +126,11 @@ class FieldModel(Protocol):
 
     def descriptors_of(self, fld: GeometricField) -> tuple[Descriptor, ...]:
         """The descriptors of ``fld`` if this model built it before any loop, else ()."""
+        ...
+
+    def near_field(self, effects: Effects, descriptors: Sequence[Descriptor], *,
+                   cancel: Callable[[], bool] | None = None) -> NearField | None:
+        """The fine level where the parts meet for these descriptors, or None."""
         ...
 
     def first_grid(self, effects: Effects, *,
@@ -199,6 +206,33 @@ class FieldResponse:
 
 
 @dataclass(frozen=True)
+class NearResponse:
+    """The fine level where the parts meet, built for ``descriptors`` (in the worker).
+
+    ``near`` is None where the pair has none (``SceneModel.near_field``) or it failed
+    (``error``).
+    """
+
+    descriptors: tuple[Descriptor, ...]
+    near: NearField | None = None
+    seconds: float = 0.0
+    error: BaseException | None = None
+
+
+def build_near(model: FieldModel, effects: Effects, descriptors: tuple[Descriptor, ...],
+               cancel: Callable[[], bool]) -> NearResponse:
+    """Run the fine level's job (in the worker); a failure comes back as ``error``."""
+    t0 = time.perf_counter()
+    try:
+        near = model.near_field(effects, descriptors, cancel=cancel)
+    except Cancelled:
+        raise
+    except Exception as exc:  # delivered to the loop, never raised in the worker
+        return NearResponse(descriptors, None, time.perf_counter() - t0, exc)
+    return NearResponse(descriptors, near, time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
 class LandscapeRequest:
     """Compute the translational energy landscape of ``correlator`` at ``rotation``."""
 
@@ -219,7 +253,7 @@ class LandscapeResponse:
     cancelled: bool = False
 
 
-Response = FieldResponse | LandscapeResponse
+Response = FieldResponse | LandscapeResponse | NearResponse
 
 
 def _warm(fld: GeometricField, rotation: np.ndarray) -> None:

@@ -58,6 +58,7 @@ from engine.sim.simulation import Simulation
 
 if TYPE_CHECKING:
     from engine.correlation import Correlator
+    from engine.correlation.near import NearField, NearLevel
     from engine.descriptor import Descriptor
     from engine.scene import Scene
 
@@ -630,6 +631,7 @@ class SceneModel:
         self.backend = backend
         self.start_pose = np.array(handle.start_pose, np.float64).reshape(6)
         self.assembled_pose = np.array(handle.scene.assembled_pose, np.float64).reshape(6)
+        self._near: tuple[object, NearLevel | None] | None = None  # near_field's last level
         #: Rotational stiffness at the assembled pose, per unit kappa, of the field last
         #: built (None: no field, or rotation locked); sets the default rotational coupling.
         self.geometric_rotation: float | None = None
@@ -715,6 +717,28 @@ class SceneModel:
         from engine.descriptor.store import descriptors_cached
 
         return descriptors_cached(self._scene_with(descriptor, None), list(self.parts))
+
+    def near_field(self, effects: Effects, descriptors: Sequence[Descriptor], *,
+                   progress: Callable[[float], None] | None = None,
+                   cancel: Callable[[], bool] | None = None) -> NearField | None:
+        """The fine level over the fit (:mod:`engine.sim.fine`), or None.
+
+        None where guidance is not skeletal, the scene has one part, the descriptors are
+        not the pair's, or the parts do not meet at the assembled pose.
+        """
+        if effects.guidance != "skeletal" or not self.has_pair or len(descriptors) < 2:
+            return None
+        from engine.correlation.near import NearField
+        from engine.sim.fine import build_level
+
+        d1, d2 = descriptors[0], descriptors[1]
+        key = (d1.params, d1.grid, d2.params, d2.grid)
+        if self._near is None or self._near[0] != key:  # a new K keeps the level
+            level = build_level(self.parts[0], self.parts[1], d1, d2, self.assembled_pose,
+                                self.scene.insertion_axis, progress=progress, cancel=cancel)
+            self._near = (key, level)
+        level = self._near[1]
+        return None if level is None else NearField(level)
 
     def descriptors_of(self, fld: GeometricField) -> tuple[Descriptor, ...]:
         """The descriptors of ``fld`` if :func:`build_simulation` built it here, else ().
@@ -822,6 +846,7 @@ def build_simulation(
     rate_hz: float | None = None,
     prepare: bool = True,
     coupled: bool = True,
+    fine: bool = True,
 ) -> tuple[Simulation, SceneModel]:
     """The simulation of a loaded scene, and the model that rebuilds its parts.
 
@@ -842,6 +867,9 @@ def build_simulation(
         loop does so in its worker) and hand it over with ``sim.set_field``.
     coupled : bool
         False: no proxy and no coupling (a free part, for energy checks).
+    fine : bool
+        With ``prepare``, add the fine level where the parts meet
+        (:meth:`SceneModel.near_field`).
 
     Returns
     -------
@@ -864,4 +892,6 @@ def build_simulation(
                      dt=1.0 / rate, limits=limits, coupled=coupled,
                      hold=hold_point(handle) if follow is None else follow.rest,
                      follow=follow)
+    if prepare and fine and model.prepared is not None:
+        sim.set_near(model.near_field(effects, model.prepared[1]))
     return sim, model

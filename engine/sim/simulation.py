@@ -12,7 +12,7 @@ the effects or the field keeps it.
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -21,7 +21,10 @@ from engine.params import Effects, HapticLimits, Physics, SimulationParams
 from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
 from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy
 from engine.sim.coupling import coupling_energy, coupling_wrench, for_step, haptic_reaction
-from engine.sim.fields import ZERO_EVALUATION, GeometricField
+from engine.sim.fields import ZERO_EVALUATION, GeometricField, field_correlator
+
+if TYPE_CHECKING:
+    from engine.correlation.near import NearField
 from engine.sim.guard import check_motion, check_proxy_pose
 
 _ZERO3 = np.zeros(3)
@@ -85,6 +88,8 @@ class Simulation:
         self.follow = follow
         self.effects = effects
         self.field = field
+        #: The fine level where the parts meet (:meth:`set_near`), or None.
+        self.near: NearField | None = None
         self.limits = limits or HapticLimits()
         self.coupled = coupled
         self.start_pose = np.array(start_pose, np.float64).reshape(6)
@@ -117,6 +122,8 @@ class Simulation:
         self.physics = for_step(physics, self._dt)
         self._gravity_force = self.body.mass * np.asarray(physics.gravity, np.float64)
         self.field.kappa = physics.kappa
+        if self.near is not None:
+            self.near.kappa = physics.kappa
         self._sample_fresh = False  # kappa may have changed
 
     def set_effects(self, effects: Effects, physics: Physics | None = None) -> None:
@@ -247,9 +254,34 @@ class Simulation:
                                  self._proxy_hold, self._proxy_q)
         return e
 
+    def set_near(self, near: NearField | None) -> None:
+        """Add the fine level where the parts meet (None: the field alone).
+
+        The level follows the field's mode band (:meth:`NearField.follow`) and its kappa.
+        """
+        self.near = near
+        if near is not None:
+            near.kappa = self.physics.kappa
+        self._sample_fresh = False
+
     def evaluate_field(self) -> Evaluation:
-        """Evaluate the geometric field at the current pose (stores it in ``sample``)."""
-        self.sample = self.field.evaluate(self.state.rotation, self.state.origin(self.body))
+        """Evaluate the geometric field at the current pose (stores it in ``sample``).
+
+        With a fine level (:meth:`set_near`) serving the field's band, its energy, force and
+        torque are added.
+        """
+        rot, origin = self.state.rotation, self.state.origin(self.body)
+        sample = self.field.evaluate(rot, origin)
+        near = self.near
+        if near is not None:
+            corr = field_correlator(self.field)
+            if near.follow(None if corr is None else corr.table):
+                extra = near.evaluate(rot, origin)
+                torque = extra.torque if sample.torque is None else sample.torque + extra.torque
+                sample = Evaluation(sample.energy + extra.energy, sample.force + extra.force,
+                                    torque, sample.microseconds + extra.microseconds,
+                                    sample.modes, sample.switched)
+        self.sample = sample
         return self.sample
 
     # -- stepping -------------------------------------------------------------------------------

@@ -108,6 +108,9 @@ class FakeModel:
     def descriptors_of(self, fld):
         return ()  # no field built before the loop
 
+    def near_field(self, effects, descriptors, *, cancel=None):
+        return None  # the fakes' fields have no fine level
+
     coarse = None  # the grid first_grid answers (None: the scene's descriptors are cached)
 
     def first_grid(self, effects, *, descriptor=None):

@@ -1,0 +1,138 @@
+"""Where the fine level goes and how fine it is: grids over the fit, chosen from the parts.
+
+Works on a scene's two loaded parts (:class:`engine.loading.Part`, the scene's unit), their
+descriptors on the scene's grid (:class:`engine.descriptor.Descriptor`, one spacing ``h``)
+and the assembled pose (6,). The numerics of the level are
+:mod:`engine.correlation.near`; this module decides its extent:
+
+- part 1's fine grid covers the box where the parts meet at the seat
+  (:func:`engine.sim.auto.measure_fit`), grown by :data:`BOX_CELLS` coarse cells (a blind
+  bore's floor, which a flush end leaves out of the measure) and then by a taper of
+  :data:`TAPER_CELLS` cells over which the window falls to zero;
+- its spacing is ``h / r``, the largest ``r`` (at most :data:`MAX_RATIO`) for which the box
+  holds at most :data:`SAMPLES_BUDGET` samples: finer for a small fit in a large part;
+- part 2's fine grid covers the region of part 2 that lies in that box at the seat, grown
+  by the protocol's misaim and the taper, aligned with part 2's own grid and clipped to it.
+
+Both fine descriptors come from the descriptor store (cached on disk like the coarse ones).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from engine.correlation.near import NearLevel, smooth_window
+from engine.grid import Grid
+from engine.pose import rotation_matrix
+
+if TYPE_CHECKING:
+    from engine.descriptor import Descriptor
+    from engine.loading import Part
+
+#: The fit's box grows by this many coarse cells before the taper (a blind bore's floor).
+BOX_CELLS = 2.0
+#: The window falls from 1 to 0 over this many coarse cells.
+TAPER_CELLS = 2.0
+#: Part 2's fine region reaches this many coarse cells beyond the box's pre-image (a part
+#: misaimed by a few per cent of its width, or tilted by a few degrees).
+MOVING_MARGIN_CELLS = 3.0
+#: Largest fine samples along all three axes of one part's fine grid: the level's setup
+#: costs about as much as a coarse descriptor of this many samples.
+SAMPLES_BUDGET = 48 ** 3
+#: The finest level: ``h / MAX_RATIO``.
+MAX_RATIO = 4
+
+
+def _aligned_grid(lo: np.ndarray, hi: np.ndarray, coarse: Grid, ratio: int,
+                  clip: bool) -> Grid | None:
+    """Grid of spacing ``coarse.spacing / ratio`` over ``[lo, hi]``, on the coarse nodes.
+
+    ``clip``: within the coarse grid's box. None where nothing is left.
+    """
+    h = coarse.spacing
+    origin = np.asarray(coarse.origin)
+    a = np.floor((lo - origin) / h)
+    b = np.ceil((hi - origin) / h)
+    if clip:
+        a = np.maximum(a, 0.0)
+        b = np.minimum(b, np.asarray(coarse.shape) - 1.0)
+    if np.any(b <= a):
+        return None
+    shape = tuple(int(n) * ratio + 1 for n in (b - a))
+    return Grid(tuple(origin + a * h), h / ratio, shape)
+
+
+def fine_ratio(box_lo: np.ndarray, box_hi: np.ndarray, spacing: float) -> int:
+    """The largest ``r <= MAX_RATIO`` whose fine grid over the box fits the budget (>= 1)."""
+    cells = np.maximum(np.asarray(box_hi) - np.asarray(box_lo), spacing) / spacing
+    r = (SAMPLES_BUDGET / float(np.prod(cells + 1.0))) ** (1.0 / 3.0)
+    return int(max(1, min(MAX_RATIO, math.floor(r))))
+
+
+def level_grids(fixed_desc: Descriptor, moving_desc: Descriptor, box_lo: np.ndarray,
+                box_hi: np.ndarray, assembled_pose: np.ndarray
+                ) -> tuple[Grid, np.ndarray, np.ndarray, Grid, np.ndarray, np.ndarray] | None:
+    """(fixed grid, window box lo, hi, moving grid, its window box lo, hi) or None.
+
+    The window boxes are where each window is 1 (the taper lies outside them).
+    """
+    h = fixed_desc.grid.spacing
+    inner_lo = np.asarray(box_lo, float) - BOX_CELLS * h
+    inner_hi = np.asarray(box_hi, float) + BOX_CELLS * h
+    taper = TAPER_CELLS * h
+    ratio = fine_ratio(inner_lo - taper, inner_hi + taper, h)
+    fixed = _aligned_grid(inner_lo - taper, inner_hi + taper, fixed_desc.grid, ratio,
+                          clip=False)
+    if fixed is None:
+        return None
+    # the box's corners in part 2's frame at the seat
+    pose = np.asarray(assembled_pose, float).reshape(6)
+    rot = rotation_matrix(pose[3:])
+    corners = np.array([[x, y, z] for x in (fixed.origin[0], fixed.upper[0])
+                        for y in (fixed.origin[1], fixed.upper[1])
+                        for z in (fixed.origin[2], fixed.upper[2])])
+    local = (corners - pose[:3]) @ rot
+    m_lo = local.min(axis=0) - MOVING_MARGIN_CELLS * h
+    m_hi = local.max(axis=0) + MOVING_MARGIN_CELLS * h
+    moving = _aligned_grid(m_lo - taper, m_hi + taper, moving_desc.grid, ratio, clip=True)
+    if moving is None:
+        return None
+    return fixed, inner_lo, inner_hi, moving, m_lo, m_hi
+
+
+def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: Descriptor,
+                assembled_pose: np.ndarray, axis: np.ndarray | None, *,
+                progress: Callable[[float], None] | None = None,
+                cancel: Callable[[], bool] | None = None) -> NearLevel | None:
+    """The fine level of a pair at its seat, or None where the parts do not meet there.
+
+    The descriptors' parameters (sigma, penalty) are the coarse ones', so the levels are
+    one density sampled twice.
+    """
+    from engine.descriptor.store import descriptor_for_part
+    from engine.sim.auto import measure_fit
+
+    fit = measure_fit(fixed, moving, assembled_pose, axis)
+    if fit.points < 8:
+        return None
+    grids = level_grids(fixed_desc, moving_desc, fit.box_lo, fit.box_hi, assembled_pose)
+    if grids is None:
+        return None
+    g1, lo1, hi1, g2, lo2, hi2 = grids
+    taper = TAPER_CELLS * fixed_desc.grid.spacing
+
+    def stage(a: float, b: float) -> Callable[[float], None] | None:
+        return None if progress is None else (lambda f: progress(a + (b - a) * float(f)))
+
+    d1 = descriptor_for_part(fixed, g1, fixed_desc.params, progress=stage(0.0, 0.5),
+                             cancel=cancel)
+    d2 = descriptor_for_part(moving, g2, moving_desc.params, progress=stage(0.5, 1.0),
+                             cancel=cancel)
+    return NearLevel.from_samples(
+        g1, d1.rho, smooth_window(g1, lo1, hi1, taper),
+        g2, d2.rho, smooth_window(g2, lo2, hi2, taper),
+        moving_desc.grid, moving_desc.rho)

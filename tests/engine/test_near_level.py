@@ -1,0 +1,201 @@
+"""The fine level where the parts meet (engine.correlation.near, engine.sim.fine).
+
+- With a window of 1 over everything part 2 can reach, the modal sum plus the fine level
+  is the full discrete correlation, whatever K: checked against the brute-force spatial sum
+  ``h^3 sum rho1[p] rho2[p - t]`` at lattice translations, for odd and even K (a band the
+  level did not subtract exactly, such as the lopsided one of an even K, fails it).
+- Its force and torque are the derivatives of its energy (central differences), at a
+  turned pose, with part 2's density read from a finer grid blended into its own.
+- Part 2's density is continuous where its fine region ends (a point swept across it).
+- The level's extent and fineness follow from the fit; the simulation adds it to the field
+  and follows the field's K.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.correlation.near import NearField, NearLevel, smooth_window, trilinear
+from engine.grid import Grid
+from engine.pose import rotation_matrix
+
+
+@pytest.fixture(scope="module")
+def pair(small_peg_scene):
+    from engine.descriptor.store import descriptors_for_scene
+    from engine.scene import load_scene
+
+    scene = load_scene(small_peg_scene)
+    d1, d2 = descriptors_for_scene(scene)[:2]
+    return scene, d1, d2
+
+
+def _covering_level(d1, d2, pad: int) -> tuple[NearLevel, Grid, np.ndarray]:
+    """Part 1's samples in a grid ``pad`` cells larger (zeros there), window 1 everywhere."""
+    h = d1.grid.spacing
+    grid = Grid(tuple(np.asarray(d1.grid.origin) - pad * h), h,
+                tuple(np.asarray(d1.grid.shape) + 2 * pad))
+    rho1 = np.zeros(grid.shape, np.complex64)
+    rho1[pad:-pad, pad:-pad, pad:-pad] = d1.rho
+    level = NearLevel.from_samples(grid, rho1, np.ones(grid.shape), d2.grid, d2.rho,
+                                   np.zeros(d2.grid.shape), d2.grid, d2.rho)
+    return level, grid, rho1
+
+
+@pytest.mark.parametrize("modes", [5, 8, 11])
+def test_modal_sum_plus_fine_level_is_the_full_correlation_at_any_k(pair, modes):
+    from engine.correlation.from_scene import correlator_for_scene
+
+    scene, d1, d2 = pair
+    corr = correlator_for_scene(scene, modes=modes, backend="numpy")
+    pad = max(d2.grid.shape)  # part 2's whole grid, at any of the translations below
+    level, grid, rho1 = _covering_level(d1, d2, pad)
+    near = NearField(level)
+    assert near.follow(corr.table) and near.modes == modes
+    h = d1.grid.spacing
+    lattice = np.asarray(d1.grid.origin) - np.asarray(d2.grid.origin)
+    points = grid.points().reshape(-1, 3)
+    for cells in [(0, 0, 3), (1, -2, 6), (0, 0, 12)]:
+        t = lattice + h * np.array(cells)
+        rho2 = trilinear(d2.rho.astype(np.complex128), d2.grid, points - t)
+        brute = -float((h ** 3 * np.sum(rho1.reshape(-1) * rho2)).real)  # E, kappa = 1
+        coarse = corr.evaluate(np.eye(3), t).energy
+        total = coarse + near.evaluate(np.eye(3), t).energy
+        scale = h ** 3 * float(np.sum(np.abs(rho1.reshape(-1) * rho2)))
+        # the modal sum alone is far off the full correlation; with the level it is exact
+        assert abs(coarse - brute) > 1e-2 * scale, (cells, coarse, brute)
+        assert total == pytest.approx(brute, abs=2e-5 * scale), (cells, total, brute)
+
+
+def _fine_level(d1, d2, ratio: int = 2) -> NearLevel:
+    """A level over the middle of part 1's grid, part 2 read from a finer grid where it meets."""
+    g1, g2 = d1.grid, d2.grid
+    h = g1.spacing
+    lo1 = np.asarray(g1.origin) + 4 * h
+    hi1 = g1.upper - 4 * h
+    cells = np.round((hi1 - lo1) / h).astype(int)
+    fixed = Grid(tuple(lo1), h / ratio, tuple(cells * ratio + 1))
+    # fine samples: part 1's own, interpolated (any field will do for the derivatives)
+    rho1 = trilinear(d1.rho.astype(np.complex128), g1, fixed.points().reshape(-1, 3))
+    window = smooth_window(fixed, lo1 + 2 * h, hi1 - 2 * h, 2 * h)
+    lo2 = np.asarray(g2.origin) + 3 * h
+    moving = Grid(tuple(lo2), h / ratio,
+                  tuple((np.asarray(g2.shape) - 7) * ratio + 1))
+    wave = np.exp(1j * moving.points() @ np.array([1.3, 0.7, 2.1]) / h)  # a detail
+    rho2 = trilinear(d2.rho.astype(np.complex128), g2, moving.points().reshape(-1, 3)
+                     ).reshape(moving.shape) * (1.0 + 0.3 * wave)
+    window2 = smooth_window(moving, lo2 + 2 * h, moving.upper - 2 * h, 2 * h)
+    return NearLevel.from_samples(fixed, rho1.reshape(fixed.shape), window, moving, rho2,
+                                  window2, g2, d2.rho)
+
+
+def test_force_and_torque_are_the_energys_derivatives(pair):
+    scene, d1, d2 = pair
+    near = NearField(_fine_level(d1, d2), kappa=2.5)
+    near.prepare("no band", None, 0)
+    assert near.terms > 1000
+    rotvec = np.array([0.05, -0.08, 0.11])
+    t = np.asarray(scene.assembled_pose[:3], float) + np.array([0.13, -0.07, 3.1])
+    ev = near.evaluate(rotation_matrix(rotvec), t)
+    assert abs(ev.energy) > 0 and np.linalg.norm(ev.force) > 0
+    step = 1e-4 * d1.grid.spacing
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = step
+        de = (near.evaluate(rotation_matrix(rotvec), t + d).energy
+              - near.evaluate(rotation_matrix(rotvec), t - d).energy) / (2 * step)
+        assert -de == pytest.approx(ev.force[i], rel=2e-3, abs=2e-3 * np.linalg.norm(ev.force))
+    a = 1e-5
+    for i in range(3):  # theta about world axes through part 2's origin: R -> exp(theta) R
+        d = np.zeros(3)
+        d[i] = a
+        rp = rotation_matrix(d) @ rotation_matrix(rotvec)
+        rm = rotation_matrix(-d) @ rotation_matrix(rotvec)
+        de = (near.evaluate(rp, t).energy - near.evaluate(rm, t).energy) / (2 * a)
+        assert -de == pytest.approx(ev.torque[i], rel=2e-3,
+                                    abs=2e-3 * np.linalg.norm(ev.torque))
+
+
+def test_part_2s_density_is_continuous_where_its_fine_region_ends(pair):
+    _, d1, d2 = pair
+    level = _fine_level(d1, d2)
+    moving = level.moving_grid
+    # one mass of part 1, seen from part 2's frame sweeping across the fine region's edge
+    p = np.zeros(3)
+    y, z = moving.centre[1], moving.centre[2]
+    xs = np.linspace(moving.origin[0] - 2 * moving.spacing,
+                     moving.origin[0] + 2 * moving.spacing, 401)
+    near = NearField(level)
+    near._points = p.reshape(1, 3)
+    near._masses = np.array([[1.0, 0.3]], np.float32)
+    energy = np.array([near.raw(np.eye(3), -np.array([x, y, z]))[0] for x in xs])
+    jumps = np.abs(np.diff(energy))
+    typical = np.median(jumps)
+    assert typical > 0
+    # continuous: no step is much larger than the slope's, at the edge or anywhere
+    assert jumps.max() < 20 * typical, (jumps.max(), typical)
+    # and the fine grid does serve inside: the values differ from the coarse ones there
+    inside = trilinear(d2.rho.astype(np.complex128), d2.grid, np.array([[xs[-1], y, z]]))[0]
+    assert abs(energy[-1] - (1.0 * inside.real - 0.3 * inside.imag)) > 1e-6 * abs(inside)
+
+
+def test_a_smaller_fit_gets_a_finer_level():
+    from engine.sim.fine import MAX_RATIO, fine_ratio
+
+    h = 1.0
+    big = fine_ratio(np.zeros(3), np.full(3, 60.0), h)
+    mid = fine_ratio(np.zeros(3), np.full(3, 20.0), h)
+    small = fine_ratio(np.zeros(3), np.full(3, 8.0), h)
+    assert big == 1 and big < mid <= small == MAX_RATIO
+
+
+def test_the_simulation_adds_the_level_and_follows_k(small_peg_scene):
+    from engine.runtime import open_scene
+    from engine.sim import build_simulation
+
+    handle = open_scene(small_peg_scene)
+    sim, _ = build_simulation(handle, backend="numpy")
+    near = sim.near
+    assert near is not None
+    rot, origin = np.eye(3), np.asarray(handle.scene.assembled_pose[:3], float)
+    sim.reset(np.r_[origin, 0.0, 0.0, 0.0])
+    total = sim.evaluate_field()
+    assert near.terms > 0 and near.modes == sim.field.modes
+    alone = sim.field.evaluate(rot, sim.state.origin(sim.body))
+    extra = near.evaluate(rot, sim.state.origin(sim.body))
+    assert total.energy == pytest.approx(alone.energy + extra.energy)
+    assert np.allclose(total.force, alone.force + extra.force)
+    assert abs(extra.energy) > 1e-3 * abs(alone.energy)
+    sim.field.set_modes(sim.field.modes + 2)
+    sim.field_changed()
+    sim.evaluate_field()
+    assert near.modes == sim.field.modes
+
+
+def test_the_engine_loop_adds_the_level_in_the_background_and_keeps_it_for_a_new_k(
+        small_peg_scene):
+    import time
+
+    import engine.runtime as rt
+    from engine.sim import build_simulation
+
+    handle = rt.open_scene(small_peg_scene)
+    sim, model = build_simulation(handle, modes=8, backend="numba", prepare=False)
+    loop = rt.EngineLoop(sim, model=model, realtime=False, prepare=True)
+    try:
+        end = time.monotonic() + 120.0
+        while sim.near is None and time.monotonic() < end:
+            loop.run(max_steps=20)
+        near = sim.near
+        assert near is not None, "no fine level within two minutes"
+        loop.run(max_steps=5)
+        assert near.modes == 8 and near.terms > 0
+        loop.send(rt.SetModes(12))
+        end = time.monotonic() + 60.0
+        while sim.field.modes != 12 and time.monotonic() < end:
+            loop.run(max_steps=20)
+        loop.run(max_steps=5)
+        assert sim.field.modes == 12 and sim.near is near and near.modes == 12
+    finally:
+        loop.guidance.close()
