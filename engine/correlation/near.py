@@ -12,14 +12,18 @@ correlation of ``P_K rho1 + w (rho1 - P_K rho1)``: part 1's density at full reso
 the box and band-limited outside, a field of its own, so the energy stays one function of
 the pose and the force and torque are its exact derivatives.
 
-The integral is a sum over part 1's samples on a fine grid over the box (spacing ``h / r``),
-each a mass ``m_j = (h / r)^3 w (rho1 - P_K rho1)(p_j)``, against part 2's density
-interpolated at ``q_j = R^T (p_j - t)``: a point shell against a voxel map, as Voxmap
-PointShell is, with the shell on the fixed part (it never moves, so nothing is transformed
-but the ``J`` points per pose). Part 2's density comes from a fine grid over the region that
-lands in the box at the seat, blended into its descriptor's own grid at the region's edge
-(the two grids are aligned, so the blend is continuous), and is zero beyond its descriptor's
-grid, as the spectrum's zero padding has it. Its cost grows with the box, not the parts.
+The integral is a sum over part 1's samples in the box, each a mass, against part 2's
+density interpolated at ``q_j = R^T (p_j - t)``: a point shell against a voxel map, as
+Voxmap PointShell is, with the shell on the fixed part (it never moves, so nothing is
+transformed but the ``J`` points per pose). The masses come in two tiers
+(:class:`NearLevel`): ``h^3 w (rho1 - P_K rho1)`` at the descriptor's own nodes (smooth on
+its cells; they change with K), and ``(h / r)^3 w (rho1_fine - I rho1)`` at nodes ``r``
+times finer, what the fine samples add to the descriptor's trilinear interpolant ``I``
+(near part 1's surface and medial peaks; only the largest are kept). Part 2's density
+comes from a fine grid over the region that lands in the box at the seat, blended into its
+descriptor's own grid at the region's edge (the two grids are aligned, so the blend is
+continuous), and is zero beyond its descriptor's grid, as the spectrum's zero padding has
+it. Its cost grows with the box, not the parts.
 
 With ``E = -kappa Re f`` and ``g = grad rho2`` in part 2's frame::
 
@@ -29,8 +33,9 @@ With ``E = -kappa Re f`` and ``g = grad rho2`` in part 2's frame::
 
 (from ``dq_j/dt = -R^T`` and ``dq_j/dtheta = -R^T [p_j - t]x``; docs/fine_level.md).
 ``P_K rho1`` is the band the per-pose sum keeps (:func:`band_field`, from the table's own
-coefficients), so the two levels never count a mode twice; a new ``K`` needs new masses
-(:meth:`NearField.prepare`, milliseconds).
+coefficients), so the two levels never count a mode twice; a new ``K`` needs new node
+masses (:meth:`NearField.follow`, milliseconds). Where the level is finer than the
+descriptors, both parts' fine samples are smoothed over a cell (:func:`binomial_smooth`).
 """
 
 from __future__ import annotations
@@ -49,9 +54,10 @@ from engine.grid import Grid
 if TYPE_CHECKING:
     from engine.correlation.tables import ModeTable
 
-#: Masses below this fraction of the largest are left out of the sum (their total is
-#: reported as :attr:`NearField.dropped`).
-MASS_FLOOR = 1e-4
+#: Of part 1's finer tier, the largest masses carrying this share of the total magnitude
+#: are summed (the rest: :attr:`NearField.dropped`). On the 20 mm shaft's bore 95 % of it
+#: lay in a fifth of the fine samples, near the bore's surface.
+FINE_SHARE = 0.95
 
 
 def smooth_window(grid: Grid, lo: np.ndarray, hi: np.ndarray, taper: float) -> np.ndarray:
@@ -106,6 +112,27 @@ def trilinear(values: np.ndarray, grid: Grid, points: np.ndarray) -> np.ndarray:
     return out
 
 
+def binomial_smooth(values: np.ndarray) -> np.ndarray:
+    """``values`` (nx, ny, nz) filtered by ``[1, 2, 1] / 4`` along each axis (edges held).
+
+    The fine level's samples are smoothed so over about a cell: trilinear interpolation of
+    sharp samples (a medial peak a cell wide) makes the energy ripple with the grid, and on
+    a tight rectangular peg the ripple's wells, half a cell off the seat, held the peg
+    there.
+    """
+    out = np.asarray(values)
+    for axis in range(3):
+        lo = np.take(out, [0], axis=axis)
+        hi = np.take(out, [out.shape[axis] - 1], axis=axis)
+        padded = np.concatenate([lo, out, hi], axis=axis)
+        n = out.shape[axis]
+        a = np.take(padded, range(0, n), axis=axis)
+        b = np.take(padded, range(1, n + 1), axis=axis)
+        c = np.take(padded, range(2, n + 2), axis=axis)
+        out = 0.25 * a + 0.5 * b + 0.25 * c
+    return out
+
+
 def _pairs(rho: np.ndarray) -> np.ndarray:
     """(nx, ny, nz, 2) float32: real and imaginary parts side by side."""
     rho = np.asarray(rho)
@@ -116,14 +143,26 @@ def _pairs(rho: np.ndarray) -> np.ndarray:
 class NearLevel:
     """The fine level's samples (immutable; lengths in the scene's unit).
 
+    Part 1's density in the box comes in two tiers: its descriptor samples at the box's
+    descriptor nodes (``fixed_nodes``, spacing ``h``), less the band the modal sum keeps
+    (their masses change with K), and, where a finer level exists, what its fine samples
+    add to the descriptor's trilinear interpolant (``fixed_fine``, spacing ``h / r``: near
+    part 1's surface and medial peaks, and nearly nothing elsewhere, so only the largest
+    are kept). Both tiers are one measure: in the box, part 1's density is
+    ``P_K rho1 + w (rho1_h - P_K rho1) + w (rho1_fine - I rho1_h)``.
+
     Attributes
     ----------
-    fixed_grid : Grid
-        Part 1's fine grid over the fit's box and its margin (part 1's frame).
-    fixed_rho : (nx, ny, nz) complex64
+    fixed_nodes : Grid
+        Part 1's descriptor nodes over the fit's box and its margin (part 1's frame).
+    fixed_node_rho : (nx, ny, nz) complex64
+        Part 1's descriptor samples there (zero beyond its descriptor grid).
+    window_box : (lo (3,), hi (3,), taper float)
+        ``w``: 1 over ``[lo, hi]``, 0 beyond ``taper`` of it (:func:`smooth_window`).
+    fixed_grid : Grid or None
+        Part 1's fine grid over the same box (None: no finer level, ``r = 1``).
+    fixed_rho : (fx, fy, fz) complex64 or None
         Part 1's density there.
-    window : (nx, ny, nz) float32
-        ``w``: 1 over the box, 0 at the margin's end.
     moving_grid : Grid
         Part 2's fine grid (part 2's frame), aligned with ``coarse_grid``.
     moving : (mx, my, mz, 2) float32
@@ -133,22 +172,31 @@ class NearLevel:
     coarse : (cx, cy, cz, 2) float32
         Part 2's descriptor samples.
     ratio : int
-        ``r``: the coarse spacing over the fine one.
+        ``r``: the descriptor spacing over the fine one.
+    smooth : bool
+        Whether the fine samples of both parts are smoothed over a cell
+        (:func:`binomial_smooth`).
     """
 
-    fixed_grid: Grid
-    fixed_rho: np.ndarray
-    window: np.ndarray
+    fixed_nodes: Grid
+    fixed_node_rho: np.ndarray
+    window_box: tuple[np.ndarray, np.ndarray, float]
+    fixed_grid: Grid | None
+    fixed_rho: np.ndarray | None
     moving_grid: Grid
     moving: np.ndarray
     coarse_grid: Grid
     coarse: np.ndarray
     ratio: int
+    smooth: bool = True
 
     @classmethod
-    def from_samples(cls, fixed_grid: Grid, fixed_rho: np.ndarray, window: np.ndarray,
+    def from_samples(cls, fixed_nodes: Grid, fixed_node_rho: np.ndarray,
+                     window_box: tuple[np.ndarray, np.ndarray, float],
+                     fixed_grid: Grid | None, fixed_rho: np.ndarray | None,
                      moving_grid: Grid, moving_rho: np.ndarray, moving_window: np.ndarray,
-                     coarse_grid: Grid, coarse_rho: np.ndarray) -> NearLevel:
+                     coarse_grid: Grid, coarse_rho: np.ndarray, *,
+                     smooth: bool = True) -> NearLevel:
         """Assemble a level; part 2's fine samples are blended into its coarse ones.
 
         ``moving_window`` (1 inside part 2's fine region, 0 at its edge) blends
@@ -162,19 +210,63 @@ class NearLevel:
         if abs(ratio - r) > 1e-6 * r or np.max(np.abs(offset - np.round(offset))) > 1e-6:
             raise ValueError("part 2's fine grid must be aligned with its coarse grid "
                              f"(spacing ratio {ratio:.6g}, origin offset {offset} cells)")
+        if abs(fixed_nodes.spacing - coarse_grid.spacing) > 1e-9 * coarse_grid.spacing:
+            raise ValueError("part 1's nodes must have the descriptors' spacing")
         coarse_at = trilinear(np.asarray(coarse_rho), coarse_grid,
                               moving_grid.points().reshape(-1, 3)).reshape(moving_grid.shape)
-        blended = coarse_at + moving_window * (np.asarray(moving_rho) - coarse_at)
-        return cls(fixed_grid=fixed_grid,
-                   fixed_rho=np.asarray(fixed_rho, np.complex64),
-                   window=np.asarray(window, np.float32),
+        fine = np.asarray(moving_rho)
+        if smooth:
+            fine = binomial_smooth(fine)
+        blended = coarse_at + moving_window * (fine - coarse_at)
+        lo, hi, taper = window_box
+        return cls(fixed_nodes=fixed_nodes,
+                   fixed_node_rho=np.asarray(fixed_node_rho, np.complex64),
+                   window_box=(np.asarray(lo, float), np.asarray(hi, float), float(taper)),
+                   fixed_grid=fixed_grid,
+                   fixed_rho=None if fixed_rho is None else np.asarray(fixed_rho, np.complex64),
                    moving_grid=moving_grid, moving=_pairs(blended),
-                   coarse_grid=coarse_grid, coarse=_pairs(coarse_rho), ratio=r)
+                   coarse_grid=coarse_grid, coarse=_pairs(coarse_rho), ratio=r,
+                   smooth=smooth)
+
+    def window(self, grid: Grid) -> np.ndarray:
+        """``w`` on ``grid``."""
+        lo, hi, taper = self.window_box
+        return smooth_window(grid, lo, hi, taper)
 
     @property
     def samples(self) -> int:
         """Fine samples of both parts."""
-        return self.fixed_grid.size + self.moving_grid.size
+        fixed = 0 if self.fixed_grid is None else self.fixed_grid.size
+        return fixed + self.moving_grid.size
+
+
+def _fine_masses(level: NearLevel) -> tuple[np.ndarray, np.ndarray, float]:
+    """(points (k, 3), masses (k,) complex128, dropped) of part 1's finer tier.
+
+    ``(h / r)^3 w (S rho1_fine - I rho1_h)`` at the fine nodes (``S`` the smoothing where
+    the level has it, ``I`` trilinear interpolation of the descriptor nodes); the largest
+    carrying :data:`FINE_SHARE` of the total magnitude are kept, ``dropped`` the rest's
+    share.
+    """
+    g = level.fixed_grid
+    if g is None or level.fixed_rho is None:
+        return np.zeros((0, 3)), np.zeros(0, np.complex128), 0.0
+    fine = np.asarray(level.fixed_rho, np.complex128)
+    if level.smooth:
+        fine = binomial_smooth(fine)
+    points = g.points().reshape(-1, 3)
+    nodes = trilinear(np.asarray(level.fixed_node_rho, np.complex128), level.fixed_nodes,
+                      points)
+    m = g.spacing ** 3 * (level.window(g).reshape(-1) * (fine.reshape(-1) - nodes))
+    mag = np.abs(m)
+    total = float(mag.sum())
+    if not total > 0:
+        return np.zeros((0, 3)), np.zeros(0, np.complex128), 0.0
+    order = np.argsort(mag)[::-1]
+    cum = np.cumsum(mag[order])
+    n = int(np.searchsorted(cum, FINE_SHARE * total)) + 1
+    keep = np.sort(order[:n])
+    return points[keep], m[keep], 1.0 - float(cum[n - 1]) / total
 
 
 class NearField:
@@ -194,9 +286,13 @@ class NearField:
         self._key: object = None
         self._points = np.zeros((0, 3))
         self._masses = np.zeros((0, 2), np.float32)
-        #: Fraction of the masses' total magnitude left out (:data:`MASS_FLOOR`).
-        self.dropped = 0.0
         lv = level
+        fine_points, fine_masses, dropped = _fine_masses(lv)
+        self._fine_points, self._fine_masses = fine_points, fine_masses
+        #: Share of the finer tier's total magnitude left out (:data:`FINE_SHARE`).
+        self.dropped = dropped
+        self._node_points = lv.fixed_nodes.points().reshape(-1, 3)
+        self._node_window = lv.window(lv.fixed_nodes).reshape(-1)
         self._fine = (np.asarray(lv.moving_grid.origin), 1.0 / lv.moving_grid.spacing,
                       np.asarray(lv.moving_grid.shape, np.int64), lv.moving.reshape(-1))
         self._coarse = (np.asarray(lv.coarse_grid.origin), 1.0 / lv.coarse_grid.spacing,
@@ -204,7 +300,7 @@ class NearField:
         reach = 0.5 * float(np.linalg.norm(lv.coarse_grid.upper - lv.coarse_grid.origin))
         self._moving_centre = lv.coarse_grid.centre
         self._moving_reach = reach + lv.coarse_grid.spacing
-        g = lv.fixed_grid
+        g = lv.fixed_nodes
         self._box = (np.asarray(g.origin), g.upper)
 
     @property
@@ -213,27 +309,23 @@ class NearField:
         return len(self._masses)
 
     def prepare(self, key: object, band: np.ndarray | None, modes: int) -> None:
-        """Masses for a band: ``band`` is ``P_K rho1`` on the fine grid (None: zero).
+        """Masses for a band: ``band`` is ``P_K rho1`` at part 1's box nodes (None: zero).
 
         ``key`` names the band (the mode table it came from); the same key keeps the masses.
         """
         if key is self._key and self._key is not None:
             return
         lv = self.level
-        h3 = lv.fixed_grid.spacing ** 3
-        resid = np.asarray(lv.fixed_rho, np.complex128)
+        resid = np.asarray(lv.fixed_node_rho, np.complex128).reshape(-1)
         if band is not None:
-            resid = resid - band
-        m = (h3 * lv.window * resid).reshape(-1)
-        mag = np.abs(m)
-        top = float(mag.max()) if mag.size else 0.0
-        keep = mag > MASS_FLOOR * top if top > 0 else np.zeros(mag.shape, bool)
-        total = float(mag.sum())
-        self.dropped = float(mag[~keep].sum()) / total if total > 0 else 0.0
-        pts = lv.fixed_grid.points().reshape(-1, 3)[keep]
-        self._points = np.ascontiguousarray(pts, np.float64)
+            resid = resid - np.asarray(band).reshape(-1)
+        m = lv.fixed_nodes.spacing ** 3 * self._node_window * resid
+        keep = self._node_window > 0
+        points = np.concatenate([self._node_points[keep], self._fine_points])
+        masses = np.concatenate([m[keep], self._fine_masses])
+        self._points = np.ascontiguousarray(points, np.float64)
         self._masses = np.ascontiguousarray(
-            np.stack([m[keep].real, m[keep].imag], axis=-1), np.float32)
+            np.stack([masses.real, masses.imag], axis=-1), np.float32)
         self._key = key
         self.modes = int(modes)
 
@@ -248,7 +340,7 @@ class NearField:
         if table is not self._key:
             g = table.geometry
             band = band_field(table.fixed_kept, table.kept, g.centre_fixed, g.n_h,
-                              self.level.fixed_grid)
+                              self.level.fixed_nodes)
             self.prepare(table, band, table.modes)
         return True
 

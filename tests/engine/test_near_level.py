@@ -38,8 +38,9 @@ def _covering_level(d1, d2, pad: int) -> tuple[NearLevel, Grid, np.ndarray]:
                 tuple(np.asarray(d1.grid.shape) + 2 * pad))
     rho1 = np.zeros(grid.shape, np.complex64)
     rho1[pad:-pad, pad:-pad, pad:-pad] = d1.rho
-    level = NearLevel.from_samples(grid, rho1, np.ones(grid.shape), d2.grid, d2.rho,
-                                   np.zeros(d2.grid.shape), d2.grid, d2.rho)
+    everywhere = (np.full(3, -np.inf), np.full(3, np.inf), h)
+    level = NearLevel.from_samples(grid, rho1, everywhere, None, None, d2.grid, d2.rho,
+                                   np.zeros(d2.grid.shape), d2.grid, d2.rho, smooth=False)
     return level, grid, rho1
 
 
@@ -75,10 +76,13 @@ def _fine_level(d1, d2, ratio: int = 2) -> NearLevel:
     lo1 = np.asarray(g1.origin) + 4 * h
     hi1 = g1.upper - 4 * h
     cells = np.round((hi1 - lo1) / h).astype(int)
+    nodes = Grid(tuple(lo1), h, tuple(cells + 1))
     fixed = Grid(tuple(lo1), h / ratio, tuple(cells * ratio + 1))
-    # fine samples: part 1's own, interpolated (any field will do for the derivatives)
-    rho1 = trilinear(d1.rho.astype(np.complex128), g1, fixed.points().reshape(-1, 3))
-    window = smooth_window(fixed, lo1 + 2 * h, hi1 - 2 * h, 2 * h)
+    node_rho = trilinear(d1.rho.astype(np.complex128), g1, nodes.points().reshape(-1, 3))
+    # fine samples: part 1's own interpolated, with a detail the nodes do not have
+    rho1 = trilinear(d1.rho.astype(np.complex128), g1, fixed.points().reshape(-1, 3)) \
+        * (1.0 + 0.2 * np.cos(fixed.points().reshape(-1, 3) @ np.array([2.1, 1.7, 0.9]) / h))
+    window = (lo1 + 2 * h, hi1 - 2 * h, 2 * h)
     lo2 = np.asarray(g2.origin) + 3 * h
     moving = Grid(tuple(lo2), h / ratio,
                   tuple((np.asarray(g2.shape) - 7) * ratio + 1))
@@ -86,15 +90,15 @@ def _fine_level(d1, d2, ratio: int = 2) -> NearLevel:
     rho2 = trilinear(d2.rho.astype(np.complex128), g2, moving.points().reshape(-1, 3)
                      ).reshape(moving.shape) * (1.0 + 0.3 * wave)
     window2 = smooth_window(moving, lo2 + 2 * h, moving.upper - 2 * h, 2 * h)
-    return NearLevel.from_samples(fixed, rho1.reshape(fixed.shape), window, moving, rho2,
-                                  window2, g2, d2.rho)
+    return NearLevel.from_samples(nodes, node_rho.reshape(nodes.shape), window, fixed,
+                                  rho1.reshape(fixed.shape), moving, rho2, window2, g2, d2.rho)
 
 
 def test_force_and_torque_are_the_energys_derivatives(pair):
     scene, d1, d2 = pair
     near = NearField(_fine_level(d1, d2), kappa=2.5)
     near.prepare("no band", None, 0)
-    assert near.terms > 1000
+    assert near.terms > 1000 and len(near._fine_points) > 100  # both tiers
     rotvec = np.array([0.05, -0.08, 0.11])
     t = np.asarray(scene.assembled_pose[:3], float) + np.array([0.13, -0.07, 3.1])
     ev = near.evaluate(rotation_matrix(rotvec), t)
@@ -129,6 +133,7 @@ def test_part_2s_density_is_continuous_where_its_fine_region_ends(pair):
     near = NearField(level)
     near._points = p.reshape(1, 3)
     near._masses = np.array([[1.0, 0.3]], np.float32)
+    near._key = "one mass"
     energy = np.array([near.raw(np.eye(3), -np.array([x, y, z]))[0] for x in xs])
     jumps = np.abs(np.diff(energy))
     typical = np.median(jumps)
