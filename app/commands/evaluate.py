@@ -41,6 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         default=100, metavar="N",
                         help="evaluations to time, 1 to 100,000; the reported microseconds "
                         "are their median")
+    parser.add_argument("--no-fine", action="store_true",
+                        help="the modal sum alone, without the fine level where the parts "
+                        "meet (docs/fine_level.md)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(run=run)
 
@@ -55,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.commands.scale import energy_scale
-    from engine.correlation import correlator_for_scene
+    from engine.correlation import add_evaluations, correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.runtime import open_scene
     from engine.sim import mass_properties
@@ -80,15 +83,33 @@ def run(args: argparse.Namespace) -> int:
                                     kappa=scale.kappa, progress=update)
     finally:
         close()
+    near = None
+    if len(handle.parts) > 1 and not args.no_fine:
+        from engine.correlation.near import NearField
+        from engine.descriptor import descriptors_for_scene
+        from engine.sim.fine import build_level
+
+        d1, d2 = descriptors_for_scene(scene, parts=list(handle.parts))[:2]  # cached
+        level = build_level(handle.parts[0], handle.parts[1], d1, d2,
+                            np.asarray(scene.assembled_pose, float), scene.insertion_axis)
+        if level is not None:
+            near = NearField(level, kappa=scale.kappa)
+            if not near.follow(corr.table):
+                near = None
+
+    def evaluate(rot, t):  # the modal sum, and the fine level where the parts meet
+        ev = corr.evaluate(rot, t)
+        return ev if near is None else add_evaluations(ev, near.evaluate(rot, t))
+
     rot = rotation_matrix(pose[3:])
     t = pose[:3]
-    result = corr.evaluate(rot, t)
-    times = [corr.evaluate(rot, t).microseconds for _ in range(args.repeat)]
+    result = evaluate(rot, t)
+    times = [evaluate(rot, t).microseconds for _ in range(args.repeat)]
     micro = float(np.median(times))
     moving = handle.parts[-1]
     spec = handle.config.mass_spec(len(handle.parts) - 1)
     _, _, centre = mass_properties(moving.vertices, moving.faces, spec, scene.units)
-    joint = find_free_axes(lambda r, tr: corr.evaluate(r, tr).energy, pose, centre,
+    joint = find_free_axes(lambda r, tr: evaluate(r, tr).energy, pose, centre,
                            float(np.linalg.norm(np.ptp(moving.vertices, axis=0))), corr.spacing)
     held = hold_point(handle)  # where the simulation's coupling holds the part
     if scene.parts[-1].hold is not None:
@@ -108,6 +129,9 @@ def run(args: argparse.Namespace) -> int:
         "backend": corr.backend,
         "backend_detail": corr.backend_name,
         "fft_size": corr.size,
+        "fine_level": None if near is None else {
+            "ratio": near.level.ratio, "terms": near.terms,
+            "spacing": near.level.fixed_nodes.spacing / near.level.ratio},
         **scale.as_json(),
         "free_axes": {"found": list(joint.free),
                       "declared": (None if scene.seat.free_axes is None
@@ -146,6 +170,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"held at    {np.array2string(held, precision=4)} {units.length} in part 2's frame "
           f"({where})")
     print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
+    if near is not None:
+        lv = near.level
+        print(f"fine level spacing {lv.fixed_nodes.spacing / lv.ratio:.4g} {units.length} "
+              f"({lv.ratio} per descriptor cell) where the parts meet, {near.terms} terms")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")
     for key, value, reason in scene.chosen:

@@ -29,7 +29,7 @@ from engine.correlation.correlator import (
     SpectralWork,
     required_fft_size,
 )
-from engine.correlation.finishing import Evaluation
+from engine.correlation.finishing import Evaluation, add_evaluations
 from engine.correlation.from_scene import correlator_for_scene
 from engine.correlation.landscape import Landscape, LandscapeError, compute_landscape
 from engine.correlation.spectrum import Spectrum, compute_spectrum
@@ -39,6 +39,7 @@ __all__ = [
     "BACKEND_CHOICES",
     "Correlator",
     "Evaluation",
+    "add_evaluations",
     "Landscape",
     "LandscapeError",
     "LocalSpectral",

@@ -63,6 +63,21 @@ class Evaluation:
     switched: float = 0.0
 
 
+
+
+def add_evaluations(a: Evaluation, b: Evaluation) -> Evaluation:
+    """The sum of two models' samples at one pose (``a``'s modes and switch).
+
+    A torque missing from one of them counts as zero; missing from both, it stays None.
+    """
+    if a.torque is None:
+        torque = b.torque
+    else:
+        torque = a.torque if b.torque is None else a.torque + b.torque
+    return Evaluation(a.energy + b.energy, a.force + b.force, torque,
+                      a.microseconds + b.microseconds, a.modes, a.switched)
+
+
 def overlap_bounds(rot, c1, c2, half1, half2, h):
     """Where the grid boxes can meet: ``(offset, reach)``, two (3,) float64.
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from engine.correlation import Evaluation
+from engine.correlation import Evaluation, add_evaluations
 from engine.params import Effects, HapticLimits, Physics, SimulationParams
 from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
 from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy
@@ -276,11 +276,7 @@ class Simulation:
         if near is not None:
             corr = field_correlator(self.field)
             if near.follow(None if corr is None else corr.table):
-                extra = near.evaluate(rot, origin)
-                torque = extra.torque if sample.torque is None else sample.torque + extra.torque
-                sample = Evaluation(sample.energy + extra.energy, sample.force + extra.force,
-                                    torque, sample.microseconds + extra.microseconds,
-                                    sample.modes, sample.switched)
+                sample = add_evaluations(sample, near.evaluate(rot, origin))
         self.sample = sample
         return self.sample
 

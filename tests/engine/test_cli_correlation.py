@@ -78,6 +78,33 @@ def test_evaluate_json(scene_file, capsys):
                                atol=1e-5 * np.linalg.norm(ref["force"]) + 1e-12)
 
 
+def test_evaluate_adds_the_fine_level_where_the_parts_meet(scene_file, capsys):
+    from app.cli import main
+    from engine.correlation import correlator_for_scene
+    from engine.pose import rotation_matrix
+    from engine.scene import load_scene
+
+    pose = ["0.2", "0", "1.5", "0.1", "0", "0"]
+    args = ["evaluate", str(scene_file), "--pose", *pose, "--modes", "6", "--json",
+            "--repeat", "1", "--backend", "numpy"]
+    assert main(args) == 0
+    fine = json.loads(capsys.readouterr().out)
+    assert main([*args, "--no-fine"]) == 0
+    alone = json.loads(capsys.readouterr().out)
+    assert alone["fine_level"] is None
+    level = fine["fine_level"]
+    assert level["terms"] > 0 and level["ratio"] >= 1
+    # without the level: the modal sum itself, as the correlator gives it
+    corr = correlator_for_scene(load_scene(scene_file), modes=6, backend="numpy",
+                                kappa=alone["kappa"])
+    p = np.array([float(v) for v in pose])
+    ev = corr.evaluate(rotation_matrix(p[3:]), p[:3])
+    assert alone["energy"] == pytest.approx(ev.energy, rel=1e-6)
+    # with it: something added, in energy and force
+    assert fine["energy"] != pytest.approx(alone["energy"], rel=1e-3)
+    assert not np.allclose(fine["force"], alone["force"], rtol=1e-3)
+
+
 def test_evaluate_reads_each_part_file_once(scene_file, capsys, monkeypatch):
     import engine.scene.parts as scene_parts
     from app.cli import main
