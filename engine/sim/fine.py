@@ -65,8 +65,9 @@ def _aligned_grid(lo: np.ndarray, hi: np.ndarray, coarse: Grid, ratio: int,
         b = np.minimum(b, np.asarray(coarse.shape) - 1.0)
     if np.any(b <= a):
         return None
-    shape = tuple(int(n) * ratio + 1 for n in (b - a))
-    return Grid(tuple(origin + a * h), h / ratio, shape)
+    nx, ny, nz = (int(n) * ratio + 1 for n in (b - a))
+    x0, y0, z0 = (float(v) for v in origin + a * h)
+    return Grid((x0, y0, z0), h / ratio, (nx, ny, nz))
 
 
 def fine_ratio(box_lo: np.ndarray, box_hi: np.ndarray, spacing: float) -> int:
@@ -136,7 +137,8 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
                          nodes.points().reshape(-1, 3)).reshape(nodes.shape)
     g1 = rho1 = None
     if ratio > 1:
-        g1 = Grid(nodes.origin, h / ratio, tuple((n - 1) * ratio + 1 for n in nodes.shape))
+        nx, ny, nz = ((n - 1) * ratio + 1 for n in nodes.shape)
+        g1 = Grid(nodes.origin, h / ratio, (nx, ny, nz))
         rho1 = descriptor_for_part(fixed, g1, fixed_desc.params, progress=stage(0.0, 0.5),
                                    cancel=cancel).rho
         rho2 = descriptor_for_part(moving, g2, moving_desc.params, progress=stage(0.5, 1.0),
