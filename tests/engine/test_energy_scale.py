@@ -69,8 +69,11 @@ def test_evaluate_reports_the_simulations_energy(tmp_path, capsys):
     sim, _ = build_simulation(rt.open_scene(path), prepare=True, backend="numpy")
     assert out["kappa"] == pytest.approx(sim.physics.kappa, rel=1e-12)
     pose = np.array([float(v) for v in POSE])
-    ev = sim.field.evaluate(rotation_matrix(pose[3:]), pose[:3])
-    assert ev.energy != 0.0
+    sim.reset(pose)  # the part's origin at the pose: the field and the fine level there
+    ev = sim.evaluate_field()
+    assert sim.near is not None and out["fine_level"]["terms"] == sim.near.terms
+    alone = sim.field.evaluate(rotation_matrix(pose[3:]), pose[:3])
+    assert ev.energy != 0.0 and ev.energy != pytest.approx(alone.energy, rel=1e-6)
     assert out["energy"] == pytest.approx(ev.energy, rel=1e-9)
     np.testing.assert_allclose(out["force"], ev.force, rtol=1e-9, atol=1e-12)
     # where the simulation's coupling holds the part, and why
