@@ -318,22 +318,21 @@ def test_the_seat_is_clear_and_a_misfit_beyond_the_play_is_not(generated, family
 _RUNS: dict = {}
 
 
-#: Families whose pair of the tests' set (seed 2026) does not seat guided with the settings
-#: `scene new` chooses on a CPU (K <= 25: docs/settings.md), with the measured figures
-#: (xfail, not strict: a pair that starts to seat shows as XPASS). The criterion stays.
+#: Families whose pair of the tests' set (seed 2026) does not seat guided without tipping
+#: with the settings `scene new` chooses on a CPU (K <= 25 and the fine level where the
+#: parts meet: docs/settings.md, docs/fine_level.md), with the measured figures (xfail,
+#: not strict: a pair that starts to pass shows as XPASS). "Turned" is the largest angle
+#: from the proxy during the push, past the misaim plus the fit's play. The criterion stays.
 NOT_SEATING: dict[str, str] = {
-    "round_through": "K 25: tilt 6.05 deg (0.50 allowed)",
-    "round_blind": "K 15: 17.4 % of the width off, 2.05 deg, turned 3.07 deg (3.05 allowed)",
-    "rect_blind": "K 25: 6.35 %, 3.72 deg, turned 3.26 deg (3.20 allowed)",
-    "stepped": "K 25: 8.45 % of the width (3.05 of 36.2 mm) off its shoulder",
-    "keyed": "K 21: 2.40 % of the width (2 % allowed)",
-    "spline": "K 25: tilt 4.15 deg (0.50 allowed)",
-    "dovetail": "K 25: 6.09 %, 1.24 deg, turned 3.22 deg (3.12 allowed)",
-    "tslot": "K 25: tilt 0.52 deg (0.50 allowed), turned 3.03 deg (3.01 allowed)",
-    "sleeve": "K 25: tilt 6.00 deg (0.50 allowed)",
-    "plate_on_pins": "K 25: 6.33 % of the width, 0.64 deg, turned 3.62 deg (3.45 allowed)",
-    "bolt_nut": "K 25: 6.59 % of the width, 2.24 deg (1.16 allowed)",
-    "multi_fit": "K 19: 3.73 % of the width (2 % allowed)",
+    "dovetail": "K 25: seated (1.25 %, 0.30 deg), turned 3.52 deg from the proxy (3.12 allowed)",
+    "round_blind": "K 15: 5.07 % of the width off its floor, turned 3.11 deg (3.05 allowed)",
+    "plate_on_pins": "K 25: 2.77 % of the width, 0.51 deg, turned 3.69 deg (3.45 allowed)",
+    "spline": "K 25: tilt 0.57 deg (0.50 allowed), turned 3.55 deg (3.47 allowed)",
+    "round_through": "K 25: seated (0.16 %, 0.05 deg), turned 3.53 deg (3.50 allowed)",
+    "tslot": "K 25: seated (0.97 %, 0.38 deg), turned 3.27 deg (3.01 allowed)",
+    "stepped": "K 25: 7.60 % of the width (2.7 of 36.2 mm) off its shoulder",
+    "sleeve": "K 25: seated (0.34 %, 0.20 deg), turned 3.31 deg (3.09 allowed)",
+    "rect_blind": "K 25: 2.85 % of the width off its floor, turned 3.30 deg (3.20 allowed)",
 }
 
 

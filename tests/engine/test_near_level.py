@@ -204,3 +204,35 @@ def test_the_engine_loop_adds_the_level_in_the_background_and_keeps_it_for_a_new
         assert sim.field.modes == 12 and sim.near is near and near.modes == 12
     finally:
         loop.guidance.close()
+
+
+def test_a_free_part_keeps_its_energy_with_the_level():
+    """The bundled peg, free (no proxy, no damping), tilted and dropped into its hole at
+    K = 16 with the fine level: 2 s at 1 ms, the total energy within 5 % of the largest
+    kinetic energy (measured 2.3 %; 0.7 % without the level, whose force steps at its cells'
+    faces).
+    """
+    from dataclasses import replace
+    from pathlib import Path
+
+    from engine.runtime import open_scene
+    from engine.sim import build_simulation, kinetic_energy
+
+    peg = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
+    handle = open_scene(peg)
+    cfg = handle.config
+    effects = replace(cfg.effects, damping=False, axes=("x", "y", "z", "rx", "ry", "rz"))
+    handle = replace(handle, config=replace(cfg, effects=effects),
+                     start_pose=np.array([0.3, 0.0, -12.0, 0.03, -0.02, 0.0]))
+    sim, _ = build_simulation(handle, prepare=True, coupled=False, modes=16)
+    assert sim.near is not None
+    sim.evaluate_field()
+    e0 = sim.total_energy()
+    energy, kinetic = [], []
+    for _ in range(2000):
+        sim.step()
+        energy.append(sim.total_energy())
+        kinetic.append(kinetic_energy(sim.body, sim.state))
+    scale = max(kinetic)
+    assert scale > 1000.0
+    assert np.max(np.abs(np.asarray(energy) - e0)) < 0.05 * scale
