@@ -23,6 +23,7 @@ import numpy as np
 from engine.correlation import Correlator, LocalSpectral
 from engine.errors import Cancelled
 from engine.params import CouplingParams, DescriptorParams, Effects, Physics
+from engine.runtime.fine_level import FineLevels
 from engine.runtime.handover import Handover
 from engine.runtime.job_process import JobProcess, JobProcessGone
 from engine.runtime.jobs import (
@@ -35,7 +36,6 @@ from engine.runtime.jobs import (
     RefreshLane,
     Response,
     build_field,
-    build_near,
     next_id,
 )
 from engine.runtime.landscapes import Landscapes
@@ -86,6 +86,7 @@ class Guidance:
         self.refresh_lane = RefreshLane()
         self.handover = Handover(self.attach, self.worker.dispose)  # waits for a cache
         self.landscapes = Landscapes(self.worker, events)
+        self.fine = FineLevels(sim, model, self.worker, events)  # the fine level, built after
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
@@ -160,10 +161,7 @@ class Guidance:
         self._physics_dirty = True
 
     def cancel_recompute(self) -> None:
-        """Cancel the running field job.
-
-        The field in use stays, and so do the descriptor parameters it was built with.
-        """
+        """Cancel the running field job: the field in use and its descriptor parameters stay."""
         if self.worker.cancel("field"):
             self.events.append(ProgressEvent(self._field_task, 1.0, "cancelled"))
         self._field_id = 0
@@ -205,7 +203,7 @@ class Guidance:
         )
         self._field_id, self._field_task = request.id, task
         self.handover.drop()  # a field held back is superseded
-        self.worker.cancel("near")  # the field first; its swap asks for the level again
+        self.fine.cancel()
         report = task != "field"
         self.recompute = 0.0 if task == "descriptors" else None
 
@@ -227,26 +225,6 @@ class Guidance:
                 return FieldResponse(request.id, request, error=exc)
 
         self.worker.submit("field", run)
-
-    def _request_near(self, effects: Effects, descriptors: tuple[Descriptor, ...]) -> None:
-        """Build the fine level where the parts meet for ``descriptors`` (the worker)."""
-        model = self.model
-        if model is None or effects.guidance != "skeletal" or len(descriptors) < 2:
-            return
-        self.worker.submit("near", lambda cancelled: build_near(model, effects, descriptors,
-                                                                cancelled))
-
-    def _near(self, r: NearResponse) -> None:
-        """Add a finished fine level, if it is for the descriptors in use."""
-        if not all(a is b for a, b in zip(r.descriptors, self.descriptors, strict=False)) \
-                or len(r.descriptors) != len(self.descriptors):
-            return  # superseded
-        if r.error is not None:
-            self.events.append(ErrorEvent(
-                f"the fine level where the parts meet could not be built ({r.error}); the "
-                "guidance goes on without it", type(r.error).__name__))
-            return
-        self.sim.set_near(r.near)
 
     def _rotation_now(self) -> np.ndarray:
         """The part's rotation as the loop last stepped it (any thread).
@@ -275,10 +253,9 @@ class Guidance:
             self.sim.set_effects(self.effects, self._physics())
 
     def take_responses(self) -> None:
-        """Swap in finished fields and rotation caches, deliver landscapes.
+        """Swap in fields, caches and fine levels; deliver landscapes; drop what is superseded.
 
-        Superseded answers are dropped. With the lane on, a new field is handed over once a
-        cache of its own serves the part's rotation (:mod:`engine.runtime.handover`).
+        With the lane on, a new field waits for a cache of its own (engine.runtime.handover).
         """
         fld = self.sim.field
         for done in self.refresh_lane.responses():
@@ -292,7 +269,7 @@ class Guidance:
             if isinstance(response, LandscapeResponse):
                 self.landscapes.deliver(response)
             elif isinstance(response, NearResponse):
-                self._near(response)
+                self.fine.deliver(response, tuple(self.descriptors))
             else:
                 self._field(response)
         held = self.handover.due(self.sim.state.rotation)
@@ -319,14 +296,8 @@ class Guidance:
         if isinstance(self.sim.field, RotationCacheField):
             self.refresh_lane.forget(self.sim.field)
         self.worker.dispose(self.sim.field)  # its arrays are freed there, not in a period
-        same = (len(r.descriptors) == len(self.descriptors)
-                and all(a is b for a, b in zip(r.descriptors, self.descriptors, strict=True)))
         self.sim.set_field(r.field)
-        if not same:
-            self.sim.set_near(None)
-        if self.sim.near is None and r.coarse_grid is None:
-            # the fine level for these descriptors, in the background (a new K keeps it)
-            self._request_near(req.effects, tuple(r.descriptors))
+        self.fine.swapped(r, tuple(self.descriptors))
         if not attached:
             self.attach(r.field)
         self.offload(r.field)

@@ -255,28 +255,19 @@ class Simulation:
         return e
 
     def set_near(self, near: NearField | None) -> None:
-        """Add the fine level where the parts meet (None: the field alone).
-
-        The level follows the field's mode band (:meth:`NearField.follow`) and its kappa.
-        """
+        """Add the fine level where the parts meet, at the field's band and kappa (or None)."""
         self.near = near
         if near is not None:
             near.kappa = self.physics.kappa
         self._sample_fresh = False
 
     def evaluate_field(self) -> Evaluation:
-        """Evaluate the geometric field at the current pose (stores it in ``sample``).
-
-        With a fine level (:meth:`set_near`) serving the field's band, its energy, force and
-        torque are added.
-        """
+        """The field at the current pose, the fine level's added (stored in ``sample``)."""
         rot, origin = self.state.rotation, self.state.origin(self.body)
         sample = self.field.evaluate(rot, origin)
-        near = self.near
-        if near is not None:
-            corr = field_correlator(self.field)
-            if near.follow(None if corr is None else corr.table):
-                sample = add_evaluations(sample, near.evaluate(rot, origin))
+        corr = field_correlator(self.field)
+        if self.near is not None and self.near.follow(None if corr is None else corr.table):
+            sample = add_evaluations(sample, self.near.evaluate(rot, origin))
         self.sample = sample
         return self.sample
 
