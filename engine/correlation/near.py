@@ -233,12 +233,6 @@ class NearLevel:
         lo, hi, taper = self.window_box
         return smooth_window(grid, lo, hi, taper)
 
-    @property
-    def samples(self) -> int:
-        """Fine samples of both parts."""
-        fixed = 0 if self.fixed_grid is None else self.fixed_grid.size
-        return fixed + self.moving_grid.size
-
 
 def _fine_masses(level: NearLevel) -> tuple[np.ndarray, np.ndarray, float]:
     """(points (k, 3), masses (k,) complex128, dropped) of part 1's finer tier.
@@ -369,20 +363,16 @@ class NearField:
 
 
 @numba.njit(cache=True, fastmath=True, nogil=True)
-def _sample(v, o0, o1, o2, inv_h, shape, q0, q1, q2, inner, out):  # pragma: no cover
+def _sample(v, o0, o1, o2, inv_h, shape, q0, q1, q2, out):  # pragma: no cover
     """Trilinear value and gradient of ``v`` (nx, ny, nz, 2) at q into ``out`` (8,).
 
-    ``inner``: only within the grid's box (False beyond it); else nodes beyond the grid
-    count as zero (the spectrum's zero padding) and False means the value is 0.
+    Nodes beyond the grid count as zero (the spectrum's zero padding); False: the value is 0.
     """
     u0 = (q0 - o0) * inv_h
     u1 = (q1 - o1) * inv_h
     u2 = (q2 - o2) * inv_h
     n0, n1, n2 = shape[0], shape[1], shape[2]
-    if inner:
-        if not (0.0 <= u0 <= n0 - 1 and 0.0 <= u1 <= n1 - 1 and 0.0 <= u2 <= n2 - 1):
-            return False
-    elif not (-1.0 < u0 < n0 and -1.0 < u1 < n1 and -1.0 < u2 < n2):
+    if not (-1.0 < u0 < n0 and -1.0 < u1 < n1 and -1.0 < u2 < n2):
         return False
     i0 = int(math.floor(u0))
     i1 = int(math.floor(u1))
@@ -500,7 +490,7 @@ def _near_range(points, masses, rot, t, fo, fi, fs, fv, co, ci, cs, cv, lo, hi,
         q1 = r01 * d0 + r11 * d1 + r21 * d2
         q2 = r02 * d0 + r12 * d1 + r22 * d2
         if not _inner(fv, fo0, fo1, fo2, fi, n0, n1, n2, q0, q1, q2, s):
-            if not _sample(cv, co[0], co[1], co[2], ci, cs, q0, q1, q2, False, s):
+            if not _sample(cv, co[0], co[1], co[2], ci, cs, q0, q1, q2, s):
                 continue
         mr = masses[j, 0]
         mi = masses[j, 1]
