@@ -88,8 +88,7 @@ class Simulation:
         self.follow = follow
         self.effects = effects
         self.field = field
-        #: The fine level where the parts meet (:meth:`set_near`), or None.
-        self.near: NearField | None = None
+        self.near: NearField | None = None  # the fine level where the parts meet (set_near)
         self.limits = limits or HapticLimits()
         self.coupled = coupled
         self.start_pose = np.array(start_pose, np.float64).reshape(6)
@@ -265,11 +264,12 @@ class Simulation:
         """The field at the current pose, the fine level's added (stored in ``sample``)."""
         rot, origin = self.state.rotation, self.state.origin(self.body)
         sample = self.field.evaluate(rot, origin)
-        corr = field_correlator(self.field)
-        if self.near is not None and self.near.follow(None if corr is None else corr.table):
-            sample = add_evaluations(sample, self.near.evaluate(rot, origin))
+        if self.near is not None:
+            corr = field_correlator(self.field)
+            if self.near.follow(None if corr is None else corr.table):
+                sample = add_evaluations(sample, self.near.evaluate(rot, origin))
         self.sample = sample
-        return self.sample
+        return sample
 
     # -- stepping -------------------------------------------------------------------------------
     def _total_forces(self) -> tuple[np.ndarray, np.ndarray]:
