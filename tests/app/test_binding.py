@@ -26,6 +26,11 @@ from app.gui import colourmap
 from app.gui.canvas import FieldCanvas, Marker
 from app.gui.strip_chart import StripChart
 
+#: Waits for an engine to start: the first start in a fresh environment compiles the
+#: numba kernels (a minute or two on a loaded 2-core machine). A guard against a hang,
+#: not a check of speed.
+ENGINE_START_MS = 600_000
+
 pytestmark = pytest.mark.skipif(
     sys.version_info >= (3, 12),
     reason="None is immortal from Python 3.12: it cannot be freed and its count means nothing",
@@ -143,7 +148,7 @@ def test_window_views_keep_none_alive(make_window, small_scene, wait_until, qtbo
     compiles = _Compiles()  # from before the engine starts
     request.addfinalizer(compiles.close)
     win = make_window(small_scene)
-    wait_until(lambda: win.guidance_ready or win.guidance_error, 120000,
+    wait_until(lambda: win.guidance_ready or win.guidance_error, ENGINE_START_MS,
                "the engine's descriptors and correlator")
     assert win.guidance_error is None, win.guidance_error
     win.dock_slice.show()

@@ -41,7 +41,7 @@ def test_sigma_reaches_the_kernel_as_the_object_the_widget_built(qtbot, small_sc
 
     engine = runtime.start_engine(handle, process=False, realtime=False)
     try:
-        deadline = 120.0
+        deadline = 600.0  # the first start in a fresh environment compiles the kernels
         seen: list[object] = []
         ready = threading.Event()
 

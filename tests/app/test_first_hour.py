@@ -24,6 +24,11 @@ from engine import runtime
 from engine.correlation import Landscape
 from engine.params import CONTROLS, QuantityUnits
 
+#: Waits for an engine to start: the first start in a fresh environment compiles the
+#: numba kernels (a minute or two on a loaded 2-core machine). A guard against a hang,
+#: not a check of speed.
+ENGINE_START_MS = 600_000
+
 
 def _place(win, pose, wait_until):
     """Put part and proxy at ``pose`` (relative to part 1) at rest and wait for the frame."""
@@ -456,7 +461,7 @@ def test_a_drag_before_the_engine_is_ready_says_why(make_window, small_scene, wa
     # the engine's progress events advance the task with a fraction and, later, a time left
     win._handle_event(runtime.ProgressEvent("correlator", 0.3))
     assert win.tasks.get("correlator").clock.fraction == pytest.approx(0.3)
-    wait_until(lambda: win.guidance_ready, 120000, "the engine to be ready")
+    wait_until(lambda: win.guidance_ready, ENGINE_START_MS, "the engine to be ready")
     assert win.tasks.get("correlator") is None and win.params.progress.format() == "ready"
     win._proxy_dragged(win.session.world(np.asarray(win.session.handle.start_pose)))
     assert "not ready" not in win.statusBar().currentMessage()
@@ -511,7 +516,7 @@ def test_a_coarse_first_field_shows_the_scenes_descriptors_as_a_task(make_window
                                                                     wait_until):
     # an uncached scene moves on a coarse field first; the window says what follows
     win = make_window(small_scene)
-    wait_until(lambda: win.guidance_ready, 120000, "the engine to be ready")
+    wait_until(lambda: win.guidance_ready, ENGINE_START_MS, "the engine to be ready")
     descriptors = win.slice_view.descriptors if hasattr(win.slice_view, "descriptors") else ()
     win._handle_event(runtime.ReadyEvent(tuple(descriptors), "numba", "ready", coarse_grid=24))
     task = win.tasks.get("descriptors")

@@ -18,11 +18,16 @@ from app.gui.slice_view import slice_values
 from engine import runtime
 from engine.params import SIGMA_GRID_MAX
 
+#: Waits for an engine to start: the first start in a fresh environment compiles the
+#: numba kernels (a minute or two on a loaded 2-core machine). A guard against a hang,
+#: not a check of speed.
+ENGINE_START_MS = 600_000
+
 
 @pytest.fixture
 def ready_window(make_window, small_scene, wait_until):
     win = make_window(small_scene)
-    wait_until(lambda: win.guidance_ready or win.guidance_error, 120000,
+    wait_until(lambda: win.guidance_ready or win.guidance_error, ENGINE_START_MS,
                "the engine's descriptors and correlator")
     assert win.guidance_error is None, win.guidance_error
     return win
@@ -178,7 +183,8 @@ def test_engine_in_its_own_process_drives_the_same_views(make_window, small_scen
                                                           wait_until):
     win = make_window(small_scene, engine_kwargs={"process": True})
     assert win.session.engine_name == "engine process"
-    wait_until(lambda: win.guidance_ready or win.guidance_error, 120000, "the engine process")
+    wait_until(lambda: win.guidance_ready or win.guidance_error, ENGINE_START_MS,
+               "the engine process")
     # the engine process says how its loop thread is scheduled (real-time where allowed)
     assert "its loop thread: " in win.engine_note
     assert "real-time (SCHED_FIFO" in win.engine_note or "normal (" in win.engine_note
