@@ -96,6 +96,11 @@ def run(args: argparse.Namespace) -> int:
             near = NearField(level, kappa=scale.kappa)
             if not near.follow(corr.table):
                 near = None
+            elif near.walls is not None:  # as stiff as the simulation makes them
+                spec = handle.config.mass_spec(len(handle.parts) - 1)
+                mass, _, _ = mass_properties(handle.parts[-1].vertices, handle.parts[-1].faces,
+                                             spec, scene.units)
+                near.walls.for_body(mass, 1.0 / handle.config.simulation.rate_hz)
 
     def evaluate(rot, t):  # the modal sum, and the fine level where the parts meet
         ev = corr.evaluate(rot, t)
@@ -104,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
     rot = rotation_matrix(pose[3:])
     t = pose[:3]
     result = evaluate(rot, t)
+    walls = None if near is None or near.walls is None else near.walls.evaluate(rot, t)
     times = [evaluate(rot, t).microseconds for _ in range(args.repeat)]
     micro = float(np.median(times))
     moving = handle.parts[-1]
@@ -131,7 +137,12 @@ def run(args: argparse.Namespace) -> int:
         "fft_size": corr.size,
         "fine_level": None if near is None else {
             "ratio": near.level.ratio, "terms": near.terms,
-            "spacing": near.level.fixed_nodes.spacing / near.level.ratio},
+            "spacing": near.level.fixed_nodes.spacing / near.level.ratio,
+            "walls": None if walls is None else {
+                "points": near.walls.terms, "stiffness": near.walls.stiffness,
+                # their share of the energy, force and torque above (not scaled by kappa)
+                "energy": walls.energy, "force": [float(x) for x in walls.force],
+                "torque": [float(x) for x in walls.torque]}},
         **scale.as_json(),
         "free_axes": {"found": list(joint.free),
                       "declared": (None if scene.seat.free_axes is None
@@ -174,6 +185,10 @@ def run(args: argparse.Namespace) -> int:
         lv = near.level
         print(f"fine level spacing {lv.fixed_nodes.spacing / lv.ratio:.4g} {units.length} "
               f"({lv.ratio} per descriptor cell) where the parts meet, {near.terms} terms")
+        if walls is not None:
+            print(f"walls      {near.walls.terms} points of part 2 against part 1's distance "
+                  f"(docs/fine_level.md): energy {walls.energy:.6g} {units.energy}, force "
+                  f"{np.array2string(walls.force, precision=5)} {units.force} of the above")
     print(f"time       {micro:.1f} us median over {len(times)} evaluations")
     print(f"backend    {corr.backend_name}")
     for key, value, reason in scene.chosen:

@@ -66,7 +66,7 @@ class Evaluation:
 
 
 def add_evaluations(a: Evaluation, b: Evaluation) -> Evaluation:
-    """The sum of two models' samples at one pose (``a``'s modes and switch).
+    """The sum of two models' samples at one pose (``a``'s modes, both switches).
 
     A torque missing from one of them counts as zero; missing from both, it stays None.
     """
@@ -75,7 +75,7 @@ def add_evaluations(a: Evaluation, b: Evaluation) -> Evaluation:
     else:
         torque = a.torque if b.torque is None else a.torque + b.torque
     return Evaluation(a.energy + b.energy, a.force + b.force, torque,
-                      a.microseconds + b.microseconds, a.modes, a.switched)
+                      a.microseconds + b.microseconds, a.modes, a.switched + b.switched)
 
 
 def overlap_bounds(rot, c1, c2, half1, half2, h):

@@ -48,11 +48,13 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from engine.correlation.finishing import Evaluation
+from engine.correlation.finishing import Evaluation, add_evaluations
+from engine.correlation.walls import Walls, WallShell
 from engine.grid import Grid
 
 if TYPE_CHECKING:
     from engine.correlation.tables import ModeTable
+    from engine.params import Physics
 
 #: Of part 1's finer tier, the largest masses carrying this share of the total magnitude
 #: are summed (the rest: :attr:`NearField.dropped`). On the 20 mm shaft's bore 95 % of it
@@ -176,6 +178,9 @@ class NearLevel:
     smooth : bool
         Whether the fine samples of both parts are smoothed over a cell
         (:func:`binomial_smooth`).
+    walls : WallShell or None
+        Part 1's distance map and part 2's point shell over the same box
+        (:mod:`engine.correlation.walls`); None: no walls.
     """
 
     fixed_nodes: Grid
@@ -189,6 +194,7 @@ class NearLevel:
     coarse: np.ndarray
     ratio: int
     smooth: bool = True
+    walls: WallShell | None = None
 
     @classmethod
     def from_samples(cls, fixed_nodes: Grid, fixed_node_rho: np.ndarray,
@@ -196,7 +202,7 @@ class NearLevel:
                      fixed_grid: Grid | None, fixed_rho: np.ndarray | None,
                      moving_grid: Grid, moving_rho: np.ndarray, moving_window: np.ndarray,
                      coarse_grid: Grid, coarse_rho: np.ndarray, *,
-                     smooth: bool = True) -> NearLevel:
+                     smooth: bool = True, walls: WallShell | None = None) -> NearLevel:
         """Assemble a level; part 2's fine samples are blended into its coarse ones.
 
         ``moving_window`` (1 inside part 2's fine region, 0 at its edge) blends
@@ -226,7 +232,7 @@ class NearLevel:
                    fixed_rho=None if fixed_rho is None else np.asarray(fixed_rho, np.complex64),
                    moving_grid=moving_grid, moving=_pairs(blended),
                    coarse_grid=coarse_grid, coarse=_pairs(coarse_rho), ratio=r,
-                   smooth=smooth)
+                   smooth=smooth, walls=walls)
 
     def window(self, grid: Grid) -> np.ndarray:
         """``w`` on ``grid``."""
@@ -270,12 +276,18 @@ class NearField:
     ----------
     level : NearLevel
     kappa : float
-        Energy scale (the simulation sets it with the coarse field's).
+        Energy scale (the simulation sets it with the coarse field's, :meth:`attach`).
+
+    The level's walls (:attr:`walls`) add their contact term to :meth:`evaluate` once
+    :meth:`attach` has given them the part's mass and the step; :meth:`raw` is the
+    correlation alone.
     """
 
     def __init__(self, level: NearLevel, kappa: float = 1.0):
         self.level = level
         self.kappa = float(kappa)
+        #: The contact term where the parts meet (None where the level has no walls).
+        self.walls = None if level.walls is None else Walls(level.walls)
         self.modes = 0
         self._key: object = None
         self._points = np.zeros((0, 3))
@@ -301,6 +313,12 @@ class NearField:
     def terms(self) -> int:
         """Samples summed per pose."""
         return len(self._masses)
+
+    def attach(self, physics: Physics, dt: float) -> None:
+        """The simulation's kappa, and the walls' stiffness for its part and step."""
+        self.kappa = float(physics.kappa)
+        if self.walls is not None:
+            self.walls.for_body(physics.mass, dt)
 
     def prepare(self, key: object, band: np.ndarray | None, modes: int) -> None:
         """Masses for a band: ``band`` is ``P_K rho1`` at part 1's box nodes (None: zero).
@@ -358,8 +376,11 @@ class NearField:
         s = self.raw(rotation, translation)
         rot = np.asarray(rotation, np.float64)
         k = self.kappa
-        return Evaluation(-k * float(s[0]), -k * (rot @ s[1:4]), -k * (rot @ s[4:7]),
-                          (time.perf_counter() - start) * 1e6, self.modes)
+        out = Evaluation(-k * float(s[0]), -k * (rot @ s[1:4]), -k * (rot @ s[4:7]),
+                         (time.perf_counter() - start) * 1e6, self.modes)
+        if self.walls is not None and self.walls.stiffness > 0:
+            out = add_evaluations(out, self.walls.evaluate(rotation, translation))
+        return out
 
 
 @numba.njit(cache=True, fastmath=True, nogil=True)

@@ -399,7 +399,8 @@ def _local_points(triangles: np.ndarray,
 
 
 def _query(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, mode: int,
-           backend: BackendLike) -> tuple[np.ndarray, float]:
+           backend: BackendLike, *, progress: Callable[[float], None] | None = None,
+           cancel: Callable[[], bool] | None = None) -> tuple[np.ndarray, float]:
     """Point query ``mode`` (0 winding number, 1 signed distance) through the tree.
 
     Runs in the mesh's normalised frame; returns the (k, 4) float64 kernel output and the
@@ -410,7 +411,8 @@ def _query(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, mode: in
     if p.shape[0] == 0:
         return np.zeros((0, 4)), scale
     local = _localise(triangles, centre, scale, True)
-    out = _run(local, (p - centre) / scale, mode, DescriptorParams(), resolve_backend(backend))
+    out = _run(local, (p - centre) / scale, mode, DescriptorParams(), resolve_backend(backend),
+               progress=progress, cancel=cancel)
     return out, scale
 
 
@@ -436,7 +438,9 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, 
 
 
 def signed_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, *,
-                    backend: BackendLike = None) -> np.ndarray:  # fmt: skip
+                    backend: BackendLike = None,
+                    progress: Callable[[float], None] | None = None,
+                    cancel: Callable[[], bool] | None = None) -> np.ndarray:  # fmt: skip
     """Exact signed distance to the triangles, + outside, - inside (winding number > 0.5).
 
     Parameters
@@ -445,12 +449,14 @@ def signed_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     faces : (m, 3) int64
     points : (k, 3) float64
     backend : None, Backend or {"numba", "opencl", "auto"}
+    progress, cancel : callables, optional
+        As :func:`compute_descriptor`'s.
 
     Returns
     -------
     (k,) float64
     """
-    out, scale = _query(vertices, faces, points, 1, backend)
+    out, scale = _query(vertices, faces, points, 1, backend, progress=progress, cancel=cancel)
     return out[:, 2] * scale
 
 

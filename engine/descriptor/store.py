@@ -320,6 +320,31 @@ def descriptor_for_part(
     )
 
 
+def distance_for_part(part: Part, grid: Grid, *, use_cache: bool = True,
+                      progress: Callable[[float], None] | None = None,
+                      cancel: Callable[[], bool] | None = None) -> np.ndarray:
+    """Part's signed distance (+ outside) at ``grid``'s nodes: ``grid.shape`` float32, cached.
+
+    The walls' distance map (:mod:`engine.correlation.walls`), content-keyed like the
+    descriptors (the mesh, the grid, the kernel's code).
+    """
+    from engine.descriptor.compute import signed_distance
+
+    def compute() -> dict[str, np.ndarray]:
+        d = signed_distance(part.vertices, part.faces, grid.points().reshape(-1, 3),
+                            progress=progress, cancel=cancel)
+        return {"distance": np.ascontiguousarray(d.reshape(grid.shape), np.float32)}
+
+    key = {"vertices": np.ascontiguousarray(part.vertices, dtype=np.float64),
+           "faces": np.ascontiguousarray(part.faces, dtype=np.int64),
+           "origin": list(grid.origin), "spacing": grid.spacing, "shape": list(grid.shape),
+           "format": FORMAT_VERSION, "code": descriptor_code_digest()}
+    arrays, hit = load_or_compute("distance", key, compute, use_cache=use_cache)
+    if hit and progress is not None:
+        progress(1.0)
+    return arrays["distance"]
+
+
 def descriptors_cached(scene: Scene, parts: Sequence[Part], *,
                        method: str = "adaptive") -> bool:
     """Whether every descriptor of the scene is in the cache (nothing to compute)."""

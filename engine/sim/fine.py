@@ -14,7 +14,9 @@ and the assembled pose (6,). The numerics of the level are
 - part 2's fine grid covers the region of part 2 that lies in that box at the seat, grown
   by the protocol's misaim and the taper, aligned with part 2's own grid and clipped to it.
 
-Both fine descriptors come from the descriptor store (cached on disk like the coarse ones).
+Both fine descriptors come from the descriptor store (cached on disk like the coarse ones),
+and so does part 1's signed distance on the finest grid, the walls' distance map
+(:func:`wall_shell`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from engine.correlation.near import NearLevel, smooth_window, trilinear
+from engine.correlation.walls import WallShell
 from engine.grid import Grid
 from engine.pose import rotation_matrix
 
@@ -142,17 +145,35 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     if ratio > 1:
         nx, ny, nz = ((n - 1) * ratio + 1 for n in nodes.shape)
         g1 = Grid(nodes.origin, h / ratio, (nx, ny, nz))
-        rho1 = descriptor_for_part(fixed, g1, fixed_desc.params, progress=stage(0.0, 0.5),
+        rho1 = descriptor_for_part(fixed, g1, fixed_desc.params, progress=stage(0.0, 0.4),
                                    cancel=cancel).rho
-        rho2 = descriptor_for_part(moving, g2, moving_desc.params, progress=stage(0.5, 1.0),
+        rho2 = descriptor_for_part(moving, g2, moving_desc.params, progress=stage(0.4, 0.8),
                                    cancel=cancel).rho
     else:
         rho2 = trilinear(np.asarray(moving_desc.rho, np.complex128), moving_desc.grid,
                          g2.points().reshape(-1, 3)).reshape(g2.shape)
+    walls = wall_shell(fixed, moving, g1 if g1 is not None else nodes, g2,
+                       progress=stage(0.8, 1.0), cancel=cancel)
     return NearLevel.from_samples(
         nodes, node_rho, (lo1, hi1, taper), g1, rho1,
         g2, rho2, smooth_window(g2, lo2, hi2, taper),
-        moving_desc.grid, moving_desc.rho, smooth=smooths(ratio))
+        moving_desc.grid, moving_desc.rho, smooth=smooths(ratio), walls=walls)
+
+
+def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
+               progress: Callable[[float], None] | None = None,
+               cancel: Callable[[], bool] | None = None) -> WallShell:
+    """The walls over the level (:mod:`engine.correlation.walls`).
+
+    Part 1's signed distance on ``grid`` (the level's finest over the fit's box, cached
+    like the descriptors) and part 2's shell within ``region`` (its fine grid: what can
+    reach the box).
+    """
+    from engine.descriptor.store import distance_for_part
+
+    distance = distance_for_part(fixed, grid, progress=progress, cancel=cancel)
+    return WallShell.on(grid, distance, moving.vertices, moving.faces,
+                        (np.asarray(region.origin), np.asarray(region.upper)))
 
 
 def smooths(ratio: int) -> bool:

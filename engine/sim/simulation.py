@@ -108,8 +108,8 @@ class Simulation:
         if not (value > 0 and math.isfinite(value)):
             raise ValueError(f"the time step must be positive and finite, got {value!r}")
         self._dt = value
-        if hasattr(self, "_resolved"):  # a new step: the hand's spring follows it
-            self.physics = for_step(self._resolved, value)
+        if hasattr(self, "_resolved"):  # a new step: the hand's spring and the walls follow
+            self.set_physics(self._resolved)
 
     def set_physics(self, physics: Physics) -> None:
         """New gains, kappa and gravity (the time step is kept).
@@ -122,7 +122,7 @@ class Simulation:
         self._gravity_force = self.body.mass * np.asarray(physics.gravity, np.float64)
         self.field.kappa = physics.kappa
         if self.near is not None:
-            self.near.kappa = physics.kappa
+            self.near.attach(self.physics, self._dt)
         self._sample_fresh = False  # kappa may have changed
 
     def set_effects(self, effects: Effects, physics: Physics | None = None) -> None:
@@ -257,7 +257,7 @@ class Simulation:
         """Add the fine level where the parts meet, at the field's band and kappa (or None)."""
         self.near = near
         if near is not None:
-            near.kappa = self.physics.kappa
+            near.attach(self.physics, self._dt)
         self._sample_fresh = False
 
     def evaluate_field(self) -> Evaluation:
