@@ -25,7 +25,8 @@ step, so the same pair in metres and in millimetres, at any rate, is held the sa
 
 A stiff penalty integrated in fixed steps makes energy: a point's force starts in the
 middle of a step and the trapezoid the integrator applies overshoots the energy it stored
-(the bundled peg dropped free into its hole gained 62 % of its largest kinetic energy).
+(the bundled peg dropped free into its hole drifted by 62 % of its largest kinetic
+energy).
 So the walls keep a passivity observer (Hannaford and Ryu 2002): at each step the work
 their force did on the part, by the trapezoid rule over the step's motion, against the
 energy they gave up; the difference is energy they made, reported as

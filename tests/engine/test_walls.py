@@ -143,8 +143,8 @@ def test_the_simulation_gives_the_walls_its_mass_and_step(dropped_peg):
 def test_a_part_dropped_into_its_hole_gains_no_energy_from_the_walls(dropped_peg):
     """2 s free (no proxy, no damping): the walls push the peg off the hole's rim and wall
     many times; the total energy never rises above its start by more than 5 % of the
-    largest kinetic energy (unobserved, the walls made 62 %; they may take energy, as an
-    inelastic contact does).
+    largest kinetic energy (unobserved, the total drifted by 62 %; the walls may take energy,
+    as an inelastic contact does).
     """
     from engine.sim import kinetic_energy
 
