@@ -46,11 +46,21 @@ import numpy as np
 from engine.correlation.finishing import Evaluation
 from engine.grid import Grid
 
-#: ``n k = WALL_STEPS m / dt^2``: all points touching at once oscillate at
-#: ``sqrt(WALL_STEPS) / dt`` (stable below 2). On the 3.4 mm peg in a blind bore the floor
-#: held it 0.066 mm past at 1 and 0.033 mm at 3 (the skeletal energy pulls it on with
-#: 12 N there).
-WALL_STEPS = 3.0
+#: ``n k = WALL_STEPS m / dt^2``: all points touching at once oscillate at ``1 / dt``,
+#: half the explicit step's limit, which leaves room for the skeletal energy's own
+#: stiffness where the two add up. At 3 a peg dropped free onto its floor, its whole
+#: shell on the floor (:data:`LEADING`), was thrown out of the bore.
+WALL_STEPS = 1.0
+#: With an insertion axis, the shell is part 2's faces whose outward normal is within
+#: arccos(LEADING) = 60 degrees of it: the faces that lead along it (a peg's end, a
+#: shoulder, a bolt's head, a hub's face on its collar), which floors, steps and stops
+#: hold. The sides are the guidance's: with every face in the shell, the 60 mm dovetail
+#: slide of assets/real and a generated T-slot slide (seed 51822) stuck at their ways'
+#: mouths; leading faces only, the dovetail seats (0.64 %) and the 3.4 mm blind peg ends
+#: 0.59 % of its width from its floor (0.79 % with every face). None: every face.
+LEADING: float | None = 0.5
+#: The walls push a point only this many cells of their grid inside part 1.
+SKIN_CELLS = 0.0
 #: Most shell points: the sum's cost per pose grows with them (20,000 take about 0.2 ms on
 #: one core); fewer, the shell's spacing grows past the fine cell on a large part.
 MAX_POINTS = 20_000
@@ -61,19 +71,27 @@ DRAWN = 200_000
 def surface_points(vertices: np.ndarray, faces: np.ndarray, count: int,
                    seed: int = 0) -> np.ndarray:
     """(count, 3) float64: points uniform over the mesh's area (deterministic per seed)."""
+    return surface_samples(vertices, faces, count, seed)[0]
+
+
+def surface_samples(vertices: np.ndarray, faces: np.ndarray, count: int,
+                    seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(points (count, 3), unit normals (count, 3)): uniform over the mesh's area."""
     tri = np.asarray(vertices, np.float64)[np.asarray(faces)]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
                                 axis=1)
     total = float(area.sum())
     if not total > 0 or count < 1:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), np.zeros((0, 3))
     rng = np.random.default_rng(seed)
     which = rng.choice(len(tri), size=count, p=area / total)
     u = rng.random((count, 2))
     flip = u.sum(axis=1) > 1.0
     u[flip] = 1.0 - u[flip]
     t = tri[which]
-    return t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0])
+    normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    return t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0]), normal
 
 
 @dataclass(frozen=True)
@@ -96,11 +114,20 @@ class WallShell:
 
     @classmethod
     def on(cls, grid: Grid, distance: np.ndarray, moving_vertices: np.ndarray,
-           moving_faces: np.ndarray, region: tuple[np.ndarray, np.ndarray]) -> WallShell:
-        """The shell of part 2 within ``region`` (lo, hi in its own frame), on ``grid``."""
-        drawn = surface_points(moving_vertices, moving_faces, DRAWN)
+           moving_faces: np.ndarray, region: tuple[np.ndarray, np.ndarray],
+           lead: np.ndarray | None = None) -> WallShell:
+        """The shell of part 2 within ``region`` (lo, hi in its own frame), on ``grid``.
+
+        ``lead`` (3,): the insertion axis in part 2's frame; with it the shell is the faces
+        that lead along it (:data:`LEADING`), else all of them.
+        """
+        drawn, normal = surface_samples(moving_vertices, moving_faces, DRAWN)
         lo, hi = (np.asarray(b, float) for b in region)
-        inside = drawn[np.all((drawn >= lo) & (drawn <= hi), axis=1)]
+        keep = np.all((drawn >= lo) & (drawn <= hi), axis=1)
+        if lead is not None and LEADING is not None:
+            a = np.asarray(lead, float) / np.linalg.norm(lead)
+            keep &= normal @ a > LEADING
+        inside = drawn[keep]
         if len(inside) > MAX_POINTS:
             inside = inside[:MAX_POINTS]  # the draw is already random
         return cls(grid=grid, distance=np.ascontiguousarray(distance, np.float32),
@@ -121,6 +148,7 @@ class Walls:
         self._grid = (np.asarray(g.origin, np.float64), 1.0 / g.spacing)
         #: A step longer than this (a cell) is a jump (a reset, a new pose): no work booked.
         self._step_reach = float(g.spacing)
+        self._skin = SKIN_CELLS * float(g.spacing)
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (R, t, raw)
 
     def for_body(self, mass: float, dt: float) -> None:
@@ -140,7 +168,7 @@ class Walls:
         origin, inv_h = self._grid
         return _wall_sum(np.ascontiguousarray(rotation, np.float64),
                          np.ascontiguousarray(translation, np.float64), self.shell.points,
-                         self.shell.distance, origin, inv_h, self.stiffness / n)
+                         self.shell.distance, origin, inv_h, self.stiffness / n, self._skin)
 
     def evaluate(self, rotation: np.ndarray, translation: np.ndarray) -> Evaluation:
         """The walls' energy, force and torque at ``(R, t)``.
@@ -178,7 +206,7 @@ def _rotvec(m: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, fastmath=True, nogil=True, parallel=True)
-def _wall_sum(rot, t, points, dist, origin, inv_h, k):  # pragma: no cover - compiled
+def _wall_sum(rot, t, points, dist, origin, inv_h, k, skin):  # pragma: no cover - compiled
     nx, ny, nz = dist.shape
     n = points.shape[0]
     chunks = 2
@@ -223,7 +251,7 @@ def _wall_sum(rot, t, points, dist, origin, inv_h, k):  # pragma: no cover - com
             c11 = c011 + (c111 - c011) * ux
             c0 = c00 + (c10 - c00) * uy
             c1 = c01 + (c11 - c01) * uy
-            d = c0 + (c1 - c0) * uz
+            d = c0 + (c1 - c0) * uz + skin
             if not d < 0.0:
                 continue
             # the interpolant's own gradient, so the force is the energy's derivative

@@ -152,7 +152,9 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     else:
         rho2 = trilinear(np.asarray(moving_desc.rho, np.complex128), moving_desc.grid,
                          g2.points().reshape(-1, 3)).reshape(g2.shape)
-    walls = wall_shell(fixed, moving, g1 if g1 is not None else nodes, g2,
+    lead = None if axis is None else rotation_matrix(
+        np.asarray(assembled_pose, float)[3:]).T @ np.asarray(axis, float)
+    walls = wall_shell(fixed, moving, g1 if g1 is not None else nodes, g2, lead=lead,
                        progress=stage(0.8, 1.0), cancel=cancel)
     return NearLevel.from_samples(
         nodes, node_rho, (lo1, hi1, taper), g1, rho1,
@@ -161,6 +163,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
 
 
 def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
+               lead: np.ndarray | None = None,
                progress: Callable[[float], None] | None = None,
                cancel: Callable[[], bool] | None = None) -> WallShell:
     """The walls over the level (:mod:`engine.correlation.walls`).
@@ -173,7 +176,7 @@ def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
 
     distance = distance_for_part(fixed, grid, progress=progress, cancel=cancel)
     return WallShell.on(grid, distance, moving.vertices, moving.faces,
-                        (np.asarray(region.origin), np.asarray(region.upper)))
+                        (np.asarray(region.origin), np.asarray(region.upper)), lead)
 
 
 def smooths(ratio: int) -> bool:
