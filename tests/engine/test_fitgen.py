@@ -320,19 +320,18 @@ _RUNS: dict = {}
 
 #: Families whose pair of the tests' set (seed 2026) does not seat guided without tipping
 #: with the settings `scene new` chooses on a CPU (K <= 25 and the fine level where the
-#: parts meet: docs/settings.md, docs/fine_level.md), with the measured figures (xfail,
-#: not strict: a pair that starts to pass shows as XPASS). "Turned" is the largest angle
-#: from the proxy during the push, past the misaim plus the fit's play. The criterion stays.
+#: parts meet, with its walls: docs/settings.md, docs/fine_level.md), with the measured
+#: figures (xfail, not strict: a pair that starts to pass shows as XPASS). "Turned" is the
+#: largest angle from the proxy during the push, past the misaim plus the fit's play. The
+#: criterion stays.
 NOT_SEATING: dict[str, str] = {
-    "dovetail": "K 25: seated (1.25 %, 0.30 deg), turned 3.52 deg from the proxy (3.12 allowed)",
-    "round_blind": "K 15: 5.07 % of the width off its floor, turned 3.11 deg (3.05 allowed)",
-    "plate_on_pins": "K 25: 2.77 % of the width, 0.51 deg, turned 3.69 deg (3.45 allowed)",
-    "spline": "K 25: tilt 0.57 deg (0.50 allowed), turned 3.55 deg (3.47 allowed)",
-    "round_through": "K 25: seated (0.16 %, 0.05 deg), turned 3.53 deg (3.50 allowed)",
-    "tslot": "K 25: seated (0.97 %, 0.38 deg), turned 3.27 deg (3.01 allowed)",
-    "stepped": "K 25: 7.60 % of the width (2.7 of 36.2 mm) off its shoulder",
-    "sleeve": "K 25: seated (0.34 %, 0.20 deg), turned 3.31 deg (3.09 allowed)",
-    "rect_blind": "K 25: 2.85 % of the width off its floor, turned 3.30 deg (3.20 allowed)",
+    "dovetail": "K 25: 7.98 % of the width, 0.83 deg, turned 3.45 deg (3.12 allowed)",
+    "round_blind": "K 15: seated (0.22 %, 0.33 deg), turned 3.13 deg (3.05 allowed)",
+    "plate_on_pins": "K 25: 2.03 % of the width, 0.29 deg, turned 3.61 deg (3.45 allowed)",
+    "spline": "K 25: tilt 0.57 deg (0.50 allowed)",
+    "tslot": "K 25: seated (0.90 %, 0.37 deg), turned 3.25 deg (3.01 allowed)",
+    "sleeve": "K 25: seated (0.14 %, 0.09 deg), turned 3.26 deg (3.09 allowed)",
+    "rect_blind": "K 25: seated (0.86 %, 0.19 deg), turned 3.49 deg (3.20 allowed)",
 }
 
 
