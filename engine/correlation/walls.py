@@ -56,8 +56,8 @@ WALL_STEPS = 1.0
 #: shoulder, a bolt's head, a hub's face on its collar), which floors, steps and stops
 #: hold. The sides are the guidance's: with every face in the shell, the 60 mm dovetail
 #: slide of assets/real and a generated T-slot slide (seed 51822) stuck at their ways'
-#: mouths; leading faces only, the dovetail seats (0.64 %) and the 3.4 mm blind peg ends
-#: 0.59 % of its width from its floor (0.79 % with every face). None: every face.
+#: mouths; leading faces only, the dovetail seats (0.60 %), and so do the blind shaft and
+#: the pocketed peg of assets/real (0.59 and 0.60 %). None: every face.
 LEADING: float | None = 0.5
 #: The walls push a point only this many cells of their grid inside part 1.
 SKIN_CELLS = 0.0
