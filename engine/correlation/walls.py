@@ -120,20 +120,28 @@ class WallShell:
            lead: np.ndarray | None = None) -> WallShell:
         """The shell of part 2 within ``region`` (lo, hi in its own frame), on ``grid``.
 
-        ``lead`` (3,): the insertion axis in part 2's frame; with it the shell is the faces
-        that lead along it (:data:`LEADING`), else all of them.
+        ``lead`` (3,): the insertion axis in part 2's frame (:func:`shell_points`).
         """
-        drawn, normal = surface_samples(moving_vertices, moving_faces, DRAWN)
-        lo, hi = (np.asarray(b, float) for b in region)
-        keep = np.all((drawn >= lo) & (drawn <= hi), axis=1)
-        if lead is not None and LEADING is not None:
-            a = np.asarray(lead, float) / np.linalg.norm(lead)
-            keep &= normal @ a > LEADING
-        inside = drawn[keep]
-        if len(inside) > MAX_POINTS:
-            inside = inside[:MAX_POINTS]  # the draw is already random
         return cls(grid=grid, distance=np.ascontiguousarray(distance, np.float32),
-                   points=np.ascontiguousarray(inside, np.float64))
+                   points=shell_points(moving_vertices, moving_faces, region, lead))
+
+
+def shell_points(vertices: np.ndarray, faces: np.ndarray,
+                 region: tuple[np.ndarray, np.ndarray],
+                 lead: np.ndarray | None = None) -> np.ndarray:
+    """(n, 3) float64: part 2's shell within ``region`` (lo, hi in its own frame).
+
+    With ``lead`` (the insertion axis in part 2's frame) the faces that lead along it
+    (:data:`LEADING`), else all of them; at most :data:`MAX_POINTS`.
+    """
+    drawn, normal = surface_samples(vertices, faces, DRAWN)
+    lo, hi = (np.asarray(b, float) for b in region)
+    keep = np.all((drawn >= lo) & (drawn <= hi), axis=1)
+    if lead is not None and LEADING is not None:
+        a = np.asarray(lead, float) / np.linalg.norm(lead)
+        keep &= normal @ a > LEADING
+    inside = drawn[keep][:MAX_POINTS]  # the draw is already random
+    return np.ascontiguousarray(inside, np.float64)
 
 
 class Walls:

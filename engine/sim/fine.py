@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from engine.correlation.near import NearLevel, smooth_window, trilinear
-from engine.correlation.walls import WallShell
+from engine.correlation.walls import WallShell, shell_points
 from engine.grid import Grid
 from engine.pose import rotation_matrix
 
@@ -165,18 +165,22 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
 def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
                lead: np.ndarray | None = None,
                progress: Callable[[float], None] | None = None,
-               cancel: Callable[[], bool] | None = None) -> WallShell:
+               cancel: Callable[[], bool] | None = None) -> WallShell | None:
     """The walls over the level (:mod:`engine.correlation.walls`).
 
     Part 1's signed distance on ``grid`` (the level's finest over the fit's box, cached
     like the descriptors) and part 2's shell within ``region`` (its fine grid: what can
-    reach the box).
+    reach the box). None where no face of part 2 there leads along ``lead``.
     """
     from engine.descriptor.store import distance_for_part
 
+    points = shell_points(moving.vertices, moving.faces,
+                          (np.asarray(region.origin), np.asarray(region.upper)), lead)
+    if len(points) == 0:  # nothing leads into the box (a through fit's end is past it)
+        return None
     distance = distance_for_part(fixed, grid, progress=progress, cancel=cancel)
-    return WallShell.on(grid, distance, moving.vertices, moving.faces,
-                        (np.asarray(region.origin), np.asarray(region.upper)), lead)
+    return WallShell(grid=grid, distance=np.ascontiguousarray(distance, np.float32),
+                     points=points)
 
 
 def smooths(ratio: int) -> bool:
