@@ -128,20 +128,10 @@ class FitMeasure:
 
 def _surface_points(part: Part, count: int) -> np.ndarray:
     """(count, 3) points on a part's surface, area-weighted, the same for the same mesh."""
-    v = np.asarray(part.vertices, np.float64)
-    f = np.asarray(part.faces, np.int64)
-    tri = v[f]  # (m, 3, 3)
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    total = float(area.sum())
-    if not total > 0:
-        return v.copy()
-    rng = np.random.default_rng(0)
-    pick = rng.choice(len(f), size=count, p=area / total)
-    uv = rng.random((count, 2))
-    flip = uv.sum(axis=1) > 1.0
-    uv[flip] = 1.0 - uv[flip]
-    t = tri[pick]
-    return t[:, 0] + uv[:, :1] * (t[:, 1] - t[:, 0]) + uv[:, 1:] * (t[:, 2] - t[:, 0])
+    from engine.correlation.walls import surface_points
+
+    points = surface_points(part.vertices, part.faces, count)
+    return points if len(points) else np.asarray(part.vertices, np.float64).copy()
 
 
 def _distances(part: Part, points: np.ndarray) -> np.ndarray:
