@@ -132,11 +132,6 @@ class Grid:
         """(3,) float64: the midpoint between the first and the last sample."""
         return 0.5 * (np.asarray(self.origin) + self.upper)
 
-    @property
-    def center(self) -> np.ndarray:
-        """Deprecated spelling of :attr:`centre`."""
-        return self.centre
-
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sample coordinates along x, y and z: three 1D float64 arrays."""
         return tuple(  # type: ignore[return-value]

@@ -936,11 +936,6 @@ class Physics:
         object.__setattr__(self, "centre", _readonly(self.centre, (3,)))
         object.__setattr__(self, "gravity", _readonly(self.gravity, (3,)))
 
-    @property
-    def center(self) -> np.ndarray:
-        """Deprecated spelling of :attr:`centre`."""
-        return self.centre
-
 
 @dataclass(frozen=True)
 class HapticLimits:

@@ -1,7 +1,8 @@
 """One spelling for public names: British, as the project's prose (centre, colour).
 
 The libraries' own spellings (Qt's ``color()``, pyvista's and matplotlib's ``color=``)
-stay theirs; the deprecated ``center`` aliases say so in their docstrings.
+stay theirs. No second spelling is kept as an alias: a property or function named
+``center`` fails the check whatever its docstring says.
 """
 
 from __future__ import annotations
@@ -24,9 +25,7 @@ def _public_names(tree: ast.AST):
     """
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            doc = ast.get_docstring(node) or ""
-            if not doc.startswith("Deprecated spelling"):
-                yield node.name, node.lineno
+            yield node.name, node.lineno
             for a in node.args.args + node.args.kwonlyargs:
                 yield a.arg, a.lineno
         elif isinstance(node, ast.ClassDef):

@@ -60,11 +60,6 @@ class RigidBody:
         object.__setattr__(self, "_inv_inertia", inv)
 
     @property
-    def center(self) -> np.ndarray:
-        """Deprecated spelling of :attr:`centre`."""
-        return self.centre
-
-    @property
     def inv_inertia(self) -> np.ndarray:
         """(3, 3) float64 inverse inertia in the body frame."""
         return self._inv_inertia  # type: ignore[attr-defined]

@@ -74,10 +74,10 @@ class SpringCorrelator:
         return FakeLandscape(self, R)
 
 
-def well(center=(0.0, 0.0, 0.0), size=1.0, stiffness=50.0, **kw):
-    """Three non-collinear springs: a full 6-DOF well at pose (center, identity)."""
+def well(centre=(0.0, 0.0, 0.0), size=1.0, stiffness=50.0, **kw):
+    """Three non-collinear springs: a full 6-DOF well at pose (centre, identity)."""
     pts = size * np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, -1.0, 0.0]])
-    return SpringCorrelator(pts, pts + np.asarray(center), stiffness, **kw)
+    return SpringCorrelator(pts, pts + np.asarray(centre), stiffness, **kw)
 
 
 class UniformPull:
@@ -89,12 +89,12 @@ class UniformPull:
     rotation = True
     modes = 0
 
-    def __init__(self, force, center):
+    def __init__(self, force, centre):
         self.force = np.asarray(force, float).reshape(3)
-        self.center = np.asarray(center, float).reshape(3)
+        self.centre = np.asarray(centre, float).reshape(3)
 
     def evaluate(self, R, t):
-        arm = np.asarray(R, float) @ self.center
+        arm = np.asarray(R, float) @ self.centre
         energy = -float(self.force @ (arm + np.asarray(t, float)))
         return Evaluation(energy, self.force.copy(), np.cross(arm, self.force), 1.0, 0)
 

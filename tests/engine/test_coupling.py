@@ -38,7 +38,7 @@ def make_sim(scale=1.0, field=None, effects=None, limits=None, **cfg):
     v = v * scale
     config = SimConfig(effects=effects or Effects(), **cfg)
     phys = resolve_physics(config, v, f)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     return Simulation(body, phys, config.effects, field or NullField(), np.zeros(6),
                       dt=config.simulation.dt, limits=limits)
 
@@ -195,9 +195,9 @@ def test_coupling_holds_the_centre_of_mass():
     v = v + np.array([0.0, 0.0, 3.0])  # the origin 3 units below the centre of the box
     config = SimConfig()
     phys = resolve_physics(config, v, f)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     pull = np.array([0.3, 0.0, 0.0]) * phys.k_lin / phys.kappa  # the field scales by kappa
-    sim = Simulation(body, phys, config.effects, CorrelatorField(UniformPull(pull, body.center),
+    sim = Simulation(body, phys, config.effects, CorrelatorField(UniformPull(pull, body.centre),
                      1.0), np.zeros(6))
     sim.run(3000)
     pose = sim.part_pose()
@@ -223,7 +223,7 @@ def test_soft_fit_takes_over_the_rotation():
         field = CorrelatorField(well(stiffness=a), 1.0)
         geo = rotational_stiffness(field, np.zeros(6)) if scaled else None
         phys = resolve_physics(config, v, f, kappa=1.0, geometric_rotation=geo)
-        body = RigidBody(phys.mass, phys.inertia, phys.center)
+        body = RigidBody(phys.mass, phys.inertia, phys.centre)
         sim = Simulation(body, phys, config.effects, field, np.zeros(6))
         sim.set_proxy(np.array([0.0, 0.0, 0.0, math.radians(3.0), 0.0, 0.0]))
         sim.run(4000)
@@ -242,7 +242,7 @@ def test_haptic_reaction_balances_the_coupling():
     v = v + np.array([0.5, -1.0, 2.0])
     config = SimConfig()
     phys = resolve_physics(config, v, f)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     sim = Simulation(body, phys, config.effects, NullField(), np.array([0.1, 0, 0, 0, 0.2, 0]))
     sim.set_proxy(np.array([0.4, -0.3, 0.2, 0.3, -0.1, 0.25]))
     sim.run(5)  # moving: the damping terms are in the wrench too
@@ -262,7 +262,7 @@ def _held_sim(hold):
     v = v + np.array([0.0, 0.0, 3.0])
     config = SimConfig()
     phys = resolve_physics(config, v, f)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     return Simulation(body, phys, config.effects, NullField(), np.zeros(6), hold=hold), phys
 
 
@@ -357,7 +357,7 @@ def test_a_model_switch_s_energy_is_taken_back_from_the_turning():
     config = SimConfig()
     effects = replace(config.effects, damping=False, gravity=None)
     phys = resolve_physics(config, v, f, effects=effects)
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     spin = np.array([0.3, -0.2, 0.5])
     for jump in (1e-3, -1e-3, 1e3):
         sim = Simulation(body, phys, effects, _Switching(jump), np.zeros(6), coupled=False)
@@ -451,7 +451,7 @@ def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play(
         HAND_OMEGA_DT)
     assert phys.k_rot_hard > 10 * hand.k_rot
     assert phys.rot_play == pytest.approx(math.radians(3.0))
-    body = RigidBody(phys.mass, phys.inertia, phys.center)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
     angles = {}
     for name, gains in (("with the play", phys), ("lowered alone", replace(phys, k_rot_hard=0.0))):
         sim = Simulation(body, gains, config.effects, pull, np.zeros(6))

@@ -12,10 +12,10 @@ from engine.sim import CorrelatorField, Simulation, resolve_physics
 from engine.sim.body import BodyState, RigidBody, kinetic_energy, quaternion_step, step
 
 
-def box_body(mass=2.0, size=(1.0, 2.0, 3.0), center=(0.1, -0.2, 0.3)):
+def box_body(mass=2.0, size=(1.0, 2.0, 3.0), centre=(0.1, -0.2, 0.3)):
     a, b, c = size
     inertia = mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
-    return RigidBody(mass, inertia, np.array(center))
+    return RigidBody(mass, inertia, np.array(centre))
 
 
 def test_free_flight_is_exact_for_constant_force():
@@ -42,7 +42,7 @@ def test_quaternion_step_matches_rotation_vector():
 
 def test_force_at_origin_produces_torque_about_com():
     # a force at the origin, which is off the centre of mass, must spin the body
-    body = box_body(center=(1.0, 0.0, 0.0))
+    body = box_body(centre=(1.0, 0.0, 0.0))
     state = BodyState.at_pose(body, np.zeros(6))
     step(body, state, np.array([0.0, 1.0, 0.0]), np.zeros(3), 1e-3)
     # torque about com = (origin - com) x F = (-1,0,0) x (0,1,0) = (0,0,-1)
@@ -50,7 +50,7 @@ def test_force_at_origin_produces_torque_about_com():
 
 
 def test_locked_axes_hold_the_origin():
-    body = box_body(center=(0.5, 0.5, 0.0))
+    body = box_body(centre=(0.5, 0.5, 0.0))
     state = BodyState.at_pose(body, np.zeros(6))
     tmask = np.array([0.0, 0.0, 1.0])
     rmask = np.array([0.0, 0.0, 1.0])

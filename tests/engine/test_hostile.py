@@ -465,7 +465,7 @@ def _jump(folder: Path, far: list[float], gap_steps: int) -> object:
     mesh = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
     config = SimConfig(effects=Effects())
     phys = resolve_physics(config, np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    sim = Simulation(RigidBody(phys.mass, phys.inertia, phys.center), phys, config.effects,
+    sim = Simulation(RigidBody(phys.mass, phys.inertia, phys.centre), phys, config.effects,
                      NullField(), np.zeros(6), dt=config.simulation.dt)
     poses = [np.zeros(6)] * gap_steps + [np.asarray(far, float)] + [None] * 5 + [np.zeros(6)]
     loop = EngineLoop(sim, device=Peer(poses), realtime=False)
