@@ -50,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--modes", nargs="*", default=list(DEFAULT_MODES),
                         help="modes per axis to measure ('full' = the whole FFT lattice)")
     parser.add_argument("--backends", nargs="*", default=None,
+                        choices=[c for c in choices("per_pose") if c != "auto"],
                         help="per-pose backends (default: every one that works here)")
     parser.add_argument("--poses", type=int, default=300, help="poses timed per row")
     parser.add_argument("--error-poses", type=int, default=8,

@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.backend import choices, describe_auto
+
 DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "assets" / "peg_in_hole" / "scene.toml"
 
 
@@ -51,7 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=1000.0, help="target rate in Hz")
     parser.add_argument("--translation-only", action="store_true",
                         help="lock rotation (landscape lookup instead of the modal sum)")
-    parser.add_argument("--backend", default="auto", help="per-pose evaluator")
+    parser.add_argument("--backend", default="auto", choices=choices("per_pose"),
+                        help=f"per-pose evaluator (auto: {describe_auto('per_pose')})")
     parser.add_argument("--load", choices=("none", "python", "numpy", "vtk"), default="none",
                         help="a competing thread in this process")
     parser.add_argument("--switch-interval", type=float, default=None,

@@ -7,16 +7,18 @@ The names, validated in one place (:func:`check_name`):
 - ``"opencl"``: a pyopencl context and queue on one device: a GPU if there is one, else a
   CPU device (PoCL); ``SKELASM_DEVICE`` (or ``device=``) picks it by a substring of its
   name or by ``platform:device`` indices, as ``PYOPENCL_CTX`` does.
-- ``"auto"``: the first backend of a preference order that works here (default:
-  :data:`AUTO_ORDER`, OpenCL, then numba, then numpy). This is the one fallback rule.
+- ``"auto"``: chosen per capability, by :func:`resolve` only. This is the one fallback
+  rule.
 
 Each *capability* (the descriptor's kernels, the per-pose sum, the transforms) is
 implemented for some of these backends; :data:`CAPABILITIES` registers them, and
 :func:`resolve` is the one place a capability's choice is made, with the same meaning of
 "auto" for all: the first backend of the capability's order that works here (a backend it
 marks ``gpu_only`` counts only on a GPU device; a capability may also test that its kernel
-builds on the backend). Commands and benchmarks offer :func:`choices`. A backend asked for
-by name is used or fails with its cause; nothing falls back silently from a named choice.
+builds on the backend); :func:`describe_auto` says so in words for help texts and status
+lines. :func:`get_backend` makes a backend by its name and knows no "auto". Commands and
+benchmarks offer :func:`choices`. A backend asked for by name is used or fails with its
+cause; nothing falls back silently from a named choice.
 
 ``SKELASM_BACKEND`` overrides the default name. Each backend is created once per process
 (per device) and shared. A backend that cannot be created is registered with the error
@@ -30,7 +32,7 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,10 +40,8 @@ from engine.errors import InputError
 
 #: The backend names, reference first.
 BACKENDS = ("numpy", "numba", "opencl")
-#: What a user may ask for.
+#: What a user may ask for ("auto": :func:`resolve` chooses per capability).
 CHOICES = BACKENDS + ("auto",)
-#: The order "auto" tries the backends in, unless a caller gives its own.
-AUTO_ORDER = ("opencl", "numba", "numpy")
 
 
 class BackendError(RuntimeError):
@@ -136,6 +136,17 @@ def _capability(capability: str) -> Capability:
 def choices(capability: str) -> tuple[str, ...]:
     """What a user may ask ``capability`` to run on: its backends, reference first, and "auto"."""
     return tuple(reversed(_capability(capability).backends)) + ("auto",)
+
+
+def describe_auto(capability: str) -> str:
+    """What "auto" means for ``capability``, in words (help texts, status lines).
+
+    For example ``"opencl (on a GPU), else numba, else numpy"``: the capability's order,
+    read from :data:`CAPABILITIES`.
+    """
+    cap = _capability(capability)
+    return ", else ".join(f"{name} (on a GPU)" if name in cap.gpu_only else name
+                          for name in cap.backends)
 
 
 def check_choice(capability: str, name: str) -> str:
@@ -342,42 +353,29 @@ def _create(name: str, device: str | None) -> Backend:
     return made
 
 
-def get_backend(
-    name: str | None = None,
-    device: str | None = None,
-    *,
-    order: Sequence[str] = AUTO_ORDER,
-) -> Backend:
-    """The compute backend, created once per (name, device) and shared.
+def get_backend(name: str, device: str | None = None) -> Backend:
+    """The compute backend ``name``, created once per (name, device) and shared.
 
     Parameters
     ----------
-    name : {"numpy", "numba", "opencl", "auto"}, optional
-        Defaults to ``SKELASM_BACKEND``, else "auto".
+    name : {"numpy", "numba", "opencl"}
+        A backend's name. "auto" is not one: it is chosen per capability by
+        :func:`resolve`, the one place a choice is made.
     device : str, optional
         OpenCL device selector (see the module docstring); defaults to ``SKELASM_DEVICE``.
-    order : sequence of str
-        The preference order "auto" resolves with (the first that works; numpy always does).
 
     Raises
     ------
     ValueError
-        Unknown backend name.
+        Unknown backend name, or "auto".
     BackendError
-        A backend asked for by name cannot be used here; its ``__cause__`` is the original
-        error.
+        The backend cannot be used here; its ``__cause__`` is the original error.
     """
-    name = check_name(name or os.environ.get("SKELASM_BACKEND") or "auto")
-    device = device or os.environ.get("SKELASM_DEVICE") or None
-    if name != "auto":
-        return _create(name, device)
-    for candidate in order:
-        try:
-            return _create(check_name(candidate), device)
-        except BackendError as exc:
-            _refuse_asked_device(candidate, device, exc)
-            continue
-    return _create("numpy", None)
+    name = check_name(name)
+    if name == "auto":
+        raise ValueError("'auto' is chosen per capability: use engine.backend.resolve("
+                         f"capability) with one of {', '.join(CAPABILITIES)}")
+    return _create(name, device or os.environ.get("SKELASM_DEVICE") or None)
 
 
 def _refuse_asked_device(candidate: str, device: str | None, exc: BackendError) -> None:

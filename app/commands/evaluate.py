@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 from app.commands.arguments import check_rotation_vector, finite_float, int_in_range
 from app.commands.poses import add_about_argument, typed_pose
-from engine.backend import choices
+from engine.backend import choices, describe_auto
 
 #: Most evaluations --repeat times (100,000 of the slowest, 10 ms each, take 17 minutes).
 MAX_REPEAT = 100_000
@@ -35,7 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--modes", type=int, help="modes per axis K (m' = K^3); default: the "
                         "scene's [correlation] modes")
     parser.add_argument("--backend", default="auto", choices=choices("per_pose"),
-                        help="per-pose backend (auto: OpenCL on a GPU, else numba, else numpy)")
+                        help=f"per-pose backend (auto: {describe_auto('per_pose')})")
     parser.add_argument("--repeat", type=int_in_range(1, MAX_REPEAT, "each is one evaluation "
                                                       "of up to milliseconds"),
                         default=100, metavar="N",

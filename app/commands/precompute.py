@@ -21,7 +21,9 @@ import json
 import sys
 from pathlib import Path
 
-from engine.backend import choices
+from engine.backend import choices, describe_auto
+from engine.loading import DEFAULT_RELATIVE_TOLERANCE
+from engine.params import DEFAULT_GRID, DescriptorParams
 
 
 def _positive_float(text: str) -> float:
@@ -73,25 +75,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--grid", type=_grid_samples, metavar="N",
                       help="samples along the part's longest side, padding not included "
-                      "(default 64; for a scene: its [descriptor] grid)")
+                      f"(default {DEFAULT_GRID}; for a scene: its [descriptor] grid)")
     size.add_argument("--spacing", type=_positive_float, metavar="H",
                       help="grid spacing in the part's unit, instead of --grid")
     parser.add_argument("--sigma", type=_positive_float, metavar="S",
-                        help="Gaussian width on eta/|xi| - 1 (default 0.5)")
+                        help=f"Gaussian width on eta/|xi| - 1 (default {DescriptorParams.sigma:g})")
     parser.add_argument("--penalty", type=_positive_float, metavar="P",
-                        help="penalty factor lambda_in / lambda_out (default 3)")
+                        help="penalty factor lambda_in / lambda_out "
+                        f"(default {DescriptorParams.penalty:g})")
     parser.add_argument("--lambda-out", type=_positive_float, metavar="L",
-                        help="weight outside the part (default 1)")
+                        help=f"weight outside the part (default {DescriptorParams.lambda_out:g})")
     parser.add_argument("--padding", type=_non_negative_float, metavar="C",
-                        help="free cells around the part on each side (default 6)")
+                        help="free cells around the part on each side "
+                        f"(default {DescriptorParams.padding:g})")
     parser.add_argument("--tolerance", type=_positive_float, metavar="T",
-                        help="STEP tessellation tolerance in the file's unit (default: 1/1000 "
-                        "of the part's bounding-box diagonal)")
+                        help="STEP tessellation tolerance in the file's unit (default: the "
+                        "part's bounding-box diagonal / "
+                        f"{1 / DEFAULT_RELATIVE_TOLERANCE:g})")
     parser.add_argument("--body", metavar="NAME",
                         help="which solid of a multi-body STEP file")
     parser.add_argument("--backend", choices=choices("descriptor"),
-                        help="compute backend (default: SKELASM_BACKEND, else OpenCL when a "
-                        "device is there, else numba)")
+                        help="compute backend (default: SKELASM_BACKEND, else auto: "
+                        f"{describe_auto('descriptor')}, where its kernel builds)")
     parser.add_argument("--device", metavar="D",
                         help="OpenCL device: part of its name, or PLATFORM:DEVICE indices")
     parser.add_argument("--method", choices=("adaptive", "tree", "brute"), default="adaptive",
@@ -126,9 +131,10 @@ def _backend(args: argparse.Namespace):
     """A backend name for lazy creation (only on a cache miss), or the Backend for --device."""
     if args.device is None:
         return args.backend
-    from engine.backend import get_backend
+    from engine.descriptor.compute import resolve_backend
 
-    return get_backend(args.backend or "opencl", device=args.device)
+    # a device names an OpenCL device: the registry's choice on it (one rule for "auto")
+    return resolve_backend(args.backend or "opencl", device=args.device)
 
 
 def _progress(args: argparse.Namespace, label: str):

@@ -28,6 +28,7 @@ from engine.backend import (
     BackendError,
     backend_problem,
     check_choice,
+    describe_auto,
     get_backend,
     resolve,
 )
@@ -145,8 +146,8 @@ def choose(
     if chosen == "numpy":
         return kernels, "numpy", f"numpy (auto: no compiled backend{extra})"
     _tune_threads(kernels[chosen], table)
-    return kernels, chosen, (f"{kernels[chosen].describe()} (auto: OpenCL on a GPU, else "
-                             f"numba, else numpy{extra})")
+    return kernels, chosen, (f"{kernels[chosen].describe()} (auto: "
+                             f"{describe_auto('per_pose')}{extra})")
 
 
 def _tune_threads(kernel: Any, table: ModeTable) -> None:

@@ -177,12 +177,13 @@ def _kernel_builds(backend: Backend) -> bool:
     return False
 
 
-def resolve_backend(backend: BackendLike = None) -> Backend:
+def resolve_backend(backend: BackendLike = None, device: str | None = None) -> Backend:
     """The backend that computes a descriptor: ``engine.backend.resolve("descriptor", ...)``.
 
     None or "auto" take the registry's choice for the descriptor (OpenCL where a device
     compiles its kernel, else numba, its reference); a name or a Backend is used as given
-    and fails with its own error.
+    and fails with its own error. ``device`` picks the OpenCL device (``SKELASM_DEVICE``
+    by default).
 
     Raises
     ------
@@ -194,7 +195,7 @@ def resolve_backend(backend: BackendLike = None) -> Backend:
     if not (backend is None or isinstance(backend, (str, Backend))):
         raise ValueError(f"backend must be None, a Backend or one of "
                          f"{', '.join(choices('descriptor'))}; got {backend!r}")
-    return resolve("descriptor", backend, usable=_kernel_builds)
+    return resolve("descriptor", backend, device, usable=_kernel_builds)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,14 @@ def test_unknown_backend_names_the_valid_ones():
 
 def test_environment_variable_forces_backend(monkeypatch):
     monkeypatch.setenv("SKELASM_BACKEND", "numpy")
-    assert backend_mod.get_backend().name == "numpy"
+    assert backend_mod.resolve("per_pose").name == "numpy"
+
+
+def test_auto_is_chosen_per_capability_only():
+    """One meaning of "auto": resolve(capability); get_backend makes backends by name."""
+    with pytest.raises(ValueError, match="per capability"):
+        backend_mod.get_backend("auto")
+    assert not hasattr(backend_mod, "AUTO_ORDER")  # no second, capability-free order
 
 
 @pytest.mark.skipif("opencl" not in backend_mod.available_backends(), reason="no OpenCL device")
@@ -73,8 +80,10 @@ def test_missing_backend_fails_only_when_asked_for_with_its_original_error(fresh
         raise original
 
     monkeypatch.setitem(fresh_registry._FACTORIES, "numba", broken)
+    monkeypatch.setitem(fresh_registry.CAPABILITIES, "per_pose",
+                        fresh_registry.Capability("per_pose", ("numba", "numpy")))
     # nothing fails until numba is asked for: auto passes over it
-    assert fresh_registry.get_backend("auto", order=("numba", "numpy")).name == "numpy"
+    assert fresh_registry.resolve("per_pose").name == "numpy"
     assert "numba" not in fresh_registry.available_backends()
     with pytest.raises(fresh_registry.BackendError, match="simulated") as info:
         fresh_registry.get_backend("numba")
@@ -85,13 +94,13 @@ def test_missing_backend_fails_only_when_asked_for_with_its_original_error(fresh
     assert again.value.__cause__ is original
 
 
-def test_auto_takes_the_first_backend_of_the_order_that_works(fresh_registry):
+def test_auto_takes_the_first_backend_of_the_order_that_works(fresh_registry, monkeypatch):
     pytest.importorskip("numba")
-    assert fresh_registry.get_backend("auto", order=("numba", "numpy")).name == "numba"
-    assert fresh_registry.get_backend("auto", order=("numpy", "numba")).name == "numpy"
-    first = fresh_registry.available_backends()
-    expected = next(n for n in fresh_registry.AUTO_ORDER if n in first)
-    assert fresh_registry.get_backend().name == expected
+    caps, cap = fresh_registry.CAPABILITIES, fresh_registry.Capability
+    monkeypatch.setitem(caps, "per_pose", cap("per_pose", ("numba", "numpy")))
+    assert fresh_registry.resolve("per_pose").name == "numba"
+    monkeypatch.setitem(caps, "per_pose", cap("per_pose", ("numpy", "numba")))
+    assert fresh_registry.resolve("per_pose").name == "numpy"
 
 
 def test_names_are_checked_in_one_place():
@@ -167,23 +176,32 @@ def test_the_environment_default_is_the_capabilitys_reference_where_it_lacks_it(
         fresh_registry.resolve("descriptor", fresh_registry.get_backend("numpy"))
 
 
-def test_commands_and_benchmarks_offer_the_registrys_choices():
+def _options(parser, path=()):
+    """(command path, action) for every option of ``parser`` and of its subcommands."""
     import argparse
 
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _options(sub, (*path, name))
+        else:
+            yield path, action
+
+
+def test_commands_and_benchmarks_offer_the_registrys_choices():
     from app.cli import build_parser
 
-    parser = build_parser()
-    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     offered = {}
-    for name, sub in subparsers.choices.items():
-        for action in sub._actions:
-            if action.dest in ("backend", "backends") and action.choices is not None:
-                offered[name] = tuple(action.choices)
-    assert offered, "no command offers a backend: the check looks in the wrong place"
+    for path, action in _options(build_parser()):
+        if action.dest in ("backend", "backends"):
+            offered[" ".join(path)] = action.choices
+    # the benchmarks are subcommands of `skelasm bench`: they are looked at too
+    assert {"evaluate", "precompute", "bench loop", "bench correlation"} <= set(offered), offered
     per_pose, descriptor = backend_mod.choices("per_pose"), backend_mod.choices("descriptor")
     for name, names in offered.items():
-        assert set(names) in (set(per_pose), set(descriptor), set(descriptor) - {"auto"}), (
-            name, names)
+        assert names is not None, f"{name}: a backend option without the registry's choices"
+        assert set(names) in (set(per_pose), set(descriptor), set(per_pose) - {"auto"},
+                              set(descriptor) - {"auto"}), (name, names)
 
 
 def test_no_module_declares_its_own_list_of_backends():
