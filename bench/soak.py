@@ -39,7 +39,7 @@ with open(sys.argv[3], "w") as out:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``skelasm bench soak`` to ``parser``."""
     parser.add_argument("--minutes", type=float, default=15.0,
-                        help="how long the window runs with a dragged proxy (default 15)")
+                        help="how long the window runs with a dragged proxy (default %(default)g)")
     parser.add_argument("--scene", default=str(DEFAULT_SCENE),
                         help="scene file (default: the peg-in-hole example)")
     parser.add_argument("--json", action="store_true", help="print one JSON object at the end")

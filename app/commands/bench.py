@@ -13,7 +13,7 @@ BENCHMARKS = {
     "descriptor": "seconds per part to compute descriptors, per backend, and the error",
     "correlation": "microseconds per 6-DOF evaluation against accuracy, per mode count",
     "loop": "achieved engine rate and period distribution, headless or with the GUI",
-    "soak": "the window with its engine and a dragged proxy for minutes (default 15)",
+    "soak": "the window with its engine and a dragged proxy for minutes",
     "seating": "real CAD pairs pushed misaimed: final errors, guided and collision-only",
     "accuracy": "error against time for every accuracy dial (K, grid, sigma, quadrature, "
                 "interpolation, backend)",

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 
 from app.commands.arguments import finite_float
+from app.gui import SCREENSHOT_AFTER
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="scene (.toml) or part file (STEP, STL, OBJ, PLY, OFF)")
     parser.add_argument("--screenshot", metavar="OUT.png", default=None,
                         help="save a picture of the whole window (after --quit-after seconds, "
-                        "default 5) and quit")
+                        f"default {SCREENSHOT_AFTER:g}) and quit")
     parser.add_argument("--quit-after", metavar="SECONDS", type=finite_float, default=None,
                         help="quit after this many seconds")
     parser.add_argument("--engine", choices=("process", "thread"), default="process",

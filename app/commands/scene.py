@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 
 from app.commands.arguments import finite_float
+from engine.params import DEFAULT_UNIT
 
 #: Seconds the written push trajectory takes from the start pose to the seat.
 PUSH_SECONDS = 3.0
@@ -33,14 +34,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     new.add_argument("fixed", help="part 1, the fixed part")
     new.add_argument("moving", help="part 2, the part you move")
     new.add_argument("-o", "--output", required=True, help="scene file to write (.toml)")
-    new.add_argument("--unit", default="mm", help="the scene's length unit (default mm); mesh "
+    new.add_argument("--unit", default=DEFAULT_UNIT, help="the scene's length unit (default "
+                     f"{DEFAULT_UNIT}); mesh "
                      "files are read in it, STEP files in their header's unit, converted")
     new.add_argument("--assembled", nargs=6, type=finite_float, default=None,
                      metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
                      help="part 2 relative to part 1 when assembled (default: as drawn)")
     new.add_argument("--insertion-axis", nargs=3, type=finite_float, default=(0.0, 0.0, -1.0),
                      metavar=("X", "Y", "Z"), help="direction part 2 travels to seat, part 1's "
-                     "frame (default: 0 0 -1, down)")
+                     "frame (default: %(default)s, down)")
     new.add_argument("--grid", type=int, default=None,
                      help="descriptor samples along the largest part's longest side (default: "
                      "chosen from the fit's width; the descriptor's cost grows with its cube)")

@@ -8,6 +8,8 @@ import socket
 import sys
 from pathlib import Path
 
+from app.gui import SCREENSHOT_AFTER
+
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
 
 
@@ -86,7 +88,7 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
     """Open the window on ``scene`` (default: the peg-in-hole example) and run the event loop.
 
     With ``quit_after`` seconds, the window saves ``screenshot`` (if given) and quits then;
-    with only ``screenshot``, it does so after 5 seconds.
+    with only ``screenshot``, it does so after :data:`app.gui.SCREENSHOT_AFTER` seconds.
     """
     problem = check_display()
     if problem:
@@ -107,7 +109,7 @@ def run(scene: str | None = None, *, screenshot: str | None = None,
         print(f"skelasm gui: {window.last_error}", file=sys.stderr)
         status["code"] = 2 if quit_after is not None or screenshot else 0
     if screenshot and quit_after is None:
-        quit_after = 5.0
+        quit_after = SCREENSHOT_AFTER
     if quit_after is not None:
         def finish() -> None:
             if screenshot:

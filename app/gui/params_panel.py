@@ -24,7 +24,16 @@ from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import SliderField
 from engine import runtime
-from engine.params import AXES, CONTROLS, GUIDANCE, CouplingParams, DescriptorParams, Effects
+from engine.params import (
+    AXES,
+    CONTROLS,
+    DEFAULT_UNIT,
+    GUIDANCE,
+    CouplingParams,
+    DescriptorParams,
+    Effects,
+    gravity_vector,
+)
 
 
 class ParamsPanel(QtWidgets.QWidget):
@@ -46,8 +55,8 @@ class ParamsPanel(QtWidgets.QWidget):
         #: The scene's descriptor parameters: a recompute sends them with the panel's sigma
         #: and penalty, whole (the object built here reaches the kernels).
         self._descriptor = DescriptorParams()
-        # gravity in scene units per s^2 (mm until a scene says otherwise)
-        self._gravity_vector: tuple[float, float, float] = (0.0, 0.0, -9810.0)
+        # gravity in scene units per s^2 (the default unit until a scene says otherwise)
+        self._gravity_vector: tuple[float, float, float] = gravity_vector(DEFAULT_UNIT)
         lay = QtWidgets.QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
 
@@ -198,8 +207,6 @@ class ParamsPanel(QtWidgets.QWidget):
         self.kappa.setEnabled(kappa is not None)
         if kappa is not None:
             self.kappa.setValueSilently(kappa)
-        from engine.params import gravity_vector
-
         self._gravity_vector = gravity_vector(config.units)
         self.set_effects(config.effects, emit=False)
         self.set_progress(None)

@@ -15,6 +15,7 @@ import numpy as np
 from PySide6 import QtCore, QtWidgets
 
 from engine import pose as posemath
+from engine.params import DEFAULT_UNIT
 
 
 class PoseDialog(QtWidgets.QDialog):
@@ -31,7 +32,7 @@ class PoseDialog(QtWidgets.QDialog):
     move_proxy = QtCore.Signal(object)
     place_part = QtCore.Signal(object)
 
-    def __init__(self, parent=None, *, unit: str = "mm", pivot=(0.0, 0.0, 0.0)):
+    def __init__(self, parent=None, *, unit: str = DEFAULT_UNIT, pivot=(0.0, 0.0, 0.0)):
         super().__init__(parent)
         self.pivot = np.asarray(pivot, float).reshape(3)
         self.setWindowTitle("Pose of the moving part")

@@ -400,7 +400,8 @@ def _descriptor(d: _Table) -> DescriptorParams:
         raise d.fail("sigma", f"sigma = {sigma:g} in [descriptor] is above {SIGMA_GRID_MAX:g}: "
                               "each sample near the surface then costs 50 ms or more, hours "
                               "for a grid, while the density only scales as 1/sigma",
-                     f"use sigma from {SIGMA_RANGE[0]:g} to {SIGMA_GRID_MAX:g} (default 0.5)")
+                     f"use sigma from {SIGMA_RANGE[0]:g} to {SIGMA_GRID_MAX:g} "
+                     f"(default {base.sigma:g})")
     return d.build(
         DescriptorParams,
         sigma=sigma,
