@@ -192,6 +192,8 @@ def compute_landscape(
     *,
     forces: bool = True,
     table: ModeTable | None = None,
+    lattice: int | None = None,
+    real: bool = False,
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> Landscape:
@@ -216,6 +218,16 @@ def compute_landscape(
     table : ModeTable, optional
         The current truncation, whose mode list is reused when it has ``modes`` modes
         (selection "largest").
+    lattice : int, optional
+        Samples per axis of the translation lattice (default ``N``, the FFT size: a step
+        of ``h``). The kept modes are band-limited, so any even ``M`` above twice the
+        largest kept ``|k|`` samples the same function over the same period ``N h`` at a
+        step of ``N h / M``, by an ``M^3`` transform instead of ``N^3`` (the rotation
+        search scans at ``M`` near ``2 K``).
+    real : bool
+        Inverse-transform only the Hermitian part of each spectrum (``irfftn``, half the
+        work): the energy and force are real parts, so the result is the same to float32
+        rounding. It costs a mirrored copy of each ``M^3`` spectrum.
     progress, cancel
         Fractions 0..1; a cancel returning True raises :class:`engine.errors.Cancelled`.
 
@@ -240,7 +252,8 @@ def compute_landscape(
                              f"{np.array2string(rot, precision=4)}")
     step(0.0)
     try:
-        return _landscape(spectra, rot, modes, forces, table, step, start)
+        return _landscape(spectra, rot, modes, forces, table, step, start,
+                          lattice=lattice, real=real)
     except MemoryError as exc:
         n = spectra.geometry.size
         raise LandscapeError(
@@ -271,27 +284,49 @@ def _centring_phase(sel: tuple[np.ndarray, ...], n: int) -> np.ndarray:
     return np.where(odd % 2 == 1, np.float32(-1.0), np.float32(1.0))
 
 
+def _real_ifft(spectrum: np.ndarray) -> np.ndarray:
+    """``Re ifftn(spectrum)`` (M, M, M) by ``irfftn`` of its Hermitian part's half."""
+    m = spectrum.shape[0]
+    neg = (-np.arange(m)) % m
+    half = m // 2 + 1
+    mirrored = spectrum[np.ix_(neg, neg, neg[:half])]  # S(-k) on the half the transform reads
+    folded = np.add(spectrum[:, :, :half], np.conj(mirrored, out=mirrored), out=mirrored)
+    folded *= np.float32(0.5)
+    return scipy.fft.irfftn(folded, s=spectrum.shape, overwrite_x=True,
+                            workers=thread_budget())
+
+
 def _landscape(
     spectra: Spectra, rot: np.ndarray, modes: int, forces: bool, table: ModeTable | None,
-    step: Callable[[float], None], start: float,
+    step: Callable[[float], None], start: float, *, lattice: int | None = None,
+    real: bool = False,
 ) -> Landscape:
     g = spectra.geometry
-    n = g.size
-    h = g.spacing
-    k_modes = min(int(modes), n)
+    big = g.size
+    k_modes = min(int(modes), big)
     if k_modes < 1:
         raise LandscapeError(f"modes per axis must be at least 1, got {modes}")
+    n = big if lattice is None else int(lattice)
+    if n != big:
+        widest = (k_modes // 2 if spectra.selection == "cube"
+                  else int(np.abs(largest_modes(spectra, k_modes)[0]).max()))
+        if n % 2 or n <= 2 * widest or n > big:
+            raise LandscapeError(
+                f"a translation lattice of {n} samples cannot hold modes up to |k| = "
+                f"{widest} of an FFT of {big}: ask for an even size from {2 * widest + 2} "
+                f"to {big}")
+    h = g.n_h / n  # the lattice step: g.spacing when n is the FFT size
     if spectra.selection == "cube":
-        kept = kept_indices(k_modes, n)
+        kept = kept_indices(k_modes, big)
         wrapped = np.mod(kept, n)
         sel: tuple[np.ndarray, ...] = np.ix_(wrapped, wrapped, wrapped)
+        in_fixed = np.ix_(*(np.mod(kept, big),) * 3)  # part 1's spectrum has N per axis
         kf = kept.astype(np.float64)
-        values = np.empty((len(kept),) * 3, dtype=np.complex64)
-        ky, kz = np.meshgrid(kf, kf, indexing="ij")
-        for i, kx in enumerate(kf):
-            kvec = np.stack([np.full(ky.size, kx), ky.ravel(), kz.ravel()], axis=1)
-            values[i] = interpolate_rows(spectra, kvec @ rot, cube_reach(k_modes),
-                                         False)[0].reshape(ky.shape)
+        # every kept mode in one call: per call the interpolation's numpy overhead was
+        # most of a landscape's time at the search's K (13 calls of 169 rows at K = 12)
+        kvec = np.stack(np.meshgrid(kf, kf, kf, indexing="ij"), axis=-1).reshape(-1, 3)
+        values = interpolate_rows(spectra, kvec @ rot, cube_reach(k_modes),
+                                  False)[0].astype(np.complex64).reshape((len(kept),) * 3)
     else:
         if table is not None and table.modes == k_modes and table.mode_k is not None:
             kvec_int, reach = table.mode_k.astype(np.int64), table.reach
@@ -299,10 +334,11 @@ def _landscape(
             kvec_int, reach = largest_modes(spectra, k_modes)
         wrapped = np.mod(kvec_int, n)
         sel = (wrapped[:, 0], wrapped[:, 1], wrapped[:, 2])
+        in_fixed = tuple(np.mod(kvec_int[:, a], big) for a in range(3))
         values = interpolate_rows(spectra, kvec_int.astype(np.float64) @ rot, reach,
                                   False)[0].astype(np.complex64)
     step(0.3)
-    coeff = spectra.fixed.values[sel].astype(np.complex64)
+    coeff = spectra.fixed.values[in_fixed].astype(np.complex64)
     if spectra.selection == "cube":
         coeff *= cube_weights(k_modes).astype(np.float32)  # an even band's ends: one half
     # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N), with t0 + R c2 - c1 = 0,
@@ -327,14 +363,16 @@ def _landscape(
             shape = [1, 1, 1]
             shape[a] = n
             np.multiply(spectrum, np.complex64(2j * np.pi) * freq.reshape(shape), out=work)
-            part = scipy.fft.ifftn(work, overwrite_x=True, workers=thread_budget())
-            np.multiply(part.real, g.kappa * scale, out=force[a])
+            part = (_real_ifft(work) if real
+                    else scipy.fft.ifftn(work, overwrite_x=True, workers=thread_budget()).real)
+            np.multiply(part, g.kappa * scale, out=force[a])
             del part
             step(0.15 * (a + 1) + 0.3)
         del work
-    field = scipy.fft.ifftn(spectrum, overwrite_x=True, workers=thread_budget())
+    field = (_real_ifft(spectrum) if real
+             else scipy.fft.ifftn(spectrum, overwrite_x=True, workers=thread_budget()).real)
     del spectrum
-    energy = np.multiply(field.real, -g.kappa * scale, dtype=np.float32)
+    energy = np.multiply(field, -g.kappa * scale, dtype=np.float32)
     del field
     step(0.9)
     t0 = g.centre_fixed - rot @ g.centre_moving
@@ -342,7 +380,7 @@ def _landscape(
             t0[2] + h * (np.arange(n) - n // 2))
     # zero where the grid boxes cannot overlap (the per-pose path's test)
     offset, reach = overlap_bounds(rot, g.centre_fixed, g.centre_moving, g.half_fixed,
-                                   g.half_moving, h)
+                                   g.half_moving, g.spacing)
     masks = [np.abs(axes[a] + offset[a]) < reach[a] for a in range(3)]
     inside = masks[0][:, None, None] & masks[1][None, :, None] & masks[2][None, None, :]
     np.multiply(energy, inside, out=energy)  # a ufunc: the lock released, unlike a mask

@@ -1,0 +1,264 @@
+"""The search for where part 2 fits on part 1: scan, cluster, refine, classify.
+
+Works on a :class:`~engine.correlation.Correlator` of the pair (part 1 fixed, part 2
+moving; its spectra are read, never changed) and :class:`SearchSettings`. Stages, coarse to
+fine:
+
+1. scan: every rotation of the Hopf grid at ``settings.level``, one landscape each at
+   ``scan_modes`` on a lattice of about ``2 scan_modes`` translations per axis, the
+   ``per_rotation`` lowest separate minima kept (:mod:`engine.search.scan`), in blocks that
+   run here or on Dask (:mod:`engine.search.work`);
+2. the ``keep`` lowest candidates, clustered by where they put part 2's surface
+   (:mod:`engine.search.cluster`), ranked by their best energy;
+3. each of the best ``clusters`` clusters' leader refined: down the rotation grid's
+   children at the refinement's modes, then a local minimisation by force and torque
+   (:mod:`engine.search.refine`); refined fits that meet merge;
+4. the joint kind of each fit (:mod:`engine.search.joint`).
+
+The same settings and seed give the same fits, wherever the blocks run.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.correlation import Correlator
+from engine.errors import Cancelled
+from engine.pose import rotation_vector
+from engine.search.cluster import cluster_poses, surface_spread
+from engine.search.joint import Joint, find_joint
+from engine.search.refine import descend, minimise
+from engine.search.rotations import RotationGrid
+from engine.search.scan import BlockResult, Candidates, ScanBlock
+from engine.search.settings import SearchSettings
+from engine.search.work import BlockWork, Shared
+
+#: progress(fraction done, seconds left (None until it can be estimated)).
+Progress = Callable[[float, float | None], None]
+
+#: Share of the whole the scan stands for in the progress fraction.
+SCAN_SHARE = 0.85
+
+
+@dataclass(frozen=True)
+class Fit:
+    """One fit found, part 2 in part 1's frame.
+
+    Attributes
+    ----------
+    rank : int
+        1 for the lowest energy.
+    rotation : (3, 3) float64
+    translation : (3,) float64
+    energy : float
+        Per pose at the refinement's modes.
+    scan_energy : float
+        The cluster leader's energy in the scan.
+    cluster_size : int
+        Scan candidates in its cluster (clusters that refined to this fit added).
+    joint : Joint
+    seconds : float
+        Time its refinement and classification took.
+    """
+
+    rank: int
+    rotation: np.ndarray
+    translation: np.ndarray
+    energy: float
+    scan_energy: float
+    cluster_size: int
+    joint: Joint
+    seconds: float
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(6,) float64 ``(tx, ty, tz, rx, ry, rz)``."""
+        return np.concatenate([self.translation, rotation_vector(self.rotation)])
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """The ranked fits and what the search did to find them.
+
+    Attributes
+    ----------
+    fits : tuple of Fit
+    settings : SearchSettings
+    modes : int
+        The refinement's modes.
+    lattice : int
+        The scan's translation samples per axis; ``step`` their spacing (scene unit).
+    step : float
+    candidates, clusters : int
+        Candidates kept from the scan; clusters they formed.
+    scan_seconds, seconds : float
+        The scan's time and the whole search's.
+    """
+
+    fits: tuple[Fit, ...]
+    settings: SearchSettings
+    modes: int
+    lattice: int
+    step: float
+    candidates: int
+    clusters: int
+    scan_seconds: float
+    seconds: float
+
+    @property
+    def seconds_per_rotation(self) -> float:
+        """The scan's time per rotation."""
+        return self.scan_seconds / max(1, self.settings.rotations)
+
+
+def default_points(correlator: Correlator) -> np.ndarray:
+    """(9, 3) part 2's grid box corners and centre, its frame (no symmetry seen by them)."""
+    c, half = correlator.centre_moving, correlator.half_moving
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    return np.vstack([c + signs * half, c])
+
+
+def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
+              points: np.ndarray | None = None, work: BlockWork | None = None,
+              progress: Progress | None = None,
+              cancel: Callable[[], bool] | None = None) -> SearchResult:
+    """The ``settings.top`` lowest-energy fits of part 2 on part 1 (see the module docstring).
+
+    Parameters
+    ----------
+    correlator : Correlator
+        The pair; its modes are the refinement's unless ``settings.modes`` says otherwise.
+    settings : SearchSettings, optional
+    points : (n, 3) float64, optional
+        Points of part 2's surface in its own frame, for clustering alike poses (its
+        symmetries); default: its grid box's corners (no symmetry).
+    work : BlockWork, optional
+        Where the scan's blocks run (:class:`~engine.search.distributed.DaskWork`);
+        default: here, in order.
+    progress : callable(fraction, seconds_left), optional
+    cancel : callable() -> bool, optional
+        Raises :class:`engine.errors.Cancelled` once it returns True.
+    """
+    s = settings or SearchSettings()
+    start = time.perf_counter()
+    fine = correlator if s.modes is None else correlator.with_modes(s.modes)
+    pts = default_points(correlator) if points is None else np.asarray(points, float)
+    size = surface_spread(pts)
+    grid = RotationGrid.from_seed(s.seed)
+
+    def report(fraction: float) -> None:
+        if cancel is not None and cancel():
+            raise Cancelled("the search was cancelled")
+        if progress is not None:
+            spent = time.perf_counter() - start
+            left = spent * (1.0 - fraction) / fraction if fraction > 0.02 else None
+            progress(min(1.0, fraction), left)
+
+    report(0.0)
+    lattice = s.scan_lattice()
+    found = _scan(correlator, grid, s, lattice, work,
+                  lambda f: report(SCAN_SHARE * f), cancel)
+    scan_seconds = time.perf_counter() - start
+    kept = found.best(s.keep)
+    rotations = grid.matrices(s.level, kept.rotation_index)
+    groups = cluster_poses(rotations, kept.translation, kept.energy, pts,
+                           s.cluster_radius * size)
+    fits: list[tuple[float, np.ndarray, np.ndarray, float, int, float]] = []
+    count = min(len(groups.leaders), max(s.clusters, s.top))
+    for i in range(count):
+        began = time.perf_counter()
+        row = int(groups.leaders[i])
+        lev, idx, t, _ = descend(
+            fine, grid, s.level, int(kept.rotation_index[row]), kept.translation[row],
+            levels=s.refine_levels, lattice=_even_above(2 * fine.modes),
+            reach=s.cluster_radius * size, cancel=cancel)
+        rot, t, energy, _ = minimise(fine, grid.matrix(lev, idx), t, length=0.5 * size)
+        fits.append((energy, rot, t, float(kept.energy[row]), len(groups.members[i]),
+                     time.perf_counter() - began))
+        report(SCAN_SHARE + (0.97 - SCAN_SHARE) * (i + 1) / count)
+    merged = _merge(fits, pts, s.cluster_radius * size)[:s.top]
+    out = []
+    for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged, start=1):
+        began = time.perf_counter()
+        joint = _joint(fine, rot, t, 0.5 * size)
+        out.append(Fit(rank, rot, t, energy, scan_energy, members, joint,
+                       seconds + time.perf_counter() - began))
+    report(1.0)
+    return SearchResult(
+        fits=tuple(out), settings=s, modes=fine.modes, lattice=lattice,
+        step=fine.size * fine.spacing / lattice, candidates=len(kept),
+        clusters=len(groups.leaders), scan_seconds=scan_seconds,
+        seconds=time.perf_counter() - start)
+
+
+def _even_above(value: int) -> int:
+    return value + 2 - value % 2
+
+
+def _joint(fine: Correlator, rot: np.ndarray, t: np.ndarray, length: float) -> Joint:
+    def gradient(r: np.ndarray, tt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ev = fine.evaluate(r, tt)
+        return ev.force, (ev.torque if ev.torque is not None else np.zeros(3))
+
+    def energy(r: np.ndarray, tt: np.ndarray) -> float:
+        return float(fine.evaluate(r, tt).energy)
+
+    return find_joint(energy, gradient, rot, t, fine.centre_moving, step=fine.spacing,
+                      length=length)
+
+
+def _merge(fits: list[tuple[float, np.ndarray, np.ndarray, float, int, float]],
+           points: np.ndarray, radius: float
+           ) -> list[tuple[float, np.ndarray, np.ndarray, float, int, float]]:
+    """Refined fits that ended alike, as one (the lowest; cluster sizes added)."""
+    if not fits:
+        return []
+    groups = cluster_poses(np.stack([f[1] for f in fits]), np.stack([f[2] for f in fits]),
+                           np.array([f[0] for f in fits]), points, radius)
+    merged = []
+    for leader, members in zip(groups.leaders, groups.members, strict=True):
+        best = fits[int(leader)]
+        merged.append(best[:4] + (sum(fits[int(m)][4] for m in members),
+                                  sum(fits[int(m)][5] for m in members)))
+    return merged
+
+
+def _scan(correlator: Correlator, grid: RotationGrid, s: SearchSettings, lattice: int,
+          work: BlockWork | None, report: Callable[[float], None],
+          cancel: Callable[[], bool] | None) -> Candidates:
+    """The scan's candidates, block after block (in block order wherever they ran)."""
+    total = s.rotations
+    indices = np.arange(total, dtype=np.int64)
+    shared: Shared = (Shared("spectra", correlator.spectra) if work is None
+                      else work.share(correlator.spectra))
+    blocks = [ScanBlock(shared, grid, s.level, indices[i:i + s.chunk], s.scan_modes, lattice,
+                        s.per_rotation, number=n)
+              for n, i in enumerate(range(0, total, s.chunk))]
+    results: dict[int, BlockResult] = {}
+    done = 0
+    if work is None:
+        for block in blocks:
+            result = block(cancel)
+            results[result.number] = result
+            done += result.rotations
+            report(done / total)
+    else:
+        kinds = [f"search block {b.number}" for b in blocks]
+        for kind, block in zip(kinds, blocks, strict=True):
+            work.submit(kind, block)
+        try:
+            while len(results) < len(blocks):
+                work.wait_until_idle(0.2)
+                for result in work.responses():
+                    results[result.number] = result
+                    done += result.rotations
+                report(done / total)
+        except BaseException:
+            for kind in kinds:
+                work.cancel(kind)
+            raise
+    return Candidates.join([results[n].candidates for n in sorted(results)])
