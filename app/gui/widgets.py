@@ -3,10 +3,58 @@
 from __future__ import annotations
 
 import math
+import re
 
-from PySide6 import QtCore, QtWidgets
+from PySide6 import QtCore, QtGui, QtWidgets
 
 from engine.params import ControlRange
+
+
+class SignificantSpinBox(QtWidgets.QDoubleSpinBox):
+    """A spin box that holds any double and shows it to ``digits`` significant digits.
+
+    A plain QDoubleSpinBox rounds its value to a fixed number of decimals: 4 decimals show
+    a kappa of 2e-5 as 0.0000. A logarithmic control spans decades, so its field shows
+    significant digits (``2e-05``, ``26.32``, ``5e+12``) and keeps the value it is given.
+    """
+
+    #: Qt's largest number of decimals: the value is then never rounded.
+    EXACT = 323
+
+    def __init__(self, digits: int, parent=None):
+        super().__init__(parent)
+        self.digits = int(digits)
+        self.setDecimals(self.EXACT)
+
+    def textFromValue(self, value: float) -> str:  # noqa: N802 (Qt naming)
+        """``value`` to :attr:`digits` significant digits."""
+        return f"{value:.{self.digits}g}"
+
+    def valueFromText(self, text: str) -> float:  # noqa: N802
+        """The number typed (any float notation), the suffix left out."""
+        try:
+            return float(self._number(text))
+        except ValueError:
+            return self.value()
+
+    def validate(self, text: str, pos: int):
+        """Acceptable: a number within the range; Intermediate: a number being typed."""
+        number = self._number(text)
+        try:
+            value = float(number)
+        except ValueError:
+            partial = re.fullmatch(r"[-+]?\d*\.?\d*(?:[eE][-+]?\d*)?", number)
+            state = QtGui.QValidator.Intermediate if partial else QtGui.QValidator.Invalid
+            return state, text, pos
+        if self.minimum() <= value <= self.maximum():
+            return QtGui.QValidator.Acceptable, text, pos
+        return QtGui.QValidator.Intermediate, text, pos
+
+    def _number(self, text: str) -> str:
+        suffix = self.suffix()
+        if suffix and text.endswith(suffix):
+            text = text[: -len(suffix)]
+        return text.strip()
 
 
 class SliderField(QtWidgets.QWidget):
@@ -48,6 +96,10 @@ class SliderField(QtWidgets.QWidget):
             self.field: QtWidgets.QAbstractSpinBox = QtWidgets.QSpinBox()
             self.field.setRange(int(lo), int(hi))
             self.field.setSingleStep(max(1, int(control.step)))
+        elif self.log:
+            self.field = SignificantSpinBox(control.decimals)
+            self.field.setRange(lo, hi)
+            self.field.setSingleStep(control.step)
         else:
             self.field = QtWidgets.QDoubleSpinBox()
             self.field.setDecimals(control.decimals)

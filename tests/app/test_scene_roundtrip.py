@@ -101,6 +101,32 @@ def test_an_exact_value_between_the_fields_decimals_is_kept(qtbot, tmp_path):
     assert again.descriptor.sigma == 0.43751 and again.descriptor.penalty == 2.00049
 
 
+def test_a_value_decades_below_the_fields_decimals_is_shown(qtbot, tmp_path):
+    """A logarithmic field shows significant digits: a kappa of 2.5e-5 is not "0.0000"."""
+    path = _scene_with(tmp_path, simulation={"kappa": 2.5e-5},
+                       descriptor={"penalty": 1.5e-3})
+    scene, again, panel = _open_and_save(qtbot, path, tmp_path / "saved.toml")
+    assert panel.kappa.field.text() == "2.5e-05" and panel.kappa.field.value() == 2.5e-5
+    assert panel.penalty.field.text() == "0.0015"
+    assert again.config.simulation.kappa == 2.5e-5 and again.descriptor.penalty == 1.5e-3
+    panel.kappa.field.lineEdit().setText("7.25e-7")  # typed in the same notation
+    panel.kappa.field.interpretText()
+    assert panel.kappa.value() == 7.25e-7
+
+
+def test_the_panel_starts_from_the_engines_defaults(qtbot):
+    from engine.params import DEFAULT_UNIT, Effects, gravity_vector
+
+    panel = ParamsPanel()
+    qtbot.addWidget(panel)
+    for name, widget in (("modes", panel.modes), ("sigma", panel.sigma),
+                         ("penalty", panel.penalty), ("coupling_hz", panel.coupling)):
+        assert widget.value() == CONTROLS[name].default, name
+    assert panel.guidance.currentText() == Effects().guidance
+    panel.gravity.setChecked(True)
+    assert panel.scene_settings()["effects"].gravity == gravity_vector(DEFAULT_UNIT)
+
+
 def test_a_scale_free_kappa_is_saved_as_the_default(qtbot, tmp_path):
     path = _scene_with(tmp_path, simulation={"kappa": 2.5})
     scene = load_scene(path)
