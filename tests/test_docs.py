@@ -27,6 +27,10 @@ DIARY = [
     (re.compile(r"\b(?:in one|same|this|earlier) session\b"), "a working session"),
     (re.compile(r"\bbug \d+ of issue\b|\bissue \d+\b"), "an issue's diary"),
     (re.compile(r"/work/|/tmp/bash_jobs"), "this machine's paths"),
+    (re.compile(r"\bused to (?:be|cost|end|make|overflow|run|say|take|wait)\b"),
+     "how it used to work"),
+    (re.compile(r"(?m)\b(?:after|before) the fix\b|\bfound there and fixed\b|^\W*[Bb]efore:"),
+     "a fix's story"),
 ]
 
 LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
@@ -76,8 +80,11 @@ def test_every_relative_link_resolves(page: Path) -> None:
 
 def test_the_checks_catch_what_they_look_for(tmp_path: Path) -> None:
     """Each pattern fires on the kind of line it is meant for (so the checks can fail)."""
-    diary = "Session of 2026-11-24, same session, bug 3 of issue 10, /work/main/docs"
+    diary = ("Session of 2026-11-24, same session, bug 3 of issue 10, /work/main/docs; "
+             "it used to overflow; after the fix: 3 s\nBefore: 9 s")
     assert {what for pattern, what in DIARY if pattern.search(diary)} == {
         what for _, what in DIARY}
     assert not any(p.search("the UDP bridge's session token") for p, _ in DIARY)
+    assert not any(p.search("the step used to integrate; the fix: a coarser grid")
+                   for p, _ in DIARY)
     assert LINK.findall("[a](b.md#c) and [d](https://e)") == ["b.md", "https://e"]
