@@ -1,4 +1,4 @@
-"""The `skelasm` command: precompute, evaluate, landscape, simulate, bench, report, gui."""
+"""The `skelasm` command: precompute, evaluate, landscape, search, simulate, bench, report, gui."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ import sys
 import threading
 
 #: Subcommand name -> module in app.commands providing add_parser(subparsers) and run(args).
-COMMANDS = ("scene", "precompute", "evaluate", "landscape", "simulate", "bench", "report", "gui")
+COMMANDS = ("scene", "precompute", "evaluate", "landscape", "search", "simulate", "bench", "report",
+            "gui")
 
 
 class UserError(Exception):

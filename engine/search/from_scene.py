@@ -22,12 +22,14 @@ SURFACE_POINTS = 256
 
 
 def search_scene(scene: Scene | str | Path, settings: SearchSettings | None = None, *,
-                 modes: int | None = None, work: BlockWork | None = None,
+                 modes: int | None = None, kappa: float = 1.0,
+                 work: BlockWork | None = None,
                  progress: Progress | None = None,
                  cancel: Callable[[], bool] | None = None) -> SearchResult:
     """:func:`~engine.search.driver.find_fits` for a scene's two parts.
 
-    ``modes``: the refinement's modes (default the scene's ``[correlation] modes``).
+    ``modes``: the refinement's modes (default the scene's ``[correlation] modes``);
+    ``kappa``: the energy scale (:class:`~engine.correlation.Correlator`).
     Progress: the preparation (descriptors, spectra) is the first tenth.
     """
     if not isinstance(scene, Scene):
@@ -40,8 +42,8 @@ def search_scene(scene: Scene | str | Path, settings: SearchSettings | None = No
         if progress is not None:
             progress(0.1 * fraction, None)
 
-    correlator = correlator_for_scene(scene, parts=parts, modes=modes, progress=prepared,
-                                      cancel=cancel)
+    correlator = correlator_for_scene(scene, parts=parts, modes=modes, kappa=kappa,
+                                      progress=prepared, cancel=cancel)
     points = surface_points(parts[1].vertices, parts[1].faces, SURFACE_POINTS, seed=0)
 
     def searching(fraction: float, left: float | None) -> None:
