@@ -118,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
     joint = find_free_axes(lambda r, tr: evaluate(r, tr).energy, pose, centre,
                            float(np.linalg.norm(np.ptp(moving.vertices, axis=0))), corr.spacing)
     held = hold_point(handle)  # where the simulation's coupling holds the part
+    coupling = _coupling(handle, corr, scale.kappa)
     if scene.parts[-1].hold is not None:
         hold_source = "scene"
     elif held is not None:
@@ -153,6 +154,9 @@ def run(args: argparse.Namespace) -> int:
         # the settings the scene leaves open, chosen from the parts, and why
         "chosen": [{"key": key, "value": value, "reason": reason}
                    for key, value, reason in scene.chosen],
+        # the coupling's gains the simulation would use, and why
+        "coupling": [{"key": key, "value": value, "reason": reason}
+                     for key, value, reason in coupling],
         # the repairs made to the parts (duplicates dropped, holes): what was evaluated
         "notes": [str(w) for part in handle.parts for w in part.warnings],
     }
@@ -193,7 +197,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"backend    {corr.backend_name}")
     for key, value, reason in scene.chosen:
         print(f"chosen     {key} = {value}: {reason}")
+    for key, value, reason in coupling:
+        print(f"coupling   {key} = {value:.4g}: {reason}")
     return 0
+
+
+def _coupling(handle, corr, kappa: float) -> list[tuple[str, float, str]]:
+    """The coupling's gains the simulation resolves for the moving part, with reasons."""
+    from engine.sim.build import coupling_choices, resolve_physics, rotational_stiffness
+    from engine.sim.fields import CorrelatorField
+
+    if len(handle.parts) < 2:
+        return []
+    moving = handle.parts[-1]
+    fit = (rotational_stiffness(CorrelatorField(corr, kappa), handle.scene.assembled_pose)
+           if corr.rotation and kappa > 0 else None)
+    physics = resolve_physics(handle.config, moving.vertices, moving.faces, kappa=kappa,
+                              geometric_rotation=fit)
+    return coupling_choices(handle.config, physics, fit)
 
 
 def progress_bar(

@@ -24,8 +24,10 @@ count K, the STEP chord tolerance and the rest follow from the parts:
      half-resolve the fit (its shortest wavelength between :data:`NEAR_WAVELENGTHS` and
      :data:`OUTLINE_WAVELENGTHS` of the fit's width), K is lowered until that wavelength is
      :data:`OUTLINE_WAVELENGTHS` widths: the part is drawn in by its outline;
-   - sigma, the padding and the penalty keep the engine's defaults (scale-free), and the
-     coupling holds the part at the middle of the fit (``engine.sim.build.hold_point``).
+   - sigma, the padding and the penalty keep the engine's values, which no size changes
+     (:func:`scale_free_choices` says why for each), and the coupling holds the part at the
+     middle of the fit (``engine.sim.build.hold_point``), its springs and damping from the
+     part's mass and inertia, the step and the fit's stiffness (``resolve_physics``).
 
 3. :func:`complete_scene` applies the choices the scene does not make itself (a value the
    file sets always wins), reloading STEP parts at the chosen tolerance, and records each
@@ -335,9 +337,32 @@ def complete_scene(scene: Scene) -> tuple[Scene, list[Part]]:
         correlation = replace(correlation, modes=settings.modes)
         chosen.append(("correlation.modes", str(settings.modes),
                        settings.reasons["correlation.modes"]))
+    chosen += [entry for entry in scale_free_choices(descriptor)
+               if not scene.gives(entry[0])]
     return (replace(scene, descriptor=descriptor, correlation=correlation,
                     chosen=scene.chosen + tuple(chosen)), parts)
 
 
+def scale_free_choices(descriptor: DescriptorParams) -> list[tuple[str, str, str]]:
+    """``(key, value, reason)`` for the descriptor's settings that no part's size changes.
+
+    sigma, the penalty and the padding are measured in the parts' own terms (a fraction of
+    the distance to the surface, a ratio of weights, cells of the grid chosen from the fit),
+    so the engine's values hold on any pair; each is said with why.
+    """
+    return [
+        ("descriptor.sigma", f"{descriptor.sigma:g}",
+         "the skeletal density's width relative to the distance to the surface, so the same "
+         "on a part of any size; the grid, chosen from the fit, sets how finely it is seen"),
+        ("descriptor.penalty", f"{descriptor.penalty:g}",
+         "an overlap weighs this many times a gap, a ratio of weights that no size changes; "
+         "floors and stops are held by the walls (docs/fine_level.md), so it stays moderate "
+         "(10 drew dovetails and T-slots off their ways)"),
+        ("descriptor.padding", f"{descriptor.padding:g} cells",
+         "the descriptor's outside tail fades within a few cells, so the periodic images of "
+         "the two parts stay apart over the landscape's range"),
+    ]
+
+
 __all__ = ["FitMeasure", "Settings", "choose_settings", "complete_scene", "measure_fit",
-           "modes_budget"]
+           "modes_budget", "scale_free_choices"]

@@ -595,6 +595,46 @@ def resolve_physics(
     return physics
 
 
+def coupling_choices(config: SimConfig, physics: Physics,
+                     geometric_rotation: float | None) -> list[tuple[str, float, str]]:
+    """``(key, value, reason)`` for the coupling's gains that the scene leaves open.
+
+    What :func:`resolve_physics` made of ``config`` for a part (``physics``) and the fit's
+    rotational stiffness per unit kappa measured at the seat (``geometric_rotation``), in
+    the scene's force, torque and length units. A gain the scene's ``[coupling]`` sets is
+    the scene's, and not listed.
+    """
+    c = config.coupling
+    f = c.frequency_hz
+    out: list[tuple[str, float, str]] = []
+    if c.stiffness is None:
+        out.append(("coupling.stiffness", physics.k_lin,
+                    f"the part's mass {physics.mass:.4g} held at {f:g} Hz, m (2 pi f)^2: "
+                    "the same motion in any unit"))
+    if c.angular_stiffness is None:
+        i_mean = float(np.trace(physics.inertia) / 3.0)
+        mass_based = i_mean * (2 * math.pi * f) ** 2
+        fit = None if geometric_rotation is None else physics.kappa * geometric_rotation
+        if fit is not None and physics.k_rot < mass_based * (1 - 1e-9):
+            floor = physics.k_rot <= MIN_ROTATION_FRACTION * mass_based * (1 + 1e-9)
+            why = (f"the fit's rotational stiffness at the seat, {fit:.4g}, over "
+                   f"{ROTATION_AUTHORITY:g}" + (f", raised to its floor ("
+                                               f"{100 * MIN_ROTATION_FRACTION:g} % of the "
+                                               "mass-based spring)" if floor else "")
+                   + ": within the hand's play the fit turns the part into line")
+        else:
+            why = (f"the part's mean inertia at {f:g} Hz, I (2 pi f)^2"
+                   + ("" if fit is None else f" (the fit, {fit:.4g} at the seat, is stiffer)"))
+        out.append(("coupling.angular_stiffness", physics.k_rot, why))
+        if physics.k_rot_hard > 0:
+            out.append(("coupling.hand_stiffness", physics.k_rot_hard,
+                        f"past {math.degrees(physics.rot_play):g} degrees from the hand, as "
+                        f"stiff as a {1000.0 / config.simulation.rate_hz:g} ms step integrates "
+                        "about the part's weakest axis: a torque at a hole's mouth cannot "
+                        "throw the part over"))
+    return out
+
+
 def rigid_body(physics: Physics) -> RigidBody:
     """The moving part's constant properties."""
     return RigidBody(physics.mass, physics.inertia, physics.centre)

@@ -274,6 +274,8 @@ def test_the_window_shows_the_settings_chosen_from_the_parts(make_window, tmp_pa
     win = make_window(tmp_path / "scene.toml")
     wait_until(lambda: win.session.handle is not None, 20000, "the scene")
     chosen = win.session.handle.scene.chosen
-    assert [key for key, _, _ in chosen] == ["descriptor.spacing", "correlation.modes"]
+    assert [key for key, _, _ in chosen] == ["descriptor.spacing", "correlation.modes",
+                                             "descriptor.sigma", "descriptor.penalty",
+                                             "descriptor.padding"]
     tip = win.params.toolTip()
     assert "correlation.modes = " in tip and "chosen, " in tip

@@ -17,6 +17,9 @@ from engine.loading import Part
 
 trimesh = pytest.importorskip("trimesh")
 
+#: The descriptor's settings no size changes, said with their reasons when a scene leaves them.
+SCALE_FREE = ["descriptor.sigma", "descriptor.penalty", "descriptor.padding"]
+
 
 def _part(mesh, name: str) -> Part:
     return Part(name=name, vertices=np.asarray(mesh.vertices, np.float64),
@@ -75,10 +78,11 @@ def _scene(block: Part, peg: Part, tmp_path, **given):
         files.append(path)
     specs = (PartSpec(name="block", file=files[0], pose=np.zeros(6), fixed=True),
              PartSpec(name="peg", file=files[1], pose=SEAT, fixed=False))
-    keys = {"grid": "descriptor.grid", "modes": "correlation.modes"}
+    keys = {"grid": "descriptor.grid", "modes": "correlation.modes", "sigma": "descriptor.sigma"}
     return Scene(path=tmp_path / "scene.toml", name="fit", parts=specs, assembled_pose=SEAT,
                  insertion_axis=AXIS,
-                 descriptor=DescriptorParams(grid=given.get("grid", 64)),
+                 descriptor=DescriptorParams(grid=given.get("grid", 64),
+                                             sigma=given.get("sigma", 0.5)),
                  correlation=CorrelationParams(modes=given.get("modes", 16)),
                  given=frozenset(keys[k] for k in given))
 
@@ -139,11 +143,16 @@ def test_what_the_user_gives_wins_and_the_rest_is_chosen(tmp_path):
     assert len(parts) == 2
     chosen, _ = complete_scene(_scene(block, peg, tmp_path, modes=12))
     assert chosen.modes == 12 and chosen.descriptor.spacing is not None
-    assert [key for key, _, _ in chosen.chosen] == ["descriptor.spacing"]
+    assert [key for key, _, _ in chosen.chosen] == ["descriptor.spacing", *SCALE_FREE]
     free, _ = complete_scene(_scene(block, peg, tmp_path))
     keys = [key for key, _, _ in free.chosen]
-    assert keys == ["descriptor.spacing", "correlation.modes"]
+    assert keys == ["descriptor.spacing", "correlation.modes", *SCALE_FREE]
     assert free.modes % 2 == 1 and all(reason for _, _, reason in free.chosen)
+    # a sigma the scene sets is the scene's: kept, and not said to be chosen
+    own, _ = complete_scene(_scene(block, peg, tmp_path, sigma=0.7))
+    assert own.descriptor.sigma == 0.7
+    assert [key for key, _, _ in own.chosen] == ["descriptor.spacing", "correlation.modes",
+                                                 "descriptor.penalty", "descriptor.padding"]
 
 
 def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypatch):
@@ -159,7 +168,7 @@ def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypa
     printed = capsys.readouterr().out
     assert "chose      descriptor.spacing" in printed and "chose      correlation.modes" in printed
     text = out.read_text()
-    assert text.count("# chosen: ") == 2
+    assert text.count("# chosen: ") == 2 + len(SCALE_FREE)
     back = load_scene(out)
     assert back.modes % 2 == 1 and back.descriptor.spacing is not None
     # read back, the choices are the file's own: nothing is chosen again
@@ -169,7 +178,7 @@ def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypa
     assert main(["scene", "new", str(scene.parts[0].file), str(scene.parts[1].file), "-o",
                  str(out2), "--assembled", *map(str, SEAT), "--modes", "14"]) == 0
     assert load_scene(out2).modes == 14
-    assert out2.read_text().count("# chosen: ") == 1
+    assert out2.read_text().count("# chosen: ") == 1 + len(SCALE_FREE)
 
 
 def test_a_band_that_would_half_resolve_the_fit_is_kept_at_its_outline(tmp_path):
@@ -230,6 +239,10 @@ def test_evaluate_reports_the_choices_of_a_scene_that_leaves_them_open(tmp_path,
                  "--backend", "numba"]) == 0
     out = json.loads(capsys.readouterr().out)
     keys = [c["key"] for c in out["chosen"]]
-    assert keys == ["descriptor.spacing", "correlation.modes"]
+    assert keys == ["descriptor.spacing", "correlation.modes", *SCALE_FREE]
     assert out["modes"] == int(out["chosen"][1]["value"]) and out["modes"] % 2 == 1
     assert all(c["reason"] for c in out["chosen"])
+    # and the coupling's gains the simulation would use, each with what decided it
+    gains = {c["key"]: c for c in out["coupling"]}
+    assert {"coupling.stiffness", "coupling.angular_stiffness"} <= set(gains)
+    assert all(c["value"] > 0 and c["reason"] for c in gains.values())

@@ -155,6 +155,37 @@ def test_fit_lowers_but_never_raises_the_rotational_coupling():
     assert soft_fit.c_rot == pytest.approx(math.sqrt(0.3) * stiff_fit.c_rot)
 
 
+def test_the_coupling_s_gains_are_listed_with_what_decided_each():
+    from engine.params import CouplingParams
+    from engine.sim.build import ROTATION_AUTHORITY, coupling_choices
+
+    v, f = box()
+    config = SimConfig()
+    mass_based = resolve_physics(config, v, f, kappa=2.0).k_rot
+
+    def listed(fit, cfg=config):
+        physics = resolve_physics(cfg, v, f, kappa=2.0, geometric_rotation=fit)
+        return physics, {key: (value, why) for key, value, why in
+                         coupling_choices(cfg, physics, fit)}
+
+    physics, stiff = listed(1e9)
+    assert stiff["coupling.stiffness"][0] == physics.k_lin
+    assert stiff["coupling.angular_stiffness"][0] == pytest.approx(mass_based)
+    assert "I (2 pi f)^2" in stiff["coupling.angular_stiffness"][1]
+    assert "is stiffer" in stiff["coupling.angular_stiffness"][1]
+    assert stiff["coupling.hand_stiffness"][0] == physics.k_rot_hard > mass_based
+    _, soft = listed(0.3 * mass_based * ROTATION_AUTHORITY / 2.0)
+    assert soft["coupling.angular_stiffness"][0] == pytest.approx(0.3 * mass_based)
+    assert "over 100" in soft["coupling.angular_stiffness"][1]
+    assert "floor" not in soft["coupling.angular_stiffness"][1]
+    _, flat = listed(1e-9)
+    assert "floor" in flat["coupling.angular_stiffness"][1]
+    # gains the scene sets are the scene's, not listed
+    own = replace(config, coupling=CouplingParams(stiffness=5.0, angular_stiffness=7.0))
+    _, given = listed(1e9, own)
+    assert given == {}
+
+
 def peg_in_plate(tmp_path, *, start_z: float, axis: str | None = None, peg_keys: str = ""):
     """A loaded scene: a 1 x 1 x 6 peg seated 2 up in a 4 x 4 x 2 plate, starting at z."""
     import trimesh
