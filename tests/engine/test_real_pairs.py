@@ -6,6 +6,7 @@ pair seats from the misaim protocol of ``skelasm bench seating``.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,7 @@ NOT_SEATING: dict[str, str] = {}
 # ------------------------------------------------------------------------------- fast
 def test_every_pair_is_listed():
     assert len(PAIRS) >= 10
+    assert set(SEATED_IN_TESTS) <= set(PAIRS) and set(BASELINE) <= set(PAIRS)
     assert sorted(FITS) == PAIRS
     assert set(KNOWN_SIZES) == set(PAIRS)
     readme = (REAL / "README.md").read_text()
@@ -162,9 +164,18 @@ def cached_run(name, guidance):
     return _RUNS[name, guidance]
 
 
+#: The pairs the slow tests push, one of each kind a fit takes: a floor (the blind shaft), a
+#: pocket with no free axis, a key, a slide and an OBJ drawn in metres with a tight play.
+#: `skelasm bench seating` pushes all twelve (docs/measurements/seating_real.md): about 20
+#: minutes of CI for all, 9 for these. SKELASM_REAL_PAIRS=all pushes all twelve here too.
+SEATED_IN_TESTS = ("iso_shaft_20_H7g6_blind", "rect_peg_10x16_H7g6", "keyed_hub_20",
+                   "dovetail_60_slide", "factory_rect_peg_12mm_tight")
+
+
 def _seating_params():
+    names = PAIRS if os.environ.get("SKELASM_REAL_PAIRS") == "all" else SEATED_IN_TESTS
     return [pytest.param(n, marks=pytest.mark.xfail(reason=NOT_SEATING[n], strict=False))
-            if n in NOT_SEATING else n for n in PAIRS]
+            if n in NOT_SEATING else n for n in names]
 
 
 @pytest.mark.slow
