@@ -226,7 +226,7 @@ def check_range(what: str, value: UserValue, bounds: tuple[float, float], why: s
     return x
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DescriptorParams:
     """Parameters of the skeletal density and of its sampling grid.
 

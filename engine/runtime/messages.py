@@ -165,7 +165,7 @@ class SetModes:
         object.__setattr__(self, "modes", int(self.modes))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SetDescriptorParams:
     """Recompute descriptors with these parameters in the background.
 

@@ -92,3 +92,7 @@ def test_sigma_reaches_the_kernel_as_the_object_the_widget_built(qtbot, small_sc
         _no_loose_floats(cls)
     with pytest.raises(TypeError):  # parameter objects are built by keyword only
         jobs.FieldRequest(1, "field", None, 1.0, None, 8)
+    with pytest.raises(TypeError):
+        DescriptorParams(0.8, 3.0)  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        runtime.SetDescriptorParams(built)  # type: ignore[misc]

@@ -100,8 +100,9 @@ def test_bad_method(fake_compute):
 def test_save_and_load_round_trip(tmp_path):
     grid = Grid((1.0, -2.0, 0.5), 0.25, (3, 4, 5))
     rho = (np.arange(60).reshape(3, 4, 5) * (1 - 2j)).astype(np.complex64)
-    d = Descriptor(rho=rho, grid=grid, params=DescriptorParams(0.7, 2.5, 1.5), triangles=12,
-                   backend="numba", seconds=1.0, name="peg", compute_seconds=1.0)
+    params = DescriptorParams(sigma=0.7, penalty=2.5, lambda_out=1.5)
+    d = Descriptor(rho=rho, grid=grid, params=params, triangles=12, backend="numba",
+                   seconds=1.0, name="peg", compute_seconds=1.0)
     path = d.save(tmp_path / "peg")
     assert path.name == "peg.npz"
     with np.load(path) as raw:
