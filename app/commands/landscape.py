@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from app.commands.scale import energy_scale
     from engine.correlation import correlator_for_scene
     from engine.pose import rotation_matrix
-    from engine.scene import load_scene
+    from engine.scene import load_scene, require_assembled
     from engine.sim.auto import complete_scene
 
     if args.modes is not None:  # the options first: a bad one costs nothing
@@ -50,7 +50,9 @@ def run(args: argparse.Namespace) -> int:
     if args.rotation is not None:
         check_rotation_vector(args.rotation, "--rotation")
     check_image_output(args.output, force=args.force, inputs=[args.scene])  # parts: below
-    scene, _ = complete_scene(load_scene(args.scene))  # what it leaves open, from the parts
+    scene = load_scene(args.scene)
+    require_assembled(scene, "skelasm landscape")
+    scene, _ = complete_scene(scene)  # what it leaves open, from the parts
     check_image_output(args.output, force=args.force,
                        inputs=[scene.path, *(spec.file for spec in scene.parts)])
     fitted = np.asarray(scene.assembled_pose, dtype=float)

@@ -253,13 +253,15 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
     from engine.descriptor import descriptors_for_scene, scene_spacing
     from engine.errors import InputError
     from engine.files import check_output
-    from engine.scene import load_scene, load_scene_parts
+    from engine.scene import load_scene, load_scene_parts, require_assembled
     from engine.sim.auto import complete_scene
 
     if args.body is not None or args.tolerance is not None:
         raise ValueError("--body and --tolerance apply to part files; a scene sets them per "
                          "[[part]] (body = ..., tolerance = ...)")
-    scene, _ = complete_scene(load_scene(path))  # what it leaves open, chosen from the parts
+    scene = load_scene(path)
+    require_assembled(scene, "skelasm precompute (its settings are chosen at the fit)")
+    scene, _ = complete_scene(scene)  # what it leaves open, chosen from the parts
     d = scene.descriptor
     if args.grid is not None:
         d = replace(d, grid=args.grid, spacing=None)

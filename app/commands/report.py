@@ -90,12 +90,13 @@ def _slice_png(path: Path, descriptor, name: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write ``OUTPUT/report.md`` and its figures for a scene with two parts; returns 0."""
     from engine.files import check_output, check_output_folder, move_into_place, staged_path
-    from engine.scene import load_scene
+    from engine.scene import load_scene, require_assembled
     from engine.sim.auto import complete_scene
 
     scene = load_scene(args.scene)
     if len(scene.parts) < 2:
         raise ValueError(f"{scene.path}: a report needs a scene with two parts")
+    require_assembled(scene, "skelasm report")
     out = check_output_folder(args.output, create=True, what="report folder")
     scene, parts = complete_scene(scene)  # what the scene leaves open, chosen from the parts
     inputs = [scene.path, *(spec.file for spec in scene.parts)]

@@ -104,9 +104,10 @@ def run(args: argparse.Namespace) -> int:
     """Search, print the ranked fits (or JSON), write ``-o``. Returns the exit status."""
     import json
 
-    from app.commands.scale import energy_scale
+    from app.commands.scale import EnergyScale, energy_scale
     from engine.errors import InputError
     from engine.files import check_output, write_text
+    from engine.params import QuantityUnits
     from engine.scene import load_scene
     from engine.search import SearchSettings, level_for, search_scene
     from engine.sim.auto import complete_scene
@@ -124,8 +125,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--rotations/--angle: {exc}") from None
     if args.output:
         check_output(args.output, force=args.force, inputs=[args.scene], what="result")
-    scene, _ = complete_scene(load_scene(args.scene))
-    scale = energy_scale(scene)
+    scene = load_scene(args.scene)
+    if scene.assembled_known:  # settings chosen at a fit, and the simulation's kappa, need one
+        scene, _ = complete_scene(scene)
+        scale = energy_scale(scene)
+    else:
+        scale = EnergyScale(float(scene.config.simulation.kappa or 1.0),
+                            QuantityUnits.of(scene.units), "scene" if
+                            scene.config.simulation.kappa is not None else "unit")
     settings = SearchSettings(level=level, scan_modes=args.scan_modes, top=args.top,
                               seed=args.seed, clusters=max(8, args.top))
     work = None

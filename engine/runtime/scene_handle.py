@@ -14,7 +14,7 @@ import numpy as np
 from engine.loading import Part
 from engine.params import SimConfig
 from engine.pose import compose, relative_pose
-from engine.scene import Scene, load_scene, relative_start_pose
+from engine.scene import Scene, load_scene, relative_start_pose, require_assembled
 from engine.sim.auto import complete_scene
 
 __all__ = ["SceneHandle", "open_scene"]
@@ -75,7 +75,10 @@ def open_scene(path: str | Path) -> SceneHandle:
     engine.scene.SceneError, engine.loading.PartError
         ValueError subclasses with the file, the line and the fix.
     """
-    scene, loaded = complete_scene(load_scene(path))
+    scene = load_scene(path)
+    # the fit's measurements choose the settings and judge the seat
+    require_assembled(scene, "the simulation (evaluate, simulate, the window)")
+    scene, loaded = complete_scene(scene)
     parts = tuple(loaded)
     start = relative_start_pose(scene) if len(scene.parts) >= 2 else np.zeros(6)
     return SceneHandle(

@@ -4,7 +4,7 @@ A scene is a TOML file (the full format is in docs/scenes.md)::
 
     name = "Peg in hole"
     units = "mm"
-    assembled_pose = [0, 0, -15, 0, 0, 0]   # part 2 in part 1's frame when seated
+    assembled_pose = [0, 0, -15, 0, 0, 0]   # optional: part 2 in part 1's frame when seated
     insertion_axis = [0, 0, -1]             # optional, part 1's frame
 
     [descriptor]      # sigma, penalty, lambda_out, grid | spacing, padding
@@ -22,7 +22,13 @@ A scene is a TOML file (the full format is in docs/scenes.md)::
 :class:`SceneError` (a ``ValueError``) and read ``FILE:LINE: problem; fix``.
 """
 
-from engine.scene.model import PartSpec, Scene, SceneError, relative_start_pose
+from engine.scene.model import (
+    PartSpec,
+    Scene,
+    SceneError,
+    relative_start_pose,
+    require_assembled,
+)
 from engine.scene.parts import load_scene_parts, unit_mismatch
 from engine.scene.reader import key_line, load_scene, parse_scene
 from engine.scene.writer import save_scene, scene_to_toml
@@ -36,6 +42,7 @@ __all__ = [
     "load_scene_parts",
     "parse_scene",
     "relative_start_pose",
+    "require_assembled",
     "save_scene",
     "scene_to_toml",
     "unit_mismatch",

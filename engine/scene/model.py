@@ -116,7 +116,10 @@ class Scene:
     parts : tuple of PartSpec
         The fixed part first, then the moving part (one or two).
     assembled_pose : (6,) float64
-        Part 2 relative to part 1 when assembled (read-only).
+        Part 2 relative to part 1 when assembled (read-only); zeros when not known.
+    assembled_known : bool
+        False when the file gives no ``assembled_pose`` (``skelasm search`` finds the fits;
+        :func:`require_assembled` stops what needs one).
     insertion_axis : (3,) float64 or None
         Unit direction part 2 travels to seat, in part 1's frame.
     seat : SeatSpec
@@ -152,6 +155,7 @@ class Scene:
     config: SimConfig = field(default_factory=SimConfig)
     given: frozenset[str] | None = None
     chosen: tuple[tuple[str, str, str], ...] = ()
+    assembled_known: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", Path(self.path))
@@ -186,3 +190,18 @@ def relative_start_pose(scene: Scene) -> np.ndarray:
         raise SceneError(f"{scene.path}: the scene has no moving part; add a second [[part]] "
                          "with the part that moves", path=str(scene.path))
     return relative_pose(scene.parts[0].pose, scene.parts[1].pose)
+
+
+def require_assembled(scene: Scene, what: str) -> None:
+    """Stop ``what`` (a command, a use) with one line when the scene has no assembled pose.
+
+    Raises
+    ------
+    SceneError
+        The scene's file gives no ``assembled_pose``.
+    """
+    if not scene.assembled_known:
+        raise SceneError(
+            f"{scene.path}: {what} needs the scene's assembled_pose, which it does not give; "
+            f"run `skelasm search {scene.path}` to find the fits, then add the one you want "
+            "as `assembled_pose = [tx, ty, tz, rx, ry, rz]`", path=str(scene.path))

@@ -336,11 +336,10 @@ def parse_scene(text: str, path: Path) -> Scene:
     units_declared = "units" in data
     units = top.choice("units", DEFAULT_UNIT, tuple(LENGTH_UNITS),
                        fix="write the unit the scene's poses and lengths are in")
-    if "assembled_pose" not in data:
-        raise top.fail(None, "assembled_pose is missing",
-                       "add `assembled_pose = [tx, ty, tz, rx, ry, rz]` (part 2 in part 1's "
-                       "frame when assembled)")
-    assembled = top.vector("assembled_pose", 6, np.zeros(6))  # present: checked above
+    # optional: `skelasm search` finds the fits of a scene without one; what needs it asks
+    # for it (engine.scene.require_assembled)
+    assembled_known = "assembled_pose" in data
+    assembled = top.vector("assembled_pose", 6, np.zeros(6))
     axis = top.vector("insertion_axis", 3)
     if axis is not None:
         norm = float(np.linalg.norm(axis))
@@ -365,7 +364,8 @@ def parse_scene(text: str, path: Path) -> Scene:
                                                       "coupling")
                       if isinstance(data.get(table), dict) for key in data[table])
     return Scene(path=p, name=name, units=units, units_declared=units_declared,
-                 parts=tuple(parts), assembled_pose=assembled, insertion_axis=axis, seat=seat,
+                 parts=tuple(parts), assembled_pose=assembled, assembled_known=assembled_known,
+                 insertion_axis=axis, seat=seat,
                  descriptor=descriptor, correlation=correlation, config=config, given=given)
 
 

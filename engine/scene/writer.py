@@ -84,7 +84,8 @@ def scene_to_toml(scene: Scene, folder: Path) -> TomlTable:
     data: TomlTable = {"name": scene.name}
     if scene.units_declared:
         data["units"] = scene.units
-    data["assembled_pose"] = _floats(scene.assembled_pose)
+    if scene.assembled_known:
+        data["assembled_pose"] = _floats(scene.assembled_pose)
     if scene.insertion_axis is not None:
         data["insertion_axis"] = _floats(scene.insertion_axis)
     if scene.seat.free_axes is not None:

@@ -54,3 +54,25 @@ class _no_raise:
 
     def __exit__(self, *exc):
         return False
+
+
+def test_a_scene_without_its_assembled_pose_is_searched_and_elsewhere_refused(scene, tmp_path,
+                                                                            capsys):
+    from engine.scene import load_scene
+
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for name in ("block.stl", "peg.stl"):
+        (bare / name).write_bytes((scene.parent / name).read_bytes())
+    text = scene.read_text().replace("assembled_pose = [0, 0, 0, 0, 0, 0]\n", "")
+    (bare / "scene.toml").write_text(text)
+    assert not load_scene(bare / "scene.toml").assembled_known
+    assert load_scene(scene).assembled_known
+    assert main(["search", str(bare / "scene.toml"), "--rotations", "72", "--scan-modes",
+                 "12", "--top", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["fits"][0]["joint"]["kind"] == "cylindrical"
+    for command in (["evaluate"], ["landscape", "-o", str(tmp_path / "l.png")]):
+        assert main([command[0], str(bare / "scene.toml"), *command[1:]]) == 2
+        err = capsys.readouterr().err
+        assert "skelasm search" in err and "assembled_pose" in err
+        assert len(err.strip().splitlines()) == 1

@@ -181,8 +181,15 @@ def test_errors_name_the_line(scene_dir, text, line, pattern):
 
 
 def test_missing_assembled_pose_and_parts(scene_dir):
-    with pytest.raises(SceneError, match="assembled_pose is missing"):
-        load_scene(write(scene_dir, MINIMAL.replace("assembled_pose = [0, 0, -15, 0, 0, 0]", "")))
+    # an assembled pose is optional (skelasm search finds the fits); what needs it says so
+    from engine.scene import require_assembled
+
+    bare = load_scene(write(scene_dir, MINIMAL.replace("assembled_pose = [0, 0, -15, 0, 0, 0]",
+                                                       "")))
+    assert not bare.assembled_known and not bare.assembled_pose.any()
+    with pytest.raises(SceneError, match="run `skelasm search .*` to find the fits"):
+        require_assembled(bare, "the test")
+    require_assembled(load_scene(write(scene_dir, MINIMAL)), "the test")
     with pytest.raises(SceneError, match="no \\[\\[part\\]\\] tables"):
         load_scene(write(scene_dir, "assembled_pose = [0, 0, 0, 0, 0, 0]\n"))
     with pytest.raises(SceneError, match="no such scene file"):
