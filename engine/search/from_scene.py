@@ -9,8 +9,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from engine.correlation import correlator_for_scene
+from engine.correlation import Correlator
 from engine.correlation.walls import surface_points
+from engine.descriptor import descriptors_for_scene
 from engine.scene import Scene, load_scene
 from engine.scene.parts import load_scene_parts
 from engine.search.driver import Progress, SearchResult, find_fits
@@ -42,13 +43,20 @@ def search_scene(scene: Scene | str | Path, settings: SearchSettings | None = No
         if progress is not None:
             progress(0.1 * fraction, None)
 
-    correlator = correlator_for_scene(scene, parts=parts, modes=modes, kappa=kappa,
-                                      progress=prepared, cancel=cancel)
+    descriptors = descriptors_for_scene(scene, parts=parts, cancel=cancel,
+                                        progress=lambda f: prepared(0.6 * f))
+    correlator = Correlator(descriptors[0], descriptors[1],
+                            modes=int(modes if modes is not None else scene.modes), kappa=kappa,
+                            progress=lambda f: prepared(0.6 + 0.3 * f), cancel=cancel)
+    # the scan's spectra without the torque's moments: trilinear, about 7 times faster
+    scan = Correlator(descriptors[0], descriptors[1], modes=correlator.modes, kappa=kappa,
+                      rotation=False, progress=lambda f: prepared(0.9 + 0.1 * f),
+                      cancel=cancel).spectra
     points = surface_points(parts[1].vertices, parts[1].faces, SURFACE_POINTS, seed=0)
 
     def searching(fraction: float, left: float | None) -> None:
         if progress is not None:
             progress(0.1 + 0.9 * fraction, left)
 
-    return find_fits(correlator, settings, points=points, work=work, progress=searching,
-                     cancel=cancel)
+    return find_fits(correlator, settings, points=points, scan=scan, work=work,
+                     progress=searching, cancel=cancel)

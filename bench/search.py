@@ -1,0 +1,166 @@
+"""`skelasm bench search`: the search on pairs whose fit is known, against that fit.
+
+Data: scenes with an ``assembled_pose`` and ``free_axes`` (the bundled pairs, the pairs of
+assets/real). For each, :func:`engine.search.search_scene` runs without being told the
+pose; the table gives the seconds (the scan's and the whole search's, descriptors from the
+store not counted), the rotations scanned, the rank of the first fit within 5 % of the
+assembled pose, the top fit's errors and its joint kind against the one ``free_axes``
+declares. Errors, all blind to part 2's symmetries:
+
+- geometry: the mean distance from part 2's surface points at the fit to the surface at
+  the assembled pose (a dense sample), in % of part 2's size (its bounding-box diagonal);
+- centre: how far the fit puts part 2's surface centroid (which its symmetries keep), in %
+  of that size;
+- axes: the largest angle between the fit's and the assembled pose's principal axes of
+  part 2's surface, each taken as a line, over the axes whose moments differ from the
+  others' by 10 % or more (a round peg's one axis; none of a sphere's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+BUNDLED = ("peg_in_hole", "boss_pins", "bracket_slot", "dovetail")
+
+#: A fit within this geometry error (% of part 2's size) is the assembled pose.
+FOUND_PERCENT = 5.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``skelasm bench search`` to ``parser``."""
+    parser.add_argument("--pairs", choices=("bundled", "real", "all"), default="bundled",
+                        help="which scenes (default: the bundled pairs)")
+    parser.add_argument("--scene", nargs="+", help="these scenes instead")
+    parser.add_argument("--angle", type=float, nargs="+", default=[30.0],
+                        help="rotation grid spacings in degrees (default 30)")
+    parser.add_argument("--scan-modes", type=int, default=16, help="scan modes (default 16)")
+    parser.add_argument("--top", type=int, default=5, help="fits kept (default 5)")
+    parser.add_argument("--workers", type=int, help="a local Dask cluster of N processes")
+    parser.add_argument("-o", "--output", default="search_bench.json",
+                        help="JSON of every row (default search_bench.json)")
+
+
+def expected_kind(free_axes) -> str:
+    """The joint kind a scene's ``free_axes`` declares."""
+    axes = set(free_axes or ())
+    t = {a for a in axes if a in ("x", "y", "z")}
+    r = {a[1] for a in axes if a in ("rx", "ry", "rz")}
+    if not t and not r:
+        return "rigid"
+    if not t and len(r) == 1:
+        return "revolute"
+    if len(t) == 1 and not r:
+        return "prismatic"
+    if len(t) == 1 and r == t:
+        return "cylindrical"
+    if len(t) == 2 and len(r) == 1 and not (r & t):
+        return "planar"
+    return "other"
+
+
+def _principal_lines(points: np.ndarray) -> list[np.ndarray]:
+    """Unit principal axes of ``points`` whose moments stand apart from the others' by 10 %."""
+    centred = points - points.mean(axis=0)
+    values, vectors = np.linalg.eigh(centred.T @ centred / len(points))
+    lines = []
+    for i in range(3):
+        others = [values[j] for j in range(3) if j != i]
+        if all(abs(values[i] - o) > 0.1 * max(values[i], o) for o in others):
+            lines.append(vectors[:, i])
+    return lines
+
+
+def errors(fit_rotation, fit_translation, pose, points, dense) -> dict:
+    """Geometry, centre (% of size) and axes (degrees) errors of a fit (module docstring)."""
+    from scipy.spatial import cKDTree
+
+    from engine.pose import pose_to_matrix
+    from engine.search.cluster import placed, surface_spread
+
+    size = surface_spread(points)
+    m = pose_to_matrix(np.asarray(pose, float))
+    want = placed(dense, m[:3, :3], m[:3, 3])
+    got = placed(points, fit_rotation, fit_translation)
+    geometry = 100.0 * float(np.mean(cKDTree(want).query(got)[0])) / size
+    # the dense sample's centroid and axes: a few hundred points' wander by percents
+    centre = 100.0 * float(np.linalg.norm(want.mean(axis=0) - placed(
+        dense, fit_rotation, fit_translation).mean(axis=0))) / size
+    angles = [math.degrees(math.acos(min(1.0, abs(float((m[:3, :3] @ v) @ (fit_rotation @ v))))))
+              for v in _principal_lines(dense)]
+    return {"geometry_percent": geometry, "centre_percent": centre,
+            "axes_degrees": max(angles) if angles else 0.0}
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the search on every scene, print the table, write the JSON."""
+    from engine.correlation.walls import surface_points
+    from engine.scene import load_scene
+    from engine.scene.parts import load_scene_parts
+    from engine.search import SearchSettings, level_for, search_scene
+    from engine.sim.auto import complete_scene
+
+    if args.scene:
+        scenes = [Path(s) for s in args.scene]
+    else:
+        scenes = []
+        if args.pairs in ("bundled", "all"):
+            scenes += [ROOT / "assets" / name / "scene.toml" for name in BUNDLED]
+        if args.pairs in ("real", "all"):
+            scenes += sorted((ROOT / "assets" / "real").glob("*/scene.toml"))
+    work = None
+    if args.workers:
+        from engine.search.distributed import DaskWork
+
+        work = DaskWork.connect(workers=args.workers)
+    rows = []
+    print(f"{'scene':34} {'deg':>4} {'rot':>6} {'scan s':>7} {'ms/rot':>6} {'total s':>7} "
+          f"{'rank':>4} {'geom %':>6} {'centre %':>8} {'axes deg':>8} {'joint':>11} "
+          f"{'expected':>11}")
+    try:
+        for path in scenes:
+            scene, _ = complete_scene(load_scene(path))
+            part = load_scene_parts(scene)[1]
+            points = surface_points(part.vertices, part.faces, 256, seed=0)
+            dense = surface_points(part.vertices, part.faces, 8192, seed=1)
+            for angle in args.angle:
+                settings = SearchSettings(level=level_for(angle=angle),
+                                          scan_modes=args.scan_modes, top=args.top)
+                start = time.perf_counter()
+                result = search_scene(scene, settings, work=work)
+                wall = time.perf_counter() - start
+                errs = [errors(f.rotation, f.translation, scene.assembled_pose, points, dense)
+                        for f in result.fits]
+                rank = next((i + 1 for i, e in enumerate(errs)
+                             if e["geometry_percent"] < FOUND_PERCENT), None)
+                top = result.fits[0] if result.fits else None
+                row = {"scene": str(path.relative_to(ROOT) if path.is_relative_to(ROOT)
+                                    else path),
+                       "angle": settings.angle, "rotations": settings.rotations,
+                       "scan_seconds": result.scan_seconds, "seconds": result.seconds,
+                       "seconds_with_preparation": wall,
+                       "ms_per_rotation": 1000 * result.seconds_per_rotation,
+                       "rank": rank, **(errs[0] if errs else {}),
+                       "joint": top.joint.kind if top else None,
+                       "confidence": top.joint.confidence if top else None,
+                       "expected": expected_kind(scene.seat.free_axes)}
+                rows.append(row)
+                print(f"{path.parent.name:34} {settings.angle:4g} {settings.rotations:6d} "
+                      f"{result.scan_seconds:7.1f} {row['ms_per_rotation']:6.1f} "
+                      f"{result.seconds:7.1f} {rank or '-':>4} "
+                      f"{row.get('geometry_percent', float('nan')):6.2f} "
+                      f"{row.get('centre_percent', float('nan')):8.2f} "
+                      f"{row.get('axes_degrees', float('nan')):8.2f} "
+                      f"{row['joint'] or '-':>11} {row['expected']:>11}", flush=True)
+    finally:
+        if work is not None:
+            work.shutdown()
+    Path(args.output).write_text(json.dumps(rows, indent=1) + "\n")
+    print(f"wrote {args.output}")
+    return 0
