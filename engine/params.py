@@ -155,6 +155,13 @@ MAX_GRID = 2048
 #: Free cells around a part: the outside tail fades within a few cells, so more than this
 #: only costs memory (the FFT grows with the cube of the padded size).
 MAX_PADDING = 64.0
+#: Largest rotation vector of any pose, in radians: beyond it the angle's double precision
+#: is coarser than 1e-12 rad per 1e4 rad, and a sine of it is meaningless (1e300 rad
+#: overflows into NaN). The scene reader, the simulation's guard and the pose dialog use it.
+MAX_ROTATION_VECTOR = 1e4
+#: Largest distance of a pose from the origin, in the scene's unit (a light year in
+#: millimetres is 1e19): past it a number is a typo, and its square overflows at 1e154.
+MAX_POSE_TRANSLATION = 1e20
 #: Retained modes per axis K: m' = K^3 terms per pose, so K = 128 is 2.1 million terms, a
 #: fraction of a second per pose, far below any interactive rate; K is also at most the
 #: scene's FFT size (the correlator says so when it is smaller).

@@ -11,11 +11,17 @@ puts part and proxy there at rest.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
+from app.gui.widgets import SignificantSpinBox
 from engine import pose as posemath
-from engine.params import DEFAULT_UNIT
+from engine.params import DEFAULT_UNIT, MAX_POSE_TRANSLATION, MAX_ROTATION_VECTOR
+
+#: Significant digits a pose field shows (its value is kept exactly).
+POSE_DIGITS = 7
 
 
 class PoseDialog(QtWidgets.QDialog):
@@ -47,10 +53,13 @@ class PoseDialog(QtWidgets.QDialog):
         form = QtWidgets.QFormLayout()
         self.fields: list[QtWidgets.QDoubleSpinBox] = []
         for name in ("x", "y", "z", "rx", "ry", "rz"):
-            box = QtWidgets.QDoubleSpinBox()
+            # any pose a scene may hold, shown to POSE_DIGITS and kept exactly (a pose in
+            # metres keeps its micrometres)
+            box = SignificantSpinBox(POSE_DIGITS)
             box.setObjectName(f"pose_{name}")
-            box.setDecimals(4)
-            box.setRange(-1e6, 1e6)
+            limit = (math.degrees(MAX_ROTATION_VECTOR) if name.startswith("r")
+                     else MAX_POSE_TRANSLATION)
+            box.setRange(-limit, limit)
             box.setKeyboardTracking(False)
             box.setSuffix(f" {unit}" if not name.startswith("r") else " °")
             form.addRow(name, box)

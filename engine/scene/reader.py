@@ -30,6 +30,8 @@ from engine.params import (
     LENGTH_UNITS,
     MAX_GRAVITY_G,
     MAX_MODES,
+    MAX_POSE_TRANSLATION,
+    MAX_ROTATION_VECTOR,
     SIGMA_GRID_MAX,
     SIGMA_RANGE,
     STANDARD_GRAVITY,
@@ -81,13 +83,6 @@ PART_KEYS = ("name", "file", "pose", "fixed", "body", "tolerance", "unit", "pivo
 AXES_WORDS = {"all": AXES, "translation": AXES[:3], "rotation": AXES[3:]}
 
 _HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
-#: Largest rotation vector of any pose, in radians: beyond it the angle's double precision
-#: is coarser than 1e-12 rad per 1e4 rad, and a sine of it is meaningless (1e300 rad used
-#: to overflow into NaN). The simulation's guard holds the proxy to the same bound.
-MAX_ROTATION_VECTOR = 1e4
-#: Largest distance of a pose from the origin, in the scene's unit (a light year in
-#: millimetres is 1e19): past it a number is a typo, and its square overflows at 1e154.
-MAX_POSE_TRANSLATION = 1e20
 
 #: Where a table sits in a TOML file: ``()`` the top level, ``("descriptor",)`` a table,
 #: ``("part", 1)`` the second ``[[part]]`` (names, and indices into arrays of tables).

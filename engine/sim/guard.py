@@ -22,8 +22,7 @@ import numpy as np
 
 from engine.correlation import Evaluation
 from engine.errors import Diverged, InputError
-from engine.params import Physics
-from engine.scene.reader import MAX_ROTATION_VECTOR as SCENE_MAX_ROTATION_VECTOR
+from engine.params import MAX_ROTATION_VECTOR, Physics
 from engine.sim.body import BodyState, RigidBody
 
 
@@ -50,8 +49,6 @@ MAX_STEP_RADIANS = 1.0
 #: A proxy farther than this many part lengths from part 1's origin is out of reach (the
 #: coupling's force on the part would be that many lengths times its stiffness).
 MAX_PROXY_LENGTHS = 1000.0
-#: Largest rotation vector of a proxy pose, in radians: the bound on a scene's poses.
-MAX_ROTATION_VECTOR = SCENE_MAX_ROTATION_VECTOR
 
 
 def check_proxy_pose(pose: np.ndarray, length: float, what: str = "proxy pose") -> np.ndarray:

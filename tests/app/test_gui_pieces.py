@@ -174,3 +174,21 @@ def test_a_stale_wrapper_for_a_docks_action_is_dropped_and_asked_again(qtbot):
     dock.toggleViewAction = QtCore.QObject  # always the wrong type: a clear error
     with pytest.raises(TypeError, match="'Slice' panel's show/hide action came back as QObject"):
         toggle_view_action(dock)
+
+
+def test_the_pose_dialog_keeps_any_pose_a_scene_may_hold(qtbot):
+    """Fields hold the engine's whole pose range and keep a value exactly (no 4 decimals)."""
+    from app.gui.pose_dialog import PoseDialog
+    from engine.params import MAX_POSE_TRANSLATION, MAX_ROTATION_VECTOR
+
+    dialog = PoseDialog(unit="m")
+    qtbot.addWidget(dialog)
+    pose = np.array([2.5e-5, -1.2345678e-3, 0.0, 0.0, 0.0, 1.0e-4])  # micrometres, in m
+    dialog.set_pose(pose)
+    np.testing.assert_allclose(dialog.pose(), pose, rtol=0, atol=1e-15)
+    assert dialog.fields[0].text() == "2.5e-05 m"
+    far = np.array([3e7, 0.0, 0.0, 0.0, 0.0, 0.0])  # beyond the old ±1e6 fields
+    dialog.set_pose(far)
+    np.testing.assert_allclose(dialog.pose(), far, rtol=1e-15)
+    assert dialog.fields[0].maximum() == MAX_POSE_TRANSLATION
+    assert dialog.fields[3].maximum() == pytest.approx(np.degrees(MAX_ROTATION_VECTOR))
