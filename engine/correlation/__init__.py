@@ -23,7 +23,6 @@ docs/correlation.md gives the mathematics, the checks and the measurements.
 """
 
 from engine.correlation.correlator import (
-    BACKEND_CHOICES,
     Correlator,
     LocalSpectral,
     SpectralWork,
@@ -36,7 +35,6 @@ from engine.correlation.spectrum import Spectrum, compute_spectrum
 from engine.correlation.tables import ModeTable, Spectra
 
 __all__ = [
-    "BACKEND_CHOICES",
     "Correlator",
     "Evaluation",
     "add_evaluations",

@@ -41,7 +41,7 @@ import numpy as np
 
 import engine.correlation.per_pose as per_pose
 import engine.correlation.reference as reference
-from engine.backend import check_choice, choices
+from engine.backend import check_choice
 from engine.correlation.finishing import Evaluation, boxes_overlap
 from engine.correlation.landscape import Landscape, compute_landscape
 from engine.correlation.spectrum import fast_size
@@ -57,9 +57,6 @@ from engine.params import CorrelationParams
 
 if TYPE_CHECKING:
     from engine.correlation.rotation_cache import RotationCache
-
-#: Backend names a Correlator accepts (the registry's per-pose choices).
-BACKEND_CHOICES = choices("per_pose")
 
 
 class SampledField(Protocol):

@@ -20,7 +20,6 @@ docs/descriptor.md gives the mathematics and the measurements.
 
 from engine.descriptor.collision import collision_density, collision_descriptor
 from engine.descriptor.compute import (
-    DESCRIPTOR_BACKENDS,
     BackendLike,
     compute_descriptor,
     descriptor_at_points,
@@ -39,7 +38,6 @@ from engine.descriptor.store import (
 from engine.descriptor.tree import TriangleTree, build_tree
 
 __all__ = [
-    "DESCRIPTOR_BACKENDS",
     "METHODS",
     "BackendLike",
     "Descriptor",

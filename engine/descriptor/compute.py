@@ -86,7 +86,7 @@ import numba
 import numpy as np
 
 import engine.descriptor.constants as _c
-from engine.backend import CAPABILITIES, Backend, choices, resolve
+from engine.backend import Backend, choices, resolve
 from engine.descriptor.adaptive import sample_grid
 from engine.descriptor.numba_kernels import evaluate as _evaluate_numba
 from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
@@ -96,9 +96,6 @@ from engine.grid import DESCRIPTOR_BYTES_PER_SAMPLE, Grid, check_memory
 from engine.params import SIGMA_GRID_MAX, SIGMA_RANGE, DescriptorParams
 
 _log = logging.getLogger(__name__)
-
-#: Backends the descriptor has kernels for (registered in engine.backend.CAPABILITIES).
-DESCRIPTOR_BACKENDS = CAPABILITIES["descriptor"].backends
 
 #: What ``backend=`` accepts.
 BackendLike = Backend | str | None

@@ -223,6 +223,25 @@ def test_no_module_declares_its_own_list_of_backends():
     assert not found, f"backend lists outside the registry: {found}"
 
 
+def test_no_module_keeps_a_second_name_for_the_registrys_backends():
+    """Callers ask engine.backend (choices, CAPABILITIES); no other module re-exports them."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    found = []
+    for folder in ("engine", "app", "bench"):
+        for source in (root / folder).rglob("*.py"):
+            if source == root / "engine" / "backend.py":
+                continue
+            for node in ast.parse(source.read_text(encoding="utf-8")).body:
+                targets = node.targets if isinstance(node, ast.Assign) else []
+                for target in targets:
+                    if isinstance(target, ast.Name) and "BACKEND" in target.id:
+                        found.append(f"{source.relative_to(root)}:{node.lineno} {target.id}")
+    assert not found, f"backend vocabularies outside the registry: {found}"
+
+
 def test_a_descriptor_failure_is_not_computed_again_on_another_backend(monkeypatch):
     """One fallback rule: the registry's "auto". A failure while computing propagates."""
     import engine.descriptor.store as store
