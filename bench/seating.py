@@ -106,6 +106,7 @@ class SeatingResult:
     max_proxy_angle_deg: float = math.nan    # largest part-to-proxy angle over the run
     tip_limit_deg: float = TILT_DEGREES      # beyond it the run tipped
     setup_seconds: float = 0.0               # wall: loading, descriptors, fields
+    cpu_seconds: float = math.nan            # the push's CPU time, every thread of the process
 
     @property
     def position_percent(self) -> float:
@@ -359,7 +360,7 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
     # every step's frame stays in the ring until read: the part-to-proxy angle at each step
     loop = EngineLoop(sim, model=model, device=device, realtime=False, frame_queue=chunk + 16)
     done, worst = 0, 0.0
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     setup = t0 - t_setup
     while done < total:
         done += loop.run(max_steps=min(chunk, total - done))
@@ -371,7 +372,7 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
         loop.poll_events()
         if progress is not None:
             progress(done / total)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     final = np.asarray(sim.part_pose(), float)
     if case.centre is None:  # at part 2's origin, in the seat's frame (constrained_errors)
         error = relative_pose(target, final)
@@ -393,7 +394,7 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
                          angle_tolerance_deg=max(SEAT_DEGREES, case.angular_play_deg),
                          max_proxy_angle_deg=worst,
                          tip_limit_deg=case.angular_play_deg + TILT_DEGREES,
-                         setup_seconds=setup)
+                         setup_seconds=setup, cpu_seconds=cpu)
 
 
 # ---------------------------------------------------------------------------- command
@@ -497,15 +498,15 @@ def table(results: list[SeatingResult]) -> str:
              f"{TILT_DEGREES:g} degrees; seated: within {100 * SEAT_FRACTION:g} % and "
              f"{SEAT_DEGREES:g} degrees in the constrained axes.", "",
              "| pair | free | guidance | K | width | position error (% width) | lateral | "
-             "axial | tilt (deg) | seated | wall s | max turn from proxy (deg) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "axial | tilt (deg) | seated | wall s | push CPU s | max turn from proxy (deg) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         free = " ".join(FITS[r.pair].free) or "none"
         lines.append(
             f"| {r.pair} | {free} | {r.guidance} | {r.modes} | {r.width:.2f} | "
             f"{r.position_percent:.2f} | {r.lateral_error:.3f} | {r.axial_error:+.3f} | "
             f"{r.tilt_deg:.2f} | {'yes' if r.seated else 'no'} | {r.wall_seconds:.0f} | "
-            f"{r.max_proxy_angle_deg:.2f}{' tipped' if r.tipped else ''} |")
+            f"{r.cpu_seconds:.0f} | {r.max_proxy_angle_deg:.2f}{' tipped' if r.tipped else ''} |")
     return "\n".join(lines)
 
 
@@ -561,7 +562,8 @@ def _say(r: SeatingResult) -> None:
     print(f"{r.pair} ({r.guidance}): position {r.position_percent:.2f} % of the width, tilt "
           f"{r.tilt_deg:.2f} deg, {'seated' if r.seated else 'not seated'}, max turn from "
           f"the proxy {r.max_proxy_angle_deg:.2f} deg{' (tipped)' if r.tipped else ''} "
-          f"({r.setup_seconds:.0f} + {r.wall_seconds:.0f} s)", file=sys.stderr, flush=True)
+          f"({r.setup_seconds:.0f} + {r.wall_seconds:.0f} s, push {r.cpu_seconds:.0f} CPU s)",
+          file=sys.stderr, flush=True)
 
 
 def run_generated(args: argparse.Namespace) -> int:
@@ -646,8 +648,8 @@ def family_table(results: list[SeatingResult], *, seed: int | None = None,
              "the proxy by more than the angular play plus the misaim at some step.", "",
              "| family | guidance | pairs | seated | tipped | position error, % width: "
              "median / worst | tilt, deg: median / worst | max turn from proxy, deg | "
-             "wall s per run: setup + push (median) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "wall s per run: setup + push (median) | push CPU s: median / worst |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     families = sorted({r.family for r in results}, key=[r.family for r in results].index)
     for family in [*families, "all"]:
         for guidance in ("skeletal", "collision"):
@@ -664,7 +666,9 @@ def family_table(results: list[SeatingResult], *, seed: int | None = None,
                 f"| {_median(pos):.2f} / {max(pos):.2f} | {_median(tilt):.2f} / "
                 f"{max(tilt):.2f} | {max(r.max_proxy_angle_deg for r in rows):.2f} | "
                 f"{_median([r.setup_seconds for r in rows]):.0f} + "
-                f"{_median([r.wall_seconds for r in rows]):.0f} |")
+                f"{_median([r.wall_seconds for r in rows]):.0f} | "
+                f"{_median([r.cpu_seconds for r in rows]):.0f} / "
+                f"{max(r.cpu_seconds for r in rows):.0f} |")
     return "\n".join(lines)
 
 
@@ -672,8 +676,8 @@ def generated_table(results: list[SeatingResult]) -> str:
     """Markdown table of the runs of a generated set."""
     lines = ["| pair | guidance | K | width | position error (% width) | tolerance (% width) | "
              "tilt (deg) | tolerance (deg) | max turn from proxy (deg) | limit (deg) | seated | "
-             "wall s (setup + push) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "wall s (setup + push) | push CPU s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         tol = 100 * (r.position_tolerance or SEAT_FRACTION * r.width) / r.width
         lines.append(
@@ -681,7 +685,8 @@ def generated_table(results: list[SeatingResult]) -> str:
             f"{r.modes} | {r.width:.4g} | {r.position_percent:.2f} | {tol:.2f} | "
             f"{r.tilt_deg:.2f} | {r.angle_tolerance_deg:.2f} | {r.max_proxy_angle_deg:.2f}"
             f"{' tipped' if r.tipped else ''} | {r.tip_limit_deg:.2f} | "
-            f"{'yes' if r.seated else 'no'} | {r.setup_seconds:.0f} + {r.wall_seconds:.0f} |")
+            f"{'yes' if r.seated else 'no'} | {r.setup_seconds:.0f} + {r.wall_seconds:.0f} | "
+            f"{r.cpu_seconds:.0f} |")
     return "\n".join(lines)
 
 
