@@ -17,6 +17,13 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: A number given as a default inside a string literal.
 COPIED = re.compile(r"\bdefault:?\s+-?\d")
+#: Copies known and not yet derived, each with where its one source is. Remove an entry
+#: once the string reads the source; an entry that no longer matches fails the test.
+KNOWN = {
+    # the search's rotation grid: engine.search.SearchSettings.level (2: 72 * 8^2 = 576);
+    # the command also falls back to 576 itself
+    ("app/commands/search.py", "default 576)"),
+}
 
 
 def _docstrings(tree: ast.AST) -> set[int]:
@@ -30,12 +37,44 @@ def _docstrings(tree: ast.AST) -> set[int]:
     return out
 
 
+def _own_defaults(tree: ast.AST) -> set[int]:
+    """The ids of the help strings that repeat their own option's ``default=`` beside it.
+
+    ``add_argument("--top", default=5, help="... (default 5)")`` states the option's own
+    default where it is defined (``%(default)s`` would say it once); a number that lives
+    elsewhere (the engine's) is a copy.
+    """
+    out = set()
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "add_argument"):
+            continue
+        words = {k.arg: k.value for k in node.keywords}
+        default = words.get("default")
+        if not (isinstance(default, ast.Constant) and isinstance(default.value, (int, float))
+                and not isinstance(default.value, bool)):
+            continue
+        for part in ast.walk(words.get("help", ast.Constant(""))):
+            if isinstance(part, ast.Constant) and isinstance(part.value, str):
+                numbers = re.findall(r"\bdefault:?\s+(-?[\d.e+]+)", part.value)
+                if numbers and all(_same(n, default.value) for n in numbers):
+                    out.add(id(part))
+    return out
+
+
+def _same(text: str, value: float) -> bool:
+    try:
+        return float(text.rstrip(".")) == float(value)
+    except ValueError:
+        return False
+
+
 def copied_defaults(source: Path, root: Path = ROOT) -> list[str]:
     """``file:line text`` for each string literal (f-strings' literal parts included) that
-    writes a default as a number.
+    writes a default as a number, but for an option's help repeating its own ``default=``.
     """
     tree = ast.parse(source.read_text(encoding="utf-8"))
-    skip = _docstrings(tree)
+    skip = _docstrings(tree) | _own_defaults(tree)
     found = []
     for node in ast.walk(tree):
         if (isinstance(node, ast.Constant) and isinstance(node.value, str)
@@ -48,15 +87,26 @@ def copied_defaults(source: Path, root: Path = ROOT) -> list[str]:
 def test_no_message_or_help_copies_a_default(folder: str) -> None:
     found = [hit for source in sorted((ROOT / folder).rglob("*.py"))
              for hit in copied_defaults(source)]
-    assert not found, found
+    known = {hit for hit in found for path, text in KNOWN
+             if hit.startswith(f"{path}:") and hit.endswith(f"{text}'")}
+    assert not set(found) - known, sorted(set(found) - known)
+    stale = [(path, text) for path, text in KNOWN if path.startswith(folder + "/")
+             and not any(h.startswith(f"{path}:") and h.endswith(f"{text}'") for h in known)]
+    assert not stale, f"derived now: remove {stale} from KNOWN"
 
 
 def test_the_check_finds_a_copied_default(tmp_path: Path) -> None:
     bad = tmp_path / "bad.py"
     bad.write_text('"""A docstring may say (default 0.5)."""\n'
                    'HELP = "Gaussian width (default 0.5)"\n'
-                   'fine = f"Gaussian width (default {WIDTH:g})"\n', encoding="utf-8")
-    assert copied_defaults(bad, tmp_path) == ["bad.py:2 'Gaussian width (default 0.5)'"]
+                   'fine = f"Gaussian width (default {WIDTH:g})"\n'
+                   'p.add_argument("--top", default=5, help="fits (default 5)")\n'
+                   'p.add_argument("--n", default=None, help="samples (default 64)")\n'
+                   'p.add_argument("--k", default=8, help="modes (default 16)")\n',
+                   encoding="utf-8")
+    assert copied_defaults(bad, tmp_path) == ["bad.py:2 'Gaussian width (default 0.5)'",
+                                              "bad.py:5 'samples (default 64)'",
+                                              "bad.py:6 'modes (default 16)'"]
 
 
 def _help(parser: argparse.ArgumentParser, *path: str) -> dict[str, str]:
