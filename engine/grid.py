@@ -213,6 +213,6 @@ def grid_for_bounds(
                  f"a {counts[0]} x {counts[1]} x {counts[2]} descriptor grid",
                  "use a coarser grid (a smaller grid, a larger spacing or less padding)")
     shape = np.asarray(counts, dtype=np.int64)
-    center = 0.5 * (lower + upper)
-    origin = center - 0.5 * spacing * (shape - 1)
+    centre = 0.5 * (lower + upper)
+    origin = centre - 0.5 * spacing * (shape - 1)
     return Grid(tuple(origin), spacing, tuple(int(n) for n in shape))  # type: ignore[arg-type]
