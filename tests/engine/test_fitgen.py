@@ -414,8 +414,10 @@ def test_a_gmsh_session_leaves_the_process_signal_handling_as_it_was():
 
 
 def test_the_tables_give_each_push_s_cpu_seconds():
-    """The push's CPU time is in every table: on a shared machine its wall time is not the
-    cost (the affordability target is judged on it)."""
+    """The push's CPU time is in every table (the affordability target is judged on it).
+
+    On a shared machine the wall time is not the cost.
+    """
     from bench.seating import SeatingResult, family_table, generated_table
 
     def result(cpu, family):
