@@ -220,8 +220,7 @@ class ParamsPanel(QtWidgets.QWidget):
         """
         return {
             "modes": int(self.modes.value()),
-            "sigma": self.sigma.value(),
-            "penalty": self.penalty.value(),
+            "descriptor": self.descriptor_params(),
             "effects": self._effects,
             "coupling": self._coupling,
             "kappa": None if self.kappa_default.isChecked() else self.kappa.value(),
@@ -333,11 +332,13 @@ class ParamsPanel(QtWidgets.QWidget):
         self._show_modes(int(k))
         self.command.emit(runtime.SetModes(int(k)))
 
+    def descriptor_params(self) -> DescriptorParams:
+        """The descriptor's parameters as shown: the scene's, with the panel's sigma and penalty."""
+        return replace(self._descriptor, sigma=self.sigma.value(), penalty=self.penalty.value())
+
     def _send_descriptor_params(self) -> None:
         self.set_progress(0.0, "starting recompute")
-        params = replace(self._descriptor, sigma=self.sigma.value(),
-                         penalty=self.penalty.value())
-        self.command.emit(runtime.SetDescriptorParams(params=params))
+        self.command.emit(runtime.SetDescriptorParams(params=self.descriptor_params()))
 
     def _cancel(self) -> None:
         self.command.emit(runtime.CancelRecompute())

@@ -14,15 +14,17 @@ from typing import Any
 
 import numpy as np
 
-from engine.params import CouplingParams, Effects
+from engine.params import CouplingParams, DescriptorParams, Effects
 from engine.scene import save_scene
 
 #: ``kappa=KEEP``: the scene's own ``[simulation] kappa`` is written as it was.
 KEEP = object()
+#: The descriptor's parameters the window may change (the grid is the scene's).
+DESCRIPTOR_KEYS = ("sigma", "penalty", "lambda_out", "padding")
 
 
 def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | None = None,
-                sigma: float | None = None, penalty: float | None = None,
+                descriptor: DescriptorParams | None = None,
                 modes: int | None = None, effects: Effects | None = None,
                 coupling: CouplingParams | None = None, kappa: Any = KEEP) -> Path:
     """Write ``handle``'s scene to ``path`` (TOML) and return the path written.
@@ -34,8 +36,10 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
         Destination; ``.toml`` is appended when missing.
     moving_relative_pose : (6,) float, optional
         Part 2 relative to part 1 now; stored as part 2's world pose.
-    sigma, penalty, modes : optional
-        Current descriptor and accuracy settings.
+    descriptor : DescriptorParams, optional
+        The descriptor's parameters now (the object the panel sends to the engine).
+    modes : int, optional
+        The mode count K now.
     effects, coupling : optional
         Current simulation settings (``[effects]``, ``[coupling]``).
     kappa : float or None, optional
@@ -53,7 +57,9 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
     parts = list(scene.parts)
     if moving_relative_pose is not None and len(parts) >= 2:
         parts[1] = replace(parts[1], pose=handle.world_pose(moving_relative_pose))
-    changes = {k: float(v) for k, v in (("sigma", sigma), ("penalty", penalty)) if v is not None}
+    changes = ({} if descriptor is None else
+               {k: getattr(descriptor, k) for k in DESCRIPTOR_KEYS
+                if getattr(descriptor, k) != getattr(scene.descriptor, k)})
     config = scene.config
     if effects is not None:
         config = replace(config, effects=effects)
@@ -74,7 +80,7 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
     return save_scene(scene, path)
 
 
-def _given_after(scene, changes: dict[str, float], modes: int | None) -> frozenset[str] | None:
+def _given_after(scene, changes: dict[str, object], modes: int | None) -> frozenset[str] | None:
     """The scene's given keys, plus those the window changed (they are the user's now)."""
     if scene.given is None:
         return None

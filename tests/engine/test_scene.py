@@ -337,8 +337,9 @@ def test_the_gui_saves_through_the_scene_writer_and_it_loads_back(scene_dir, tmp
     moved = np.array([0.5, -0.25, 3.0, 0.01, 0.02, 0.3])
     effects = Effects(guidance="skeletal", axes=("x", "y", "z"), gravity=(0.0, 0.0, -1.0))
     coupling = CouplingParams(frequency_hz=5.0)
-    out = write_scene(handle, tmp_path / "saved", moving_relative_pose=moved, sigma=0.9,
-                      penalty=4.0, modes=20, effects=effects, coupling=coupling, kappa=2.0)
+    out = write_scene(handle, tmp_path / "saved", moving_relative_pose=moved,
+                      descriptor=replace(handle.scene.descriptor, sigma=0.9, penalty=4.0),
+                      modes=20, effects=effects, coupling=coupling, kappa=2.0)
     assert out.suffix == ".toml"
     again = load_scene(out)
     scene = handle.scene
