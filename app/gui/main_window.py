@@ -65,7 +65,9 @@ insertion axis</td></tr>
 <tr><td>[ and ]</td><td>fewer / more modes (accuracy against time)</td></tr>
 <tr><td>Ctrl+0</td><td>reset the camera (isometric, whole scene)</td></tr>
 <tr><td>F12</td><td>save a screenshot of the window</td></tr>
-</table>"""
+</table>
+<p>Keys without Ctrl act while the 3D view has the focus (click it); typed in or beside a
+field of a panel they never move the camera or the part.</p>"""
 
 #: The window's size when nothing is remembered, and the share of the screen it may take.
 DEFAULT_SIZE = (1500, 920)
@@ -127,6 +129,18 @@ def toggle_view_action(dock: QtWidgets.QDockWidget) -> QtGui.QAction:
         raise TypeError(f"the {dock.windowTitle()!r} panel's show/hide action came back as "
                         f"{type(action).__name__}: restart the application")
     return action
+
+
+def view_key(sequence: QtGui.QKeySequence) -> bool:
+    """True for a shortcut of one key without Ctrl, Alt or Meta that types text."""
+    if sequence.count() != 1:
+        return False
+    combo = sequence[0]
+    mods = combo.keyboardModifiers() & ~QtCore.Qt.ShiftModifier & ~QtCore.Qt.KeypadModifier
+    if mods != QtCore.Qt.NoModifier:
+        return False
+    key = combo.key()
+    return key == QtCore.Qt.Key_Space or 0x21 <= int(key.value) <= 0x7E
 
 
 class MainWindow(QtWidgets.QMainWindow):
@@ -262,24 +276,35 @@ class MainWindow(QtWidgets.QMainWindow):
         self.fit_to_screen()
         self._tick_timer.start(self.TICK_MS)
         self.latency.start()
+        self.viewport.widget.setFocus()  # the view keys act from the start
 
     # ------------------------------------------------------------------ construction
     def _dock(self, title: str, widget, area) -> QtWidgets.QDockWidget:
         dock = QtWidgets.QDockWidget(title, self)
         dock.setObjectName(title.lower().replace(" ", "_"))
         dock.setWidget(widget)
+        # a click anywhere on a dock takes the keyboard focus from the 3D view, so keys
+        # typed beside a missed field reach no view shortcut
+        dock.setFocusPolicy(QtCore.Qt.ClickFocus)
         self.addDockWidget(area, dock)
         return dock
 
     def _action(self, menu, text, slot, shortcut=None, checkable=False):
         action = QtGui.QAction(text, self)
-        if shortcut:
-            action.setShortcut(QtGui.QKeySequence(shortcut))
-            action.setShortcutContext(QtCore.Qt.WindowShortcut)
         action.setCheckable(checkable)
         action.triggered.connect(slot)
         menu.addAction(action)
-        self.addAction(action)  # shortcuts work while the menu bar is hidden or unfocused
+        if shortcut:
+            action.setShortcut(QtGui.QKeySequence(shortcut))
+        if shortcut and view_key(action.shortcut()):
+            # a key that types text (a digit, a letter, Space, a bracket) acts only while
+            # the 3D view has the focus: typed beside a missed field it must not turn the
+            # camera (a click on a dock takes the focus from the view, see _dock)
+            action.setShortcutContext(QtCore.Qt.WidgetWithChildrenShortcut)
+            self.viewport.widget.addAction(action)
+        elif shortcut:
+            action.setShortcutContext(QtCore.Qt.WindowShortcut)
+            self.addAction(action)  # shortcuts work while the menu bar is hidden or unfocused
         return action
 
     def _menu(self, parent, title: str) -> QtWidgets.QMenu:
