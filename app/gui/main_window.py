@@ -1012,6 +1012,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.slice_view.set_descriptors(event.descriptors)
             self.accuracy.submit(event.descriptors)
             self.params.show_descriptor_cost(event.seconds)
+            self.params.descriptors_applied()
             self.descriptor_seconds = event.seconds
             self.params.set_progress(None, f"updated in {event.seconds:.1f} s")
             self.landscape_view.set_landscape(None)
@@ -1038,7 +1039,7 @@ class MainWindow(QtWidgets.QMainWindow):
                 self.show_error(f"The engine stopped: {event.message}")
             else:
                 if self.params.cancel.isEnabled():  # a recompute was running: it failed
-                    self.params.set_progress(None, "recompute failed")
+                    self.params.recompute_ended("recompute failed")
                 for task in ("descriptors", "field"):
                     self.tasks.finish(task)
                 self.statusBar().showMessage(f"{event.kind}: {event.message}", 15000)
@@ -1058,7 +1059,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if event.message == "cancelled":
             self.tasks.finish(event.task)
             if event.task == "descriptors":
-                self.params.set_progress(None, "cancelled")
+                self.params.recompute_ended("cancelled")
             return
         if event.message == "done" or (event.task == "field" and event.fraction >= 1.0):
             self.tasks.finish(event.task)

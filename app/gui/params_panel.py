@@ -55,6 +55,10 @@ class ParamsPanel(QtWidgets.QWidget):
         #: The scene's descriptor parameters: a recompute sends them with the panel's sigma
         #: and penalty, whole (the object built here reaches the kernels).
         self._descriptor = DescriptorParams()
+        #: The sigma and penalty the engine's descriptors use, and those of a recompute
+        #: sent and not yet applied (None: none running).
+        self._in_use = (self._descriptor.sigma, self._descriptor.penalty)
+        self._pending: tuple[float, float] | None = None
         # gravity in scene units per s^2 (the default unit until a scene says otherwise)
         self._gravity_vector: tuple[float, float, float] = gravity_vector(DEFAULT_UNIT)
         lay = QtWidgets.QVBoxLayout(self)
@@ -123,6 +127,13 @@ class ParamsPanel(QtWidgets.QWidget):
             "sigma and penalty cost once, when the descriptors are recomputed (seconds on\n"
             "a coarse grid, minutes on a fine one); the cost per pose does not change.")
         form.addRow("cost", self.recompute_cost)
+        self.in_use = QtWidgets.QLabel("-")
+        self.in_use.setObjectName("descriptors_in_use")
+        self.in_use.setWordWrap(True)
+        self.in_use.setToolTip("The sigma and penalty of the descriptors the engine uses now;\n"
+                               "a cancelled or failed recompute leaves them, and the boxes "
+                               "show them again.")
+        form.addRow("in use", self.in_use)
         self.sigma.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.penalty.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.cancel.clicked.connect(self._cancel)
@@ -198,6 +209,8 @@ class ParamsPanel(QtWidgets.QWidget):
         self._descriptor = descriptor
         self.sigma.setValueSilently(descriptor.sigma)
         self.penalty.setValueSilently(descriptor.penalty)
+        self._pending = None
+        self._show_in_use((descriptor.sigma, descriptor.penalty))
         self._coupling = config.coupling
         self.coupling.setValueSilently(config.coupling.frequency_hz)
         kappa = config.simulation.kappa
@@ -338,11 +351,36 @@ class ParamsPanel(QtWidgets.QWidget):
 
     def _send_descriptor_params(self) -> None:
         self.set_progress(0.0, "starting recompute")
-        self.command.emit(runtime.SetDescriptorParams(params=self.descriptor_params()))
+        params = self.descriptor_params()
+        self._pending = (params.sigma, params.penalty)
+        self._show_in_use(self._in_use)
+        self.command.emit(runtime.SetDescriptorParams(params=params))
+
+    def _show_in_use(self, values: tuple[float, float]) -> None:
+        self._in_use = values
+        text = f"sigma {values[0]:.4g}, penalty {values[1]:.4g}"
+        if self._pending is not None and self._pending != values:
+            text += (f" (until sigma {self._pending[0]:.4g}, penalty {self._pending[1]:.4g} "
+                     "are ready)")
+        self.in_use.setText(text)
+
+    def descriptors_applied(self) -> None:
+        """The engine swapped in new descriptors: those of the recompute sent, if any."""
+        if self._pending is not None:
+            values, self._pending = self._pending, None
+            self._show_in_use(values)
+
+    def recompute_ended(self, text: str) -> None:
+        """A recompute was cancelled or failed: the boxes show the values in use again."""
+        self._pending = None
+        self.sigma.setValueSilently(self._in_use[0])
+        self.penalty.setValueSilently(self._in_use[1])
+        self._show_in_use(self._in_use)
+        self.set_progress(None, f"{text}; sigma {self._in_use[0]:.4g} in use")
 
     def _cancel(self) -> None:
         self.command.emit(runtime.CancelRecompute())
-        self.set_progress(None, "cancelled")
+        self.recompute_ended("cancelled")
 
     def _kappa_changed(self, *_args) -> None:
         custom = not self.kappa_default.isChecked()

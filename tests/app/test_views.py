@@ -71,10 +71,19 @@ def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
     old = win.slice_view._descriptors
     assert old, "the slice view got the descriptors with ReadyEvent"
     # 1. start a recompute and cancel it at once: the old descriptors stay in use
+    sigma, penalty = panel.sigma.value(), panel.penalty.value()
+    assert panel.in_use.text() == f"sigma {sigma:.4g}, penalty {penalty:.4g}"
+    panel.penalty.setValueSilently(penalty + 1.0)  # typed, not yet applied
     panel.sigma.setValue(0.8)  # a typed value: applied at once (a slider on release)
     assert panel.cancel.isEnabled()
+    assert "until sigma 0.8" in panel.in_use.text()
     panel.cancel.click()
-    assert panel.progress.format() == "cancelled" and not panel.cancel.isEnabled()
+    assert not panel.cancel.isEnabled()
+    assert panel.progress.format() == f"cancelled; sigma {sigma:.4g} in use"
+    # the boxes show the values in use again, not the cancelled ones
+    assert (panel.sigma.value(), panel.penalty.value()) == (sigma, penalty)
+    assert panel.sigma.field.value() == pytest.approx(sigma)
+    assert panel.in_use.text() == f"sigma {sigma:.4g}, penalty {penalty:.4g}"
     n = win.frames_received
     qtbot.wait(3000)
     assert win.slice_view._descriptors is old
@@ -91,6 +100,7 @@ def test_sigma_recompute_runs_in_the_background_and_can_be_cancelled(
     new_rho = win.slice_view._descriptors[0].rho
     assert new_rho.shape == old[0].rho.shape and not np.allclose(new_rho, old[0].rho)
     assert not panel.cancel.isEnabled()
+    assert panel.in_use.text() == f"sigma 1.2, penalty {penalty:.4g}"  # now in use
 
 
 @pytest.mark.slow
@@ -212,7 +222,8 @@ def test_failed_recompute_and_missing_device_are_reported_and_the_session_goes_o
     win.session.send(runtime.SetDescriptorParams(params=params))
     wait_until(lambda: win.last_error is not None, 30000, "the recompute's error")
     assert "sigma" in win.last_error.lower()
-    assert win.params.progress.format() == "recompute failed"
+    sigma = win.params.sigma.value()
+    assert win.params.progress.format() == f"recompute failed; sigma {sigma:.4g} in use"
     assert win.slice_view._descriptors is old
     win.last_error = None
     win.session.send(runtime.SetDevice("spacemouse"))  # none is plugged in here
