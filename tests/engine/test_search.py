@@ -139,3 +139,42 @@ def test_the_bundled_peg_is_found_without_its_assembled_pose():
     assert best.joint.kind == "revolute"
     (axis, _), = best.joint.turns
     assert abs(axis[2]) > 0.97
+
+
+def _search_pair(path, level=1):
+    _, corr, points = _prepared(path)
+    scan = correlator_for_scene(path, rotation=False).spectra
+    result = find_fits(corr, SearchSettings(level=level, scan_modes=12, top=3), points=points,
+                       scan=scan)
+    return corr, points, _dense(path), result
+
+
+def test_a_box_in_a_pocket_at_a_random_rotation_is_found_and_rigid(tmp_path):
+    from search_pairs import box_in_pocket
+
+    from engine.pose import rotation_matrix
+    from engine.search.refine import minimise
+
+    turn = rotation_matrix(np.random.default_rng(7).normal(size=3))
+    path, seat = box_in_pocket(tmp_path, turn)
+    corr, points, dense, result = _search_pair(path)
+    best = result.fits[0]
+    # the energy's own minimum near the seat lies a little deeper than the pocket's floor
+    # at this coarse grid (a fit's minimum past a blind floor): the search must find that
+    seated = minimise(corr, rotation_matrix(seat[3:]), seat[:3], length=7.0)
+    assert best.energy <= seated[2] + 1e-6 * abs(seated[2])
+    assert _miss(best, seat, points, dense) < 8.0
+    assert best.joint.kind == "rigid"
+
+
+@pytest.mark.slow
+def test_a_keyed_shaft_through_a_hub_is_found_and_prismatic_along_it(tmp_path):
+    from search_pairs import keyed_through
+
+    path, seat = keyed_through(tmp_path)
+    _, points, dense, result = _search_pair(path)
+    best = result.fits[0]
+    assert _miss(best, seat, points, dense) < 2.0  # the key in its keyway, not turned away
+    assert best.joint.kind == "prismatic"
+    (slide,) = best.joint.slides
+    assert abs(slide[2]) > 0.97
