@@ -5,7 +5,9 @@ assets/real). For each, :func:`engine.search.search_scene` runs without being to
 pose; the table gives the seconds (the scan's and the whole search's, descriptors from the
 store not counted), the rotations scanned, the rank of the first fit within 5 % of the
 assembled pose, the top fit's errors and its joint kind against the one ``free_axes``
-declares. Errors, all blind to part 2's symmetries:
+declares. Errors, all blind to part 2's symmetries and, along the translations that
+``free_axes`` declares, to where the fit lies (a peg in a through bore fits anywhere along
+it):
 
 - geometry: the mean distance from part 2's surface points at the fit to the surface at
   the assembled pose (a dense sample), in % of part 2's size (its bounding-box diagonal);
@@ -77,8 +79,12 @@ def _principal_lines(points: np.ndarray) -> list[np.ndarray]:
     return lines
 
 
-def errors(fit_rotation, fit_translation, pose, points, dense) -> dict:
-    """Geometry, centre (% of size) and axes (degrees) errors of a fit (module docstring)."""
+def errors(fit_rotation, fit_translation, pose, points, dense, free_axes=()) -> dict:
+    """Geometry, centre (% of size) and axes (degrees) errors of a fit (module docstring).
+
+    ``free_axes``: the scene's declared free axes; the fit is first slid along the free
+    translations (part 1's x, y, z) to the assembled pose's centroid.
+    """
     from scipy.spatial import cKDTree
 
     from engine.pose import pose_to_matrix
@@ -87,6 +93,13 @@ def errors(fit_rotation, fit_translation, pose, points, dense) -> dict:
     size = surface_spread(points)
     m = pose_to_matrix(np.asarray(pose, float))
     want = placed(dense, m[:3, :3], m[:3, 3])
+    gap = want.mean(axis=0) - placed(dense, fit_rotation, fit_translation).mean(axis=0)
+    slide = np.zeros(3)
+    for axis in free_axes or ():
+        if axis in ("x", "y", "z"):
+            index = "xyz".index(axis)
+            slide[index] = gap[index]
+    fit_translation = np.asarray(fit_translation, float) + slide
     got = placed(points, fit_rotation, fit_translation)
     geometry = 100.0 * float(np.mean(cKDTree(want).query(got)[0])) / size
     # the dense sample's centroid and axes: a few hundred points' wander by percents
@@ -135,8 +148,8 @@ def run(args: argparse.Namespace) -> int:
                 start = time.perf_counter()
                 result = search_scene(scene, settings, work=work)
                 wall = time.perf_counter() - start
-                errs = [errors(f.rotation, f.translation, scene.assembled_pose, points, dense)
-                        for f in result.fits]
+                errs = [errors(f.rotation, f.translation, scene.assembled_pose, points, dense,
+                               scene.seat.free_axes) for f in result.fits]
                 rank = next((i + 1 for i, e in enumerate(errs)
                              if e["geometry_percent"] < FOUND_PERCENT), None)
                 top = result.fits[0] if result.fits else None
