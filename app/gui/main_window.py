@@ -72,6 +72,12 @@ field of a panel they never move the camera or the part.</p>"""
 #: The window's size when nothing is remembered, and the share of the screen it may take.
 DEFAULT_SIZE = (1500, 920)
 SCREEN_SHARE = 0.94
+#: Smallest sizes of the 3D view and of a dock's content (pixels): a window made small keeps
+#: both (a dock's content scrolls below its own minimum).
+MIN_VIEW = (200, 150)
+MIN_DOCK = (140, 80)
+#: A remembered window smaller than this is a damaged layout and is not restored.
+LAYOUT_MIN = (640, 400)
 #: The engine counts as below its rate under this share of its target (steps per second).
 RATE_WARNING = 0.9
 
@@ -188,6 +194,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.setDockNestingEnabled(True)
         self.viewport = Viewport(self)
         self.setCentralWidget(self.viewport.widget)
+        self.viewport.widget.setMinimumSize(*MIN_VIEW)
         self.viewport.proxy_dragged.connect(self._proxy_dragged)
         self.viewport.drag_state.connect(self._drag_state)
 
@@ -240,10 +247,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.view_panel.opacity_changed.connect(self.viewport.set_fixed_opacity)
         self.view_panel.clip_changed.connect(self.viewport.set_clip)
         self.params.layout().insertWidget(self.params.layout().count() - 1, self.view_panel)
-        scroll = QtWidgets.QScrollArea()
-        scroll.setWidget(self.params)
-        scroll.setWidgetResizable(True)
-        self.dock_params = self._dock("Parameters", scroll, QtCore.Qt.RightDockWidgetArea)
+        self.dock_params = self._dock("Parameters", self.params, QtCore.Qt.RightDockWidgetArea)
 
         self.slice_view = SliceView()
         self.slice_view.plane_changed.connect(self.viewport.show_slice_plane)
@@ -272,6 +276,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._tick_timer.setTimerType(QtCore.Qt.PreciseTimer)
         self._tick_timer.timeout.connect(self.tick)
         self.resize(*DEFAULT_SIZE)
+        self._default_state = self.saveState()  # what View > Reset layout restores
         self._restore_layout()
         self.fit_to_screen()
         self._tick_timer.start(self.TICK_MS)
@@ -282,7 +287,14 @@ class MainWindow(QtWidgets.QMainWindow):
     def _dock(self, title: str, widget, area) -> QtWidgets.QDockWidget:
         dock = QtWidgets.QDockWidget(title, self)
         dock.setObjectName(title.lower().replace(" ", "_"))
-        dock.setWidget(widget)
+        # in a scroll area: a dock squeezed below its content's minimum scrolls instead of
+        # laying its texts over each other, and keeps a size of its own (MIN_DOCK)
+        scroll = QtWidgets.QScrollArea()
+        scroll.setWidget(widget)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QtWidgets.QFrame.NoFrame)
+        scroll.setMinimumSize(*MIN_DOCK)
+        dock.setWidget(scroll)
         # a click anywhere on a dock takes the keyboard focus from the 3D view, so keys
         # typed beside a missed field reach no view shortcut
         dock.setFocusPolicy(QtCore.Qt.ClickFocus)
@@ -336,6 +348,7 @@ class MainWindow(QtWidgets.QMainWindow):
         for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape):
             view.addAction(toggle_view_action(dock))
         view.addSeparator()
+        self._action(view, "Reset &layout", self.reset_layout)
         self._action(view, "Reset &camera", self.reset_camera, "Ctrl+0")
         views = self._menu(view, "&Standard views")
         self.view_actions: dict[str, QtGui.QAction] = {}
@@ -392,15 +405,37 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ------------------------------------------------------------------ settings
     def _restore_layout(self) -> None:
+        """The remembered window and docks, unless damaged (too small, or off every screen)."""
         geometry = self.settings.value("window/geometry")
         state = self.settings.value("window/state")
         if geometry is not None:
             self.restoreGeometry(geometry)
+            if not self._layout_usable(self.geometry()):
+                self.resize(*DEFAULT_SIZE)
+                state = None
         if state is not None:
             self.restoreState(state)
         else:
             # dock sizes only take once the window is laid out
             QtCore.QTimer.singleShot(0, self._default_dock_sizes)
+
+    def _layout_usable(self, rect: QtCore.QRect) -> bool:
+        """A window of ``rect`` is big enough to work in and lies mostly on a screen."""
+        if rect.width() < LAYOUT_MIN[0] or rect.height() < LAYOUT_MIN[1]:
+            return False
+        screens = QtGui.QGuiApplication.screens()
+        area = max((s.availableGeometry().intersected(rect) for s in screens),
+                   key=lambda r: r.width() * r.height(), default=QtCore.QRect())
+        return area.width() * area.height() >= 0.5 * rect.width() * rect.height()
+
+    def reset_layout(self) -> None:
+        """Every dock back where a first launch puts it, at its default size."""
+        self.restoreState(self._default_state)
+        for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape):
+            dock.setFloating(False)
+            dock.show()
+        self.toolbar.show()
+        self._default_dock_sizes()
 
     def _available_geometry(self) -> QtCore.QRect:
         """The part of the screen the window may use (without panels and docks of the OS)."""
@@ -438,7 +473,13 @@ class MainWindow(QtWidgets.QMainWindow):
                          QtCore.Qt.Vertical)
 
     def save_layout(self) -> None:
-        """Save the window geometry and the dock layout to the settings."""
+        """Save the window geometry and the dock layout to the settings.
+
+        A window squeezed below :data:`LAYOUT_MIN` or off every screen is not saved: the
+        layout remembered before it stays.
+        """
+        if not self._layout_usable(self.geometry()):
+            return
         self.settings.setValue("window/geometry", self.saveGeometry())
         self.settings.setValue("window/state", self.saveState())
         self.settings.sync()

@@ -44,3 +44,93 @@ def test_digits_typed_in_a_field_or_beside_it_never_turn_the_camera(make_window,
     # the menu still turns it, whatever has the focus
     win.view_actions["+z"].trigger()
     assert np.allclose(_direction(win), [0, 0, -1], atol=1e-6)
+
+
+# ------------------------------------------------------------------ layout
+def _rect_in(win, widget) -> QtCore.QRect:
+    return QtCore.QRect(widget.mapTo(win, QtCore.QPoint(0, 0)), widget.size())
+
+
+def _overlapping_siblings(root) -> list[tuple[str, str]]:
+    """Pairs of visible sibling widgets under ``root`` whose rectangles meet."""
+    from PySide6 import QtWidgets
+
+    found = []
+    for parent in [root, *root.findChildren(QtWidgets.QWidget)]:
+        kids = [c for c in parent.children() if isinstance(c, QtWidgets.QWidget)
+                and c.isVisible() and not c.isWindow()]
+        for i, a in enumerate(kids):
+            found += [(repr(a), repr(b)) for b in kids[i + 1:]
+                      if a.geometry().intersects(b.geometry())]
+    return found
+
+
+def test_at_500_by_350_the_view_and_every_dock_keep_a_size_and_nothing_overlaps(
+        make_window, qtbot):
+    from app.gui.main_window import MIN_DOCK, MIN_VIEW
+
+    win = make_window(PEG, first_frame=False)
+    win.resize(500, 350)
+    qtbot.wait(300)
+    assert (win.width(), win.height()) == (500, 350)
+    view = win.viewport.widget
+    assert view.isVisible() and view.width() >= MIN_VIEW[0] and view.height() >= MIN_VIEW[1]
+    docks = (win.dock_readouts, win.dock_params, win.dock_slice, win.dock_landscape)
+    rects = [_rect_in(win, view)]
+    for dock in docks:
+        content = dock.widget()
+        assert dock.isVisible(), dock.objectName()
+        assert content.width() >= MIN_DOCK[0] and content.height() >= MIN_DOCK[1], \
+            (dock.objectName(), content.size())
+        assert win.rect().contains(_rect_in(win, dock)), dock.objectName()
+        rects.append(_rect_in(win, dock))
+        # texts squeezed below their size scroll rather than lie over each other
+        assert not _overlapping_siblings(content.widget()), dock.objectName()
+    for i, a in enumerate(rects):
+        assert not any(a.intersects(b) for b in rects[i + 1:])
+
+
+def test_view_reset_layout_brings_back_the_default_docks(make_window, qtbot):
+    win = make_window(PEG, first_frame=False)
+    qtbot.wait(100)
+    default = {d.objectName(): win.dockWidgetArea(d) for d in
+               (win.dock_readouts, win.dock_params, win.dock_slice, win.dock_landscape)}
+    win.dock_landscape.hide()
+    win.dock_slice.setFloating(True)
+    win.addDockWidget(QtCore.Qt.LeftDockWidgetArea, win.dock_readouts)
+    action = next(a for a in win.menuBar().actions()[1].menu().actions()
+                  if a.text() == "Reset &layout")
+    action.trigger()
+    qtbot.wait(100)
+    for dock in (win.dock_readouts, win.dock_params, win.dock_slice, win.dock_landscape):
+        assert dock.isVisible() and not dock.isFloating(), dock.objectName()
+        assert win.dockWidgetArea(dock) == default[dock.objectName()], dock.objectName()
+    assert win.viewport.widget.width() > 0.3 * win.width()
+
+
+def test_a_damaged_layout_is_not_restored(settings, qtbot):
+    from app.gui.main_window import LAYOUT_MIN, MainWindow
+
+    win = MainWindow(settings=settings)
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitExposed(win)
+    win.dock_landscape.hide()
+    win.resize(500, 350)
+    qtbot.wait(100)
+    win.save_layout()  # squeezed: not saved
+    assert settings.value("window/geometry") is None
+    # a squeezed layout saved anyway (by an older version): not restored
+    settings.setValue("window/geometry", win.saveGeometry())
+    settings.setValue("window/state", win.saveState())
+    assert not win._layout_usable(QtCore.QRect(20000, 20000, 1000, 700))  # off every screen
+    win.close()
+    again = MainWindow(settings=settings)
+    qtbot.addWidget(again)
+    again.show()
+    qtbot.waitExposed(again)
+    try:
+        assert again.width() >= LAYOUT_MIN[0] and again.height() >= LAYOUT_MIN[1]
+        assert again.dock_landscape.isVisible()  # the default docks, not the damaged ones
+    finally:
+        again.close()
