@@ -26,6 +26,9 @@ from engine.search.work import Shared, receive_shared
 
 T = TypeVar("T")
 
+#: Seconds :meth:`DaskWork.shutdown` gives the client and a local cluster to close.
+CLOSE_SECONDS = 30.0
+
 
 def _run_block(run: Callable[[Callable[[], bool]], Any], shared: dict[str, Any]) -> Any:
     """On a worker: keep the shared values, run the block on one thread."""
@@ -144,6 +147,13 @@ class DaskWork:
         for future in jobs:
             future.cancel()
         self._shared.clear()
-        self._client.close(timeout=timeout)
-        if self._owned is not None:
-            self._owned.close(timeout=timeout)
+        # a local cluster's processes take seconds to stop on a loaded machine (2 s were
+        # not enough on 2 busy cores); they are this process's children and end with it
+        wait = max(float(timeout), CLOSE_SECONDS)
+        for closing in (self._client, self._owned):
+            if closing is None:
+                continue
+            try:
+                closing.close(timeout=wait)
+            except TimeoutError:
+                pass

@@ -138,10 +138,11 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         Points of part 2's surface in its own frame, for clustering alike poses (its
         symmetries); default: its grid box's corners (no symmetry).
     scan : Spectra, optional
-        The pair's spectra for the scan (default: the correlator's). Spectra made without
-        the torque (``Correlator(..., rotation=False)``) interpolate trilinearly: about 7
-        times faster per rotation than the torque's cubic Hermite interpolant, the energy
-        within about 1 % (the refinement uses the correlator's own).
+        The pair's spectra for the scan and the descent through the grid's children
+        (default: the correlator's). Spectra made without the torque
+        (``Correlator(..., rotation=False)``) interpolate trilinearly: about 7 times faster
+        per rotation than the torque's cubic Hermite interpolant, the energy within about
+        1 % (the minimisation and the joints use the correlator, per pose).
     work : BlockWork, optional
         Where the scan's blocks run (:class:`~engine.search.distributed.DaskWork`);
         default: here, in order.
@@ -166,7 +167,8 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
 
     report(0.0)
     lattice = s.scan_lattice()
-    found = _scan(correlator.spectra if scan is None else scan, grid, s, lattice, work,
+    scan_spectra = correlator.spectra if scan is None else scan
+    found = _scan(scan_spectra, grid, s, lattice, work,
                   lambda f: report(SCAN_SHARE * f), cancel)
     scan_seconds = time.perf_counter() - start
     kept = found.best(s.keep)
@@ -179,7 +181,8 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         began = time.perf_counter()
         row = int(groups.leaders[i])
         lev, idx, t, _ = descend(
-            fine, grid, s.level, int(kept.rotation_index[row]), kept.translation[row],
+            scan_spectra, fine.modes, grid, s.level, int(kept.rotation_index[row]),
+            kept.translation[row],
             levels=s.refine_levels, lattice=_even_above(2 * fine.modes),
             reach=s.cluster_radius * size, cancel=cancel)
         rot, t, energy, _ = minimise(fine, grid.matrix(lev, idx), t, length=0.5 * size)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from engine.correlation import Correlator
+from engine.correlation import Correlator, Spectra
 from engine.correlation.landscape import compute_landscape
 from engine.errors import Cancelled
 from engine.pose import rotation_matrix
@@ -47,14 +47,15 @@ class Refined:
     evaluations: int
 
 
-def descend(correlator: Correlator, grid: RotationGrid, level: int, index: int,
+def descend(spectra: Spectra, modes: int, grid: RotationGrid, level: int, index: int,
             translation: np.ndarray, *, levels: int, lattice: int, reach: float,
             cancel: Callable[[], bool] | None = None) -> tuple[int, int, np.ndarray, float]:
     """Follow the best child down ``levels`` levels of the grid.
 
     At each level the current rotation and its eight children are compared by the lowest
     landscape energy within ``reach`` of the current translation (``lattice`` samples per
-    axis at the correlator's modes); the best becomes current.
+    axis, ``modes`` per axis of ``spectra``: the scan's trilinear ones suffice to choose a
+    rotation); the best becomes current.
 
     Returns
     -------
@@ -69,8 +70,8 @@ def descend(correlator: Correlator, grid: RotationGrid, level: int, index: int,
     def measure(lev: int, idx: int, t: np.ndarray) -> tuple[float, np.ndarray]:
         if cancel is not None and cancel():
             raise Cancelled("the search was cancelled")
-        land = compute_landscape(correlator.spectra, grid.matrix(lev, idx), correlator.modes,
-                                 forces=False, lattice=lattice, real=True)
+        land = compute_landscape(spectra, grid.matrix(lev, idx), modes, forces=False,
+                                 lattice=lattice, real=True)
         axes = land.translations
         near = [np.abs(axes[a] - t[a]) <= reach for a in range(3)]
         window = land.energy[np.ix_(*near)]
