@@ -914,6 +914,13 @@ class MainWindow(QtWidgets.QMainWindow):
                 # the coarse first field's rest can lie a cell off the seat (the peg in hole
                 # rests 1.1 degrees tilted there, 0.8 on its own grid)
                 detail += "; judged on a coarse first field until the scene's descriptors are ready"
+            scene_k = handle.scene.modes
+            if scene_k is not None and f.modes > 0 and f.modes != scene_k:
+                # the judgement takes the pose alone; it is the part that rests elsewhere on
+                # a truncated field (the peg pushed onto its floor: 0.98 mm and 0.10 deg from
+                # the seat at K = 24, 1.25 mm and 0.28 deg at 20, 1.44 mm and 3.08 deg at 16)
+                detail += (f"; the part rests where the field at K = {f.modes} puts it (the "
+                           f"scene's K is {scene_k}): another K can move it on or off its seat")
             r.set("seat", f"{self.seat.distance:.3g} {u.length}, {self.seat.angle_deg:.2f}°",
                   "Distance of part 2's centre of mass from where it sits when assembled, and "
                   "the angle from the seated orientation, the fit's free axes left out")

@@ -134,3 +134,33 @@ def test_a_damaged_layout_is_not_restored(settings, qtbot):
         assert again.dock_landscape.isVisible()  # the default docks, not the damaged ones
     finally:
         again.close()
+
+
+# ------------------------------------------------------------------ the seat and K
+def test_a_part_that_does_not_move_keeps_its_seat_reading_whatever_k(make_window,
+                                                                        wait_until):
+    """The seat is judged from the pose alone; a K change that leaves the part where it is
+    leaves the readout as it was, and the readout names the K the part rests at.
+    """
+    from engine import runtime
+
+    win = make_window(PEG)
+    k = win.session.handle.scene.modes
+    wait_until(lambda: win.latest_frame.modes == k, 600000, f"a field at the scene's K = {k}")
+    seated = tuple(float(v) for v in win.session.handle.assembled_pose)
+    win.pause_action.trigger()  # paused, the part stays exactly where a Reset puts it
+    wait_until(lambda: win.latest_frame.paused, 5000, "a paused frame")
+    win.session.send(runtime.Reset(seated))
+    wait_until(lambda: np.allclose(win.latest_frame.part_pose, seated, atol=1e-9)
+               and win.seat is not None and win.seat.seated, 10000, "the part seated")
+    before = (win.seat.distance, win.seat.angle_deg)
+    assert "K =" not in win.seat_detail.text()
+    win._step_modes(-2)
+    win._step_modes(-2)  # "[" twice
+    wait_until(lambda: win.latest_frame.modes == k - 4, 300000, f"frames at K = {k - 4}")
+    wait_until(lambda: f"K = {k - 4}" in win.seat_detail.text(), 5000,
+               lambda: f"the readout naming K: {win.seat_detail.text()!r}")
+    assert np.allclose(win.latest_frame.part_pose, seated, atol=1e-9)
+    assert win.seat_label.text() == "SEATED"
+    assert (win.seat.distance, win.seat.angle_deg) == before
+    assert f"scene's K is {k}" in win.seat_detail.text()
