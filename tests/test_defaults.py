@@ -19,11 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 COPIED = re.compile(r"\bdefault:?\s+-?\d")
 #: Copies known and not yet derived, each with where its one source is: remove an entry
 #: once the string reads the source.
-KNOWN = {
-    # the search's rotation grid: engine.search.SearchSettings.level (2: 72 * 8^2 = 576);
-    # the command also falls back to 576 itself
-    ("app/commands/search.py", "default 576)"),
-}
+KNOWN: set[tuple[str, str]] = set()
 
 
 def _docstrings(tree: ast.AST) -> set[int]:

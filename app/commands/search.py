@@ -20,20 +20,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "planar, other). The scene's assembled_pose is not needed.",
     )
     parser.add_argument("scene", help="scene file (TOML)")
-    parser.add_argument("--top", type=int_in_range(1, 100), default=5,
-                        help="fits to report (default 5)")
+    parser.add_argument("--top", type=int_in_range(1, 100),
+                        help="fits to report (default: the search's own)")
     grid = parser.add_mutually_exclusive_group()
     grid.add_argument("--rotations", type=int_in_range(1, 2_359_296),
                       help="rotations to scan at least (72 * 8^l: 72, 576, 4608, 36864, ...; "
-                      "default 576)")
+                      "default: the search's own grid)")
     grid.add_argument("--angle", type=positive_float,
                       help="rotation grid spacing in degrees at most (60, 30, 15, 7.5, ...)")
     parser.add_argument("--modes", type=int, help="modes per axis K of the refinement "
                         "(default: the scene's)")
-    parser.add_argument("--scan-modes", type=int_in_range(2, 64), default=16,
-                        help="modes per axis of the scan (default 16)")
-    parser.add_argument("--seed", type=int_in_range(0, 2**31 - 1), default=0,
-                        help="turns the rotation grid by a random rotation (default 0)")
+    parser.add_argument("--scan-modes", type=int_in_range(2, 64),
+                        help="modes per axis of the scan (default: the search's own)")
+    parser.add_argument("--seed", type=int_in_range(0, 2**31 - 1),
+                        help="turns the rotation grid by a random rotation (default: the "
+                        "search's own)")
     parser.add_argument("--workers", type=int_in_range(1, 1024),
                         help="run the scan on a local Dask cluster of N processes")
     parser.add_argument("--scheduler", metavar="ADDRESS",
@@ -103,6 +104,7 @@ def result_json(result, scene, scale, where: str) -> dict:
 def run(args: argparse.Namespace) -> int:
     """Search, print the ranked fits (or JSON), write ``-o``. Returns the exit status."""
     import json
+    from dataclasses import replace
 
     from app.commands.scale import EnergyScale, energy_scale
     from engine.errors import InputError
@@ -118,9 +120,11 @@ def run(args: argparse.Namespace) -> int:
         check_modes(args.modes, "--modes")
     if args.workers is not None and args.scheduler is not None:
         raise InputError("--workers and --scheduler: give one (a local cluster, or an address)")
+    base = SearchSettings()  # the one place the defaults are written
     try:
         level = (level_for(angle=args.angle) if args.angle is not None
-                 else level_for(rotations=args.rotations or 576))
+                 else level_for(rotations=args.rotations) if args.rotations is not None
+                 else base.level)
     except ValueError as exc:
         raise InputError(f"--rotations/--angle: {exc}") from None
     if args.output:
@@ -133,8 +137,11 @@ def run(args: argparse.Namespace) -> int:
         scale = EnergyScale(float(scene.config.simulation.kappa or 1.0),
                             QuantityUnits.of(scene.units), "scene" if
                             scene.config.simulation.kappa is not None else "unit")
-    settings = SearchSettings(level=level, scan_modes=args.scan_modes, top=args.top,
-                              seed=args.seed, clusters=max(8, args.top))
+    top = base.top if args.top is None else args.top
+    settings = replace(base, level=level, top=top, clusters=max(base.clusters, top),
+                       scan_modes=base.scan_modes if args.scan_modes is None
+                       else args.scan_modes,
+                       seed=base.seed if args.seed is None else args.seed)
     work = None
     where = "in-process"
     if args.workers is not None or args.scheduler is not None:

@@ -19,7 +19,7 @@ class SearchSettings:
     ----------
     level : int
         Level of the Hopf rotation grid scanned (``72 * 8^level`` rotations, about
-        ``60 / 2^level`` degrees apart; 2: 4,608 at 15 degrees).
+        ``60 / 2^level`` degrees apart; 1: 576 at 30 degrees, 2: 4,608 at 15).
     scan_modes : int
         Modes per axis of the scan's landscapes (the coarse stage).
     modes : int or None
@@ -49,7 +49,7 @@ class SearchSettings:
         Rotations per unit of work (what a Dask task or a progress step covers).
     """
 
-    level: int = 2
+    level: int = 1
     scan_modes: int = 16
     modes: int | None = None
     lattice: int | None = None
