@@ -20,6 +20,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.gui import quantities
 from app.gui.accuracy import AccuracyIndicator
+from app.gui.contact import OverlapGauge
 from app.gui.landscape_view import LandscapeView
 from app.gui.params_panel import ParamsPanel
 from app.gui.pose_dialog import PoseDialog
@@ -203,6 +204,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.tasks = TaskBoard()
         self.rate_low = False  # the engine runs below RATE_WARNING of its target rate
         self.seat = None  # engine.seat.SeatState of the latest frame
+        self.overlap_depth: float | None = None  # part 2's depth in part 1 (scene unit)
         self._requested_modes: int | None = None
         self._coupling = None  # the coupling the panel last sent (None: the scene's)
         self._kappa_override: float | None = None
@@ -219,6 +221,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.readouts = Readouts([
             ("pose", "part 2 (rel. part 1)"),
             ("seat", "to the seat"),
+            ("overlap", "overlap"),
             ("free", "free axes"),
             ("energy", "energy E"),
             ("force", "|force F|"),
@@ -243,6 +246,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.params.command.connect(self._command)
         self.accuracy = AccuracyIndicator(self)  # the truncation estimate beside K
         self.accuracy.profile_ready.connect(self.params.set_truncation_profile)
+        self.overlap = OverlapGauge(self)  # how deep part 2 sits in part 1
+        self.overlap.ready.connect(lambda _m: self._show_overlap())
         self.view_panel = ViewPanel()
         self.view_panel.opacity_changed.connect(self.viewport.set_fixed_opacity)
         self.view_panel.clip_changed.connect(self.viewport.set_clip)
@@ -660,6 +665,10 @@ class MainWindow(QtWidgets.QMainWindow):
             self.readouts.set(key, "-")
         self._show_seated(False, "no frame yet" if len(views) > 1 else "one part: nothing "
                           "to seat")
+        self.viewport.set_overlap(False)
+        if len(handle.parts) > 1:
+            self.readouts.set("overlap", "measuring…")
+            self.overlap.submit(handle.parts[0], handle.parts[1])
         meshes = [(v.name, v.vertices, v.faces) for v in views]
         self.slice_view.set_parts(meshes, [posemath.pose_to_matrix(v.pose) for v in views])
         self.slice_view.set_descriptors(())
@@ -925,6 +934,7 @@ class MainWindow(QtWidgets.QMainWindow):
                   "Distance of part 2's centre of mass from where it sits when assembled, and "
                   "the angle from the seated orientation, the fit's free axes left out")
             self._show_seated(self.seat.seated, head, detail)
+            self._show_overlap(pose)
         r.set("energy", f"{quantities.number(f.energy, 5)} {u.energy}")
         r.set("force", f"{quantities.number(fn)} {u.force}")
         r.set("torque", f"{quantities.number(tn)} {u.torque}")
@@ -943,6 +953,36 @@ class MainWindow(QtWidgets.QMainWindow):
                 self.tasks.finish("field")
                 self.params.set_progress(None, f"K = {f.modes} in use")
         self._show_tasks()
+
+    def _show_overlap(self, pose: np.ndarray | None = None) -> None:
+        """How deep part 2 sits in part 1, and the part in red when past contact."""
+        gauge, u = self.overlap, self.units.length
+        if pose is None and self.latest_frame is not None:
+            pose = np.asarray(self.latest_frame.part_pose, float)
+        if gauge.map is None or pose is None:
+            if gauge.error:
+                self.readouts.set("overlap", "not measured", gauge.error)
+            return
+        depth, limit = gauge.map.depth(pose), gauge.map.threshold
+        self.overlap_depth = depth
+        name = self.session.handle.parts[0].name if self.session.handle is not None else ""
+        over = depth > limit
+        if over:
+            text = f"OVERLAP {depth:.3g} {u} into {name}"
+        elif depth > 0:
+            text = f"touching ({depth:.2g} {u}, within a cell of {limit:.2g} {u})"
+        else:
+            text = "none"
+        self.readouts.set("overlap", text,
+                          "How far the deepest point of part 2's surface lies inside part 1 "
+                          "(its signed distance on a grid of cell "
+                          f"{limit:.3g} {u});\nbeyond a cell the parts interpenetrate: the "
+                          "part turns red")
+        label = self.readouts.labels["overlap"]
+        style = "color: white; background: #c0392b; font-weight: bold" if over else ""
+        if label.styleSheet() != style:
+            label.setStyleSheet(style)
+        self.viewport.set_overlap(over)
 
     def _show_engine_state(self, f: runtime.Frame | None = None) -> None:
         """The engine's rate in words, PAUSED, or a warning when it runs below its target."""
@@ -1127,6 +1167,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.save_layout()
         self._tick_timer.stop()
         self.accuracy.shutdown()
+        self.overlap.shutdown()
         self.session.close()
         self.viewport.close()
         super().closeEvent(event)

@@ -33,6 +33,7 @@ from engine import pose as posemath
 FIXED_COLOUR = "#b0b4ba"
 MOVING_COLOUR = "#f28e2b"
 GHOST_COLOUR = "#4e9ad6"
+OVERLAP_COLOUR = "#d62728"  # the moving part where it interpenetrates the fixed one
 
 #: Drag constraints: free (the view plane) or along one axis.
 CONSTRAINTS = ("free", "insertion", "x", "y", "z")
@@ -151,6 +152,7 @@ class Viewport(QtCore.QObject):
         self._centre_world = np.zeros(3)  # scene box centre, where standard views look
         self._clip_plane = vtk.vtkPlane()
         self._fixed_opacity = 1.0
+        self.overlapping = False  # the moving part drawn in OVERLAP_COLOUR
         self._clip: tuple[int, float, int] | None = None  # (axis, fraction, side removed)
         self._fixed_bounds = (np.zeros(3), np.zeros(3))  # world box of the fixed part
 
@@ -170,6 +172,7 @@ class Viewport(QtCore.QObject):
         self.insertion_axis = insertion_axis
         self.plotter.clear_actors()
         self._actors.clear()
+        self.overlapping = False
         self._arrow_matrices.clear()
         self._slice_plane_actor = None
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -318,6 +321,16 @@ class Viewport(QtCore.QObject):
         self._dirty = True
 
     # ----------------------------------------------------------------- the fixed part
+    def set_overlap(self, overlapping: bool) -> None:
+        """Draw the moving part red while it interpenetrates the fixed part, else orange."""
+        actor = self._actors.get("moving")
+        if actor is None or overlapping == self.overlapping:
+            return
+        self.overlapping = overlapping
+        actor.GetProperty().SetColor(pv.Color(OVERLAP_COLOUR if overlapping
+                                              else MOVING_COLOUR).float_rgb)
+        self.request_render()
+
     def set_fixed_opacity(self, opacity: float) -> None:
         """Opacity of the fixed part, 0.05 (nearly clear) to 1 (solid)."""
         self._fixed_opacity = min(max(float(opacity), 0.05), 1.0)

@@ -6,6 +6,7 @@ overshoot shown, a parts list with undo, and the cosmetics of a first hour.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from PySide6 import QtCore
 
 from app.gui.app import DEFAULT_SCENE as PEG
@@ -164,3 +165,40 @@ def test_a_part_that_does_not_move_keeps_its_seat_reading_whatever_k(make_window
     assert win.seat_label.text() == "SEATED"
     assert (win.seat.distance, win.seat.angle_deg) == before
     assert f"scene's K is {k}" in win.seat_detail.text()
+
+
+# ------------------------------------------------------------------ overshoot shown
+def test_a_part_pushed_into_the_blind_floor_shows_the_overlap(make_window, wait_until):
+    from app.gui.viewport import MOVING_COLOUR, OVERLAP_COLOUR
+    from engine import runtime
+
+    win = make_window(PEG)
+    seated = np.asarray(win.session.handle.assembled_pose, float)
+    win.pause_action.trigger()  # paused: the part stays exactly where a Reset puts it
+    wait_until(lambda: win.latest_frame.paused, 5000, "a paused frame")
+    wait_until(lambda: win.overlap.map is not None, 120000,
+               lambda: f"the overlap map ({win.overlap.error})")
+    cell = win.overlap.map.threshold
+    actor = win.viewport._actors["moving"]
+
+    def colour():
+        return "#" + "".join(f"{round(255 * c):02x}" for c in actor.GetProperty().GetColor())
+
+    for past, text in ((1.5, "OVERLAP 1."), (0.0, None), (-27.0, "none")):
+        pose = seated + [0, 0, -past, 0, 0, 0]  # down the bore: into its floor
+        win.session.send(runtime.Reset(tuple(float(v) for v in pose)))
+        wait_until(lambda p=pose: np.allclose(win.latest_frame.part_pose, p, atol=1e-9),
+                   5000, "the part where it was put")
+        wait_until(lambda p=pose: win.overlap_depth is not None and np.allclose(
+            win.overlap.map.depth(p), win.overlap_depth), 5000, "the readout at the pose")
+        shown = win.readouts.text("overlap")
+        if past > 0:
+            assert win.overlap_depth == pytest.approx(past, abs=0.5 * cell), shown
+            assert shown.startswith(text) and shown.endswith(" mm into block"), shown
+            assert colour() == OVERLAP_COLOUR
+        else:
+            assert win.overlap_depth <= cell, shown  # seated: at most contact
+            assert not shown.startswith("OVERLAP"), shown
+            assert colour() == MOVING_COLOUR.lower()
+        if text == "none":
+            assert shown == "none" and win.overlap_depth == 0.0
