@@ -23,6 +23,7 @@ from app.gui.accuracy import AccuracyIndicator
 from app.gui.contact import OverlapGauge
 from app.gui.landscape_view import LandscapeView
 from app.gui.params_panel import ParamsPanel
+from app.gui.parts_panel import PartsPanel, PoseHistory
 from app.gui.pose_dialog import PoseDialog
 from app.gui.session import FILE_FILTER, PART_SUFFIXES, SCENE_SUFFIXES, Session
 from app.gui.slice_view import SliceView
@@ -60,6 +61,7 @@ centre of mass) with an arcball, or about the chosen axis through it.</li>
 <tr><td>Space</td><td>pause / resume the engine</td></tr>
 <tr><td>Ctrl+R</td><td>put the part back at its start pose</td></tr>
 <tr><td>Ctrl+P</td><td>type the pose of the part</td></tr>
+<tr><td>Ctrl+Z, Ctrl+Shift+Z</td><td>undo / redo a change of the part's pose</td></tr>
 <tr><td>I, X, Y, Z, F</td><td>drag along the insertion axis, x, y, z; free drag</td></tr>
 <tr><td>1 … 6, 0, 7</td><td>views from +X, −X, +Y, −Y, +Z, −Z; isometric; along the
 insertion axis</td></tr>
@@ -261,6 +263,12 @@ class MainWindow(QtWidgets.QMainWindow):
         self.landscape_view = LandscapeView()
         self.dock_landscape = self._dock("Energy landscape", self.landscape_view,
                                          QtCore.Qt.LeftDockWidgetArea)
+        self.parts_panel = PartsPanel()
+        self.parts_panel.visibility_changed.connect(self.viewport.set_part_visible)
+        self.dock_parts = self._dock("Parts", self.parts_panel, QtCore.Qt.LeftDockWidgetArea)
+        self.tabifyDockWidget(self.dock_slice, self.dock_parts)
+        self.dock_slice.raise_()
+        self.history = PoseHistory()  # the part's poses before each change, for Undo
 
         self.status_task = QtWidgets.QLabel("")
         self.status_task.setObjectName("status_task")
@@ -349,8 +357,14 @@ class MainWindow(QtWidgets.QMainWindow):
         self._action(file, "&Quit", self.close, QtGui.QKeySequence.Quit)
         self._update_recent_menu()
 
+        edit = self._menu(bar, "&Edit")
+        self.undo_action = self._action(edit, "&Undo pose", self.undo_pose,
+                                        QtGui.QKeySequence.Undo)
+        self.redo_action = self._action(edit, "&Redo pose", self.redo_pose,
+                                        QtGui.QKeySequence.Redo)
         view = self._menu(bar, "&View")
-        for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape):
+        for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape,
+                     self.dock_parts):
             view.addAction(toggle_view_action(dock))
         view.addSeparator()
         self._action(view, "Reset &layout", self.reset_layout)
@@ -436,9 +450,11 @@ class MainWindow(QtWidgets.QMainWindow):
     def reset_layout(self) -> None:
         """Every dock back where a first launch puts it, at its default size."""
         self.restoreState(self._default_state)
-        for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape):
+        for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape,
+                     self.dock_parts):
             dock.setFloating(False)
             dock.show()
+        self.dock_slice.raise_()
         self.toolbar.show()
         self._default_dock_sizes()
 
@@ -666,6 +682,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self._show_seated(False, "no frame yet" if len(views) > 1 else "one part: nothing "
                           "to seat")
         self.viewport.set_overlap(False)
+        self.parts_panel.set_parts(handle)
+        self.history.clear()
         if len(handle.parts) > 1:
             self.readouts.set("overlap", "measuring…")
             self.overlap.submit(handle.parts[0], handle.parts[1])
@@ -741,6 +759,8 @@ class MainWindow(QtWidgets.QMainWindow):
         elif isinstance(command, runtime.SetKappa):
             self._kappa_override = command.kappa
             self._update_kappa()
+        elif isinstance(command, runtime.Reset):
+            self._remember_pose()
         elif isinstance(command, runtime.Pause):
             self._show_engine_state()
         self._show_tasks()
@@ -768,6 +788,8 @@ class MainWindow(QtWidgets.QMainWindow):
                 "and passes through part 1")
 
     def _drag_state(self, dragging: bool) -> None:
+        if dragging:
+            self._remember_pose()
         if dragging and self.guidance_ready:
             axis = self.viewport.constraint
             along = "in the view plane" if axis == "free" else (
@@ -808,15 +830,50 @@ class MainWindow(QtWidgets.QMainWindow):
                 else self.session.handle.start_pose, float))
             dialog.add_preset("Start", lambda: np.asarray(self.session.handle.start_pose))
             dialog.add_preset("Assembled", lambda: np.asarray(self.session.handle.assembled_pose))
-            dialog.move_proxy.connect(
-                lambda pose: self.session.send(runtime.SetProxyPose(tuple(pose))))
-            dialog.place_part.connect(lambda pose: self.session.send(runtime.Reset(tuple(pose))))
+            dialog.move_proxy.connect(self._typed_proxy_pose)
+            dialog.place_part.connect(self._typed_part_pose)
             self.pose_dialog = dialog
         pose = (self.latest_frame.part_pose if self.latest_frame is not None
                 else self.session.handle.start_pose)
         self.pose_dialog.set_pose(np.asarray(pose, float))
         self.pose_dialog.show()
         self.pose_dialog.raise_()
+
+    def _typed_proxy_pose(self, pose) -> None:
+        self._remember_pose()
+        self.session.send(runtime.SetProxyPose(tuple(float(v) for v in pose)))
+
+    def _typed_part_pose(self, pose) -> None:
+        self._remember_pose()
+        self.session.send(runtime.Reset(tuple(float(v) for v in pose)))
+
+    def _remember_pose(self) -> None:
+        """Keep the part's and the ghost's poses before a change, for Undo."""
+        f = self.latest_frame
+        if f is not None:
+            self.history.push(f.part_pose, f.proxy_pose)
+
+    def undo_pose(self) -> None:
+        """Put the part and its ghost back where they were before the last change."""
+        self._step_history(self.history.undo, "undo")
+
+    def redo_pose(self) -> None:
+        """Redo the pose change the last Undo took back."""
+        self._step_history(self.history.redo, "redo")
+
+    def _step_history(self, step, what: str) -> None:
+        f = self.latest_frame
+        state = step(f.part_pose, f.proxy_pose) if f is not None else None
+        if state is None:
+            self.statusBar().showMessage(f"nothing to {what}", 3000)
+            return
+        part, proxy = state
+        # the part at rest where it was, then the ghost where it was: the part follows it
+        self.session.send(runtime.Reset(tuple(float(v) for v in part)))
+        self.session.send(runtime.SetProxyPose(tuple(float(v) for v in proxy)))
+        left, ahead = self.history.depth
+        self.statusBar().showMessage(f"{what}: pose restored ({left} to undo, {ahead} to "
+                                     "redo)", 3000)
 
     def _toggle_pause(self, checked: bool) -> None:
         self.params.pause.setChecked(checked)

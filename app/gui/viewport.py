@@ -152,6 +152,7 @@ class Viewport(QtCore.QObject):
         self._centre_world = np.zeros(3)  # scene box centre, where standard views look
         self._clip_plane = vtk.vtkPlane()
         self._fixed_opacity = 1.0
+        self._part_actors: list[list[str]] = []  # actor keys of each part, in scene order
         self.overlapping = False  # the moving part drawn in OVERLAP_COLOUR
         self._clip: tuple[int, float, int] | None = None  # (axis, fraction, side removed)
         self._fixed_bounds = (np.zeros(3), np.zeros(3))  # world box of the fixed part
@@ -172,6 +173,7 @@ class Viewport(QtCore.QObject):
         self.insertion_axis = insertion_axis
         self.plotter.clear_actors()
         self._actors.clear()
+        self._part_actors = []
         self.overlapping = False
         self._arrow_matrices.clear()
         self._slice_plane_actor = None
@@ -199,6 +201,8 @@ class Viewport(QtCore.QObject):
                     # the whole part); the ghost is drawn by its edges alone there
                     ghost.SetVisibility(False)
                 self._actors.update(moving=actor, ghost=ghost, ghost_edges=ghost_edges)
+                self._part_actors.append(["moving", "ghost_edges"]
+                                         + ([] if self.software_gl else ["ghost"]))
                 self._centroid = (np.asarray(part.centre, float) if part.centre is not None
                                   else np.asarray(part.vertices, float).mean(axis=0))
                 self._proxy_pose = np.asarray(part.pose, float).copy()
@@ -213,6 +217,7 @@ class Viewport(QtCore.QObject):
                 )
                 _set_matrix(actor, world)
                 self._actors[f"fixed_{part.name}"] = actor
+                self._part_actors.append([f"fixed_{part.name}"])
                 self._fixed_bounds = (pts.min(0), pts.max(0))
         self._size = float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(hi - lo)) else 1.0
         self.arrow_scale = 0.3 * self._size
@@ -321,6 +326,14 @@ class Viewport(QtCore.QObject):
         self._dirty = True
 
     # ----------------------------------------------------------------- the fixed part
+    def set_part_visible(self, index: int, shown: bool) -> None:
+        """Show or hide part ``index`` of the scene (the moving part with its ghost)."""
+        if not 0 <= index < len(self._part_actors):
+            return
+        for key in self._part_actors[index]:
+            self._actors[key].SetVisibility(bool(shown))
+        self.request_render()
+
     def set_overlap(self, overlapping: bool) -> None:
         """Draw the moving part red while it interpenetrates the fixed part, else orange."""
         actor = self._actors.get("moving")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from PySide6 import QtCore
+from PySide6 import QtCore, QtGui
 
 from app.gui.app import DEFAULT_SCENE as PEG
 
@@ -99,10 +99,13 @@ def test_view_reset_layout_brings_back_the_default_docks(make_window, qtbot):
     win.dock_landscape.hide()
     win.dock_slice.setFloating(True)
     win.addDockWidget(QtCore.Qt.LeftDockWidgetArea, win.dock_readouts)
-    action = next(a for a in win.menuBar().actions()[1].menu().actions()
-                  if a.text() == "Reset &layout")
+    view_menu = next(a.menu() for a in win.menuBar().actions() if a.text() == "&View")
+    action = next(a for a in view_menu.actions() if a.text() == "Reset &layout")
     action.trigger()
     qtbot.wait(100)
+    win.dock_parts.raise_()  # tabbed with the slice: shown when its tab is chosen
+    assert win.dock_parts.isVisible()
+    win.dock_slice.raise_()
     for dock in (win.dock_readouts, win.dock_params, win.dock_slice, win.dock_landscape):
         assert dock.isVisible() and not dock.isFloating(), dock.objectName()
         assert win.dockWidgetArea(dock) == default[dock.objectName()], dock.objectName()
@@ -202,3 +205,83 @@ def test_a_part_pushed_into_the_blind_floor_shows_the_overlap(make_window, wait_
             assert colour() == MOVING_COLOUR.lower()
         if text == "none":
             assert shown == "none" and win.overlap_depth == 0.0
+
+
+# ------------------------------------------------------------------ parts list and undo
+def test_the_parts_list_shows_each_part_and_hides_it_in_the_view(make_window):
+    win = make_window(PEG, first_frame=False)
+    panel = win.parts_panel
+    handle = win.session.handle
+    assert panel.rowCount() == 2
+    for i, (part, spec) in enumerate(zip(handle.parts, handle.scene.parts, strict=True)):
+        row = [panel.item(i, c).text() for c in range(1, panel.columnCount())]
+        assert row[0] == part.name and row[1] == spec.file.name
+        assert row[3] == f"{len(part.faces):,}"
+        assert row[5] == ("moves" if i == 1 else "fixed")
+    assert panel.item(0, 5).text() == "yes"  # the block is a closed mesh
+    actors = win.viewport._actors
+    panel.set_shown(0, False)
+    assert not actors["fixed_block"].GetVisibility() and actors["moving"].GetVisibility()
+    panel.set_shown(1, False)
+    assert not actors["moving"].GetVisibility() and not actors["ghost_edges"].GetVisibility()
+    panel.set_shown(0, True)
+    panel.set_shown(1, True)
+    assert actors["fixed_block"].GetVisibility() and actors["moving"].GetVisibility()
+
+
+def test_watertight_needs_every_edge_twice():
+    from app.gui.parts_panel import watertight
+
+    tetra = np.array([[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+    assert watertight(tetra)
+    assert not watertight(tetra[:3])  # one face missing: three edges used once
+
+
+def test_ctrl_z_undoes_a_drag_and_typed_poses_and_ctrl_shift_z_redoes(make_window, qtbot,
+                                                                       wait_until):
+    from test_window import drag
+
+    win = make_window(PEG)
+    handle = win.session.handle
+    start = np.asarray(handle.start_pose, float)
+    win.pause_action.trigger()  # paused: the part stays where it is put, the ghost moves
+    wait_until(lambda: win.latest_frame.paused, 5000, "a paused frame")
+
+    def at(part, proxy, what):
+        wait_until(lambda: np.allclose(win.latest_frame.part_pose, part, atol=1e-6)
+                   and np.allclose(win.latest_frame.proxy_pose, proxy, atol=1e-6), 5000,
+                   lambda: f"{what}: part {win.latest_frame.part_pose}, "
+                           f"ghost {win.latest_frame.proxy_pose}")
+
+    at(start, start, "the start")
+    b = start + [3.0, 0, -2.0, 0, 0, 0.2]
+    c = start + [-2.0, 1.0, 0, 0.1, 0, 0]
+    win.show_pose_dialog()
+    win.pose_dialog.place_part.emit(b)  # typed: part and ghost at b
+    at(b, b, "placed at b")
+    win.pose_dialog.move_proxy.emit(c)  # typed: the ghost to c, the part (paused) stays
+    at(b, c, "the ghost at c")
+    win.pose_dialog.hide()
+    grab = win.viewport.moving_part_screen_position()
+    drag(win.viewport.widget, grab, grab + QtCore.QPoint(40, 0))
+    dragged = win.session.relative(win.viewport.proxy_pose)  # where the drag left the ghost
+    assert not np.allclose(dragged, c, atol=1e-3)
+    at(b, dragged, "the ghost dragged")
+    win.activateWindow()
+    win.viewport.widget.setFocus()
+    qtbot.waitUntil(win.viewport.widget.hasFocus, timeout=5000)
+    undo = QtGui.QKeySequence(QtGui.QKeySequence.Undo)[0]
+    redo = QtGui.QKeySequence(QtGui.QKeySequence.Redo)[0]
+    qtbot.keyClick(win.viewport.widget, undo.key(), undo.keyboardModifiers())
+    at(b, c, "undo of the drag")
+    qtbot.keyClick(win.viewport.widget, undo.key(), undo.keyboardModifiers())
+    at(b, b, "undo of the typed ghost pose")
+    qtbot.keyClick(win.viewport.widget, undo.key(), undo.keyboardModifiers())
+    at(start, start, "undo of the placed part")
+    qtbot.keyClick(win.viewport.widget, undo.key(), undo.keyboardModifiers())
+    assert win.statusBar().currentMessage() == "nothing to undo"
+    qtbot.keyClick(win.viewport.widget, redo.key(), redo.keyboardModifiers())
+    at(b, b, "redo of the placed part")
+    qtbot.keyClick(win.viewport.widget, redo.key(), redo.keyboardModifiers())
+    qtbot.keyClick(win.viewport.widget, redo.key(), redo.keyboardModifiers())
+    at(b, dragged, "redo of the drag")
