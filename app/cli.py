@@ -171,6 +171,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command != "gui":  # the window handles its own ending
             replaced = _catch_termination()
+            # trimesh swallows a signal that lands in its imports: import it first, held
+            from engine.loading import import_trimesh
+
+            import_trimesh()
         check_environment()
         max_bytes()  # a bad SKELASM_CACHE_MAX_GB is refused now, not after the computation
         return int(args.run(args) or 0)

@@ -38,7 +38,11 @@ def _same_file(a: Path, b: Path) -> bool:
     try:
         return os.path.samefile(a, b)
     except OSError:
+        pass
+    try:
         return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):  # a loop of links (RuntimeError in Python 3.11)
+        return False
 
 
 def check_output(

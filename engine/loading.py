@@ -29,10 +29,11 @@ import re
 import sys
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import FrameType, ModuleType
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -733,6 +734,8 @@ def step_unit(text: str) -> tuple[str, float] | None:
 def _load_step(path: Path, tolerance: float | None, unit: str | None) -> list[Part]:
     try:
         import cascadio
+
+        import_trimesh()  # first, holding signals (see import_holding_signals)
         import trimesh
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise PartError(
@@ -1024,7 +1027,51 @@ def _redirected() -> Iterator[list[str]]:
 
 
 # --------------------------------------------------------------------------- meshes
+#: Signals held while a module that swallows them is imported (see import_holding_signals).
+HELD_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+def import_holding_signals(name: str) -> ModuleType:
+    """Import module ``name`` with Ctrl+C, SIGTERM and SIGHUP held until the import ends.
+
+    trimesh guards its optional imports with ``except BaseException``: a Ctrl+C landing in
+    one (or the SIGTERM or SIGHUP the command line turns into an exception) was swallowed
+    and the run went on into work that no signal could stop for minutes. Here a signal that
+    arrives during the import is noted, and passed to its own handler once the import is
+    done, so it acts as soon as the import returns (a fraction of a second). Only handlers
+    written in Python are held (the default action still ends the process at once), and only
+    in the main thread, where Python runs them.
+    """
+    import importlib
+    import signal
+
+    if name in sys.modules:
+        return sys.modules[name]
+    caught: list[int] = []
+    held: dict[int, Callable[[int, FrameType | None], object]] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig_name in HELD_SIGNALS:
+            number = getattr(signal, sig_name, None)
+            current = signal.getsignal(number) if number is not None else None
+            if number is not None and callable(current):
+                held[number] = current
+                signal.signal(number, lambda signum, frame: caught.append(signum))
+    try:
+        return importlib.import_module(name)
+    finally:
+        for number, handler in held.items():
+            signal.signal(number, handler)
+        if caught:
+            held[caught[0]](caught[0], None)
+
+
+def import_trimesh() -> ModuleType:
+    """The trimesh module, imported with signals held (:func:`import_holding_signals`)."""
+    return import_holding_signals("trimesh")
+
+
 def _load_mesh(path: Path, unit: str | None = None) -> Part:
+    import_trimesh()  # first, holding signals (see import_holding_signals)
     import trimesh
 
     if path.stat().st_size == 0:

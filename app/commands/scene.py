@@ -11,6 +11,7 @@ replaces anything.
 from __future__ import annotations
 
 import argparse
+import os
 
 from app.commands.arguments import finite_float
 from engine.params import DEFAULT_UNIT
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from engine.errors import InputError
-    from engine.files import check_output, write_text
+    from engine.files import check_output, input_problem, write_text
     from engine.params import LENGTH_UNITS, CorrelationParams, DescriptorParams
     from engine.scene import PartSpec, Scene
     from engine.scene.writer import save_scene
@@ -70,11 +71,14 @@ def run(args: argparse.Namespace) -> int:
     if args.unit not in LENGTH_UNITS:
         raise InputError(f"--unit {args.unit!r} is not a known unit; use one of "
                          f"{', '.join(LENGTH_UNITS)}")
+    for given in (args.fixed, args.moving):
+        problem = input_problem(given, what="part file")
+        if problem is not None and not os.path.lexists(given):
+            raise InputError(f"{given}: no such part file; give the path of a STEP, STL, OBJ, "
+                             "PLY or OFF file")
+        if problem is not None:  # a folder, FIFO, device or loop of links, said as such
+            raise InputError(problem)
     files = [Path(args.fixed).resolve(), Path(args.moving).resolve()]
-    for f in files:
-        if not f.is_file():
-            raise InputError(f"{f}: no such part file; give the path of a STEP, STL, OBJ, PLY "
-                             "or OFF file")
     out = Path(args.output)
     if out.suffix.lower() != ".toml":  # never a name the user did not write
         raise InputError(f"{out}: a scene file ends in .toml; give -o a name such as "

@@ -19,7 +19,7 @@ from typing import Literal, TypeAlias, TypeVar, overload
 import numpy as np
 
 from engine.errors import InputError
-from engine.files import MAX_SCENE_BYTES, decode_text, read_input
+from engine.files import MAX_SCENE_BYTES, decode_text, input_problem, read_input
 from engine.params import (
     AXES,
     DEFAULT_GRID,
@@ -499,7 +499,7 @@ def _device(d: _Table, scene_path: Path) -> DeviceConfig:
             raise d.fail("kind", "a trajectory device needs a file",
                          'add file = "path/to.csv" (relative to the scene file) to [device]')
         resolved = Path(file) if Path(file).is_absolute() else scene_path.parent / file
-        options = [(k, str(resolved.resolve()) if k == "file" else v) for k, v in options]
+        options = [(k, str(_absolute(resolved)) if k == "file" else v) for k, v in options]
     return d.build(
         DeviceConfig,
         kind=kind,
@@ -507,6 +507,14 @@ def _device(d: _Table, scene_path: Path) -> DeviceConfig:
         force_scale=d.number("force_scale", 1.0, positive=True),
         options=tuple(options),
     )
+
+
+def _absolute(path: Path) -> Path:
+    """``path`` with its links resolved, or made absolute where they loop (refused later)."""
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):  # Python 3.11 raises RuntimeError for a loop of links
+        return path.absolute()
 
 
 def _parts(top: _Table, data: dict[str, object], p: Path
@@ -534,9 +542,13 @@ def _parts(top: _Table, data: dict[str, object], p: Path
             raise pc.fail(None, f"{label} has no file",
                           'add `file = "part.step"` (relative to the scene file)')
         resolved = Path(file) if Path(file).is_absolute() else (p.parent / file)
-        if not resolved.is_file():
+        problem = input_problem(resolved, what="part file")
+        if problem is not None and not os.path.lexists(resolved):
             raise pc.fail("file", f"part file {file!r} not found (looked for {resolved})",
                           "check the name; relative paths are relative to the scene file")
+        if problem is not None:  # a folder, FIFO, device, link loop: said as what it is
+            why, _, fix = problem.removeprefix(f"{resolved}: ").partition("; ")
+            raise pc.fail("file", f"part file {file!r} ({resolved}): {why}", fix)
         body = pc.string("body", None)
         pname = pc.string("name", body if body is not None else Path(file).stem)
         if any(q.name == pname for q in parts):

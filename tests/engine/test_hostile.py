@@ -4,9 +4,11 @@ Each case is a row of a table: what it feeds, and what must happen. ``refuse`` r
 end in a user error (an ``InputError``, ``ValueError`` or ``OSError`` subclass, or exit 2
 on the command line) whose one-line message contains the expected words: a clear error.
 ``accept`` rows must succeed with the stated result: no silent wrong answer. Any other
-exception is a traceback; a case that runs past its alarm (60 s) is a hang; the ``keep``
-rows check that outputs survive. Test ids start with the area and the expected outcome,
-so a run's counts read by area: ``pytest tests/engine/test_hostile.py -q -rA``.
+exception is a traceback; a case that runs past its alarm (60 s) is a hang; the ``end``
+rows check that outputs survive (a wrong result there is lost data). :func:`outcome` sorts
+every run into one of :data:`OUTCOMES`, and each row must have its kind's (a clear error
+or the right result). Test ids start with the area and the expected outcome; the counts
+by area and outcome: ``python tests/engine/test_hostile.py`` (a Markdown table).
 
 Areas: ``mesh`` (1, welding and load cost), ``read`` (2, bounded reads), ``end`` (3,
 endings and the cache's own files), ``jump`` (4, device jumps), ``cap`` (5, the cache cap),
@@ -115,6 +117,18 @@ class CliError(InputError):
     """A command-line refusal seen from the battery: exit 2 and its one-line message."""
 
 
+class TracebackSeen(Exception):
+    """A command printed a traceback."""
+
+
+class NotOneLine(Exception):
+    """A command refused with exit 2 but not in one line."""
+
+
+class UnclearExit(Exception):
+    """A command ended with a status other than 0 or 2 (an error it did not name as bad input)."""
+
+
 def cli(*argv: object) -> Callable[[Path], object]:
     """Run ``skelasm ARGV`` in the case's folder; exit 2 becomes a CliError of its stderr."""
 
@@ -126,12 +140,15 @@ def cli(*argv: object) -> Callable[[Path], object]:
         finally:
             os.chdir(here)
         if "Traceback" in err:
-            raise AssertionError(f"a traceback: {err}")
+            raise TracebackSeen(err)
         if code == 2:
             lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("note:")
                      and not ln.startswith("warning:")]
-            assert len(lines) == 1, f"not one line: {err!r}"
+            if len(lines) != 1:
+                raise NotOneLine(err)
             raise CliError(lines[0])
+        if code != 0:  # exit 1: an error the command did not recognise as the user's
+            raise UnclearExit(f"exit {code}: {err.strip()}")
         return code, out, err
 
     return run
@@ -523,7 +540,8 @@ def _parse(*argv: str) -> Callable[[Path], object]:
                 return build_parser().parse_args(list(argv))
         except SystemExit as exc:
             lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
-            assert exc.code == 2 and len(lines) == 1, err.getvalue()
+            if exc.code != 2 or len(lines) != 1:
+                raise NotOneLine(err.getvalue()) from None
             raise CliError(lines[0]) from None
 
     return run
@@ -808,6 +826,82 @@ accept("json", "scene-error-carries-its-line",
        lambda r: json.loads(r[1])["line"] == 4)
 
 
+# --------------------------------------------------------------------------- 7 again: part files
+def _scene_with_part(folder: Path, make: Callable[[Path, str], Path]) -> object:
+    """A scene whose moving part is what ``make`` puts at b2.stl (or the path it returns)."""
+    made = make(folder, "b2.stl")
+    return load_scene(_scene(folder, PARTS_SCENE.replace('file = "b.stl"', f'file = "{made}"')))
+
+
+PART_LINE = _line_of(PARTS_SCENE, 'file = "b.stl"')
+for special, (make, words) in SPECIALS.items():
+    refuse("msg", f"scene-part-file-{special}",
+           lambda f, m=make: _scene_with_part(f, m), f"s.toml:{PART_LINE}", *words)
+    refuse("msg", f"scene-new-part-{special}",
+           lambda f, m=make: cli("scene", "new", SLIDE, m(f, "b2.stl"), "-o", "new.toml")(f),
+           *words)
+refuse("msg", "scene-part-file-missing-is-not-found",
+       lambda f: _scene_with_part(f, lambda g, n: g / "absent.stl"), f"s.toml:{PART_LINE}",
+       "not found")
+refuse("msg", "cli-precompute-part-link-loop",
+       lambda f: cli("precompute", _loop(f, "p.stl"))(f), "p.stl", "loop of symbolic links")
+refuse("msg", "cli-evaluate-scene-link-loop",
+       lambda f: cli("evaluate", _loop(f, "s.toml"))(f), "s.toml", "loop of symbolic links")
+refuse("name", "precompute-o-a-link-loop",
+       lambda f: _precompute("-o", _loop(f, "o.npz"), "--force")(f), "o.npz",
+       "not a regular file")
+refuse("name", "precompute-o-a-link-loop-without-force",
+       lambda f: _precompute("-o", _loop(f, "o.npz"))(f), "o.npz", "exists")
+
+
+# --------------------------------------------------------------------------- 1 again: Ctrl+C
+SWALLOWER = """\
+import os, signal, time
+try:  # what trimesh does around its optional imports
+    os.kill(os.getpid(), signal.{sig})
+    time.sleep(0.05)
+except BaseException:
+    pass
+"""
+
+
+def _swallowing_import(folder: Path, sig: str, held: bool) -> str:
+    """Import a module that signals itself and swallows what the signal raises.
+
+    Returns "interrupted" when the signal's exception reached the caller, else "swallowed".
+    SIGTERM gets the command line's handler (an exception, like Ctrl+C).
+    """
+    import importlib
+
+    name = f"_hostile_swallower_{sig.lower()}_{int(held)}"
+    write(folder, f"{name}.py", SWALLOWER.format(sig=sig))
+    sys.path.insert(0, str(folder))
+    number = getattr(signal, sig)
+    previous = signal.signal(number, signal.default_int_handler)
+    try:
+        if held:
+            loading.import_holding_signals(name)
+        else:
+            importlib.import_module(name)
+        return "swallowed"
+    except KeyboardInterrupt:
+        return "interrupted"
+    finally:
+        signal.signal(number, previous)
+        sys.path.remove(str(folder))
+        sys.modules.pop(name, None)
+
+
+for sig in ("SIGINT", "SIGTERM", "SIGHUP"):
+    accept("mesh", f"ctrl-c-in-a-swallowing-import-acts-{sig}",
+           lambda f, g=sig: _swallowing_import(f, g, held=True), lambda r: r == "interrupted")
+accept("mesh", "ctrl-c-in-a-plain-import-is-swallowed-the-control",
+       lambda f: _swallowing_import(f, "SIGINT", held=False), lambda r: r == "swallowed")
+accept("mesh", "trimesh-is-imported-holding-signals",
+       lambda f: (loading.import_trimesh(), loading.HELD_SIGNALS),
+       lambda r: r[0].__name__ == "trimesh" and "SIGINT" in r[1])
+
+
 # --------------------------------------------------------------------------- the runner
 class Hang(BaseException):
     """A case ran past its alarm (a BaseException: no refusal may swallow it)."""
@@ -817,28 +911,141 @@ def _alarm(signum, frame):
     raise Hang(f"a hang: over {HANG_SECONDS} s")
 
 
+#: The outcome each kind of row must have, and every outcome a case can have.
+EXPECTED = {"refuse": "clear error", "accept": "right result"}
+OUTCOMES = ("clear error", "right result", "traceback", "hang", "silent wrong result",
+            "lost data", "unclear error", "wrong refusal")
+#: Areas whose accept rows check that outputs survive: a wrong result there is lost data.
+KEEPING_AREAS = ("end",)
+
+
+def outcome(case: Case, folder: Path) -> tuple[str, str]:
+    """(class, detail) of running ``case`` in ``folder``: one of :data:`OUTCOMES`.
+
+    A refusal is a *clear error* when it is a user error (``InputError``, ``ValueError``,
+    ``OSError``; exit 2 on the command line) of one line holding the expected words, an
+    *unclear error* when it is not one line or lacks them (or the command exited 1), and a
+    *silent wrong result* when the input was accepted. An accept row is a *right result*
+    when its check holds; otherwise *lost data* in the areas that check kept outputs and a
+    *silent wrong result* elsewhere, or a *wrong refusal* when a good input was refused.
+    Any other exception is a *traceback*; running past the alarm is a *hang*.
+    """
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(HANG_SECONDS)
+    try:
+        try:
+            value = case.run(folder)
+        finally:
+            signal.alarm(0)
+            signal.signal(signal.SIGALRM, previous)
+    except Hang as exc:
+        return "hang", str(exc)
+    except TracebackSeen as exc:
+        return "traceback", str(exc)[-400:]
+    except (NotOneLine, UnclearExit) as exc:
+        return "unclear error", str(exc)[:400]
+    except (InputError, ValueError, OSError) as exc:
+        message = str(exc)
+        if case.expect == "accept":
+            return "wrong refusal", message
+        if "\n" in message.strip():
+            return "unclear error", f"not one line: {message!r}"
+        missing = [w for w in case.words if w not in message]
+        if missing:
+            return "unclear error", f"{missing} not in {message!r}"
+        return "clear error", message
+    except Exception as exc:  # noqa: BLE001 - any other exception is what a user would see
+        import traceback
+
+        return "traceback", "".join(traceback.format_exception(exc))[-600:]
+    if case.expect == "refuse":
+        return "silent wrong result", f"accepted: {repr(value)[:400]}"
+    assert case.check is not None, case.id
+    if case.check(value):
+        return "right result", ""
+    area = case.id.split("-")[0]
+    return ("lost data" if area in KEEPING_AREAS else "silent wrong result",
+            f"wrong result: {repr(value)[:400]}")
+
+
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_hostile(case: Case, tmp_path, monkeypatch):
     monkeypatch.setenv("SKELASM_CACHE", str(tmp_path / "cache"))
     folder = tmp_path / "case"
     folder.mkdir()
-    previous = signal.signal(signal.SIGALRM, _alarm)
-    signal.alarm(HANG_SECONDS)
+    got, detail = outcome(case, folder)
+    assert got == EXPECTED[case.expect], f"{got}: {detail}"
+
+
+def battery_counts() -> dict[str, dict[str, int]]:
+    """Run every case (each in a fresh folder and cache); counts by area and outcome."""
+    import tempfile
+
+    counts: dict[str, dict[str, int]] = {}
+    saved = os.environ.get("SKELASM_CACHE")
     try:
-        if case.expect == "refuse":
-            with pytest.raises((InputError, ValueError, OSError)) as info:
-                case.run(folder)
-            message = str(info.value)
-            assert "\n" not in message.strip(), f"not one line: {message!r}"
-            missing = [w for w in case.words if w not in message]
-            assert not missing, f"{missing} not in {message!r}"
-        else:
-            value = case.run(folder)
-            assert case.check is not None, case.id
-            assert case.check(value), f"wrong result: {repr(value)[:400]}"
+        for case in CASES:
+            with tempfile.TemporaryDirectory() as tmp:
+                os.environ["SKELASM_CACHE"] = str(Path(tmp) / "cache")
+                folder = Path(tmp) / "case"
+                folder.mkdir()
+                got, detail = outcome(case, folder)
+            if got != EXPECTED[case.expect]:
+                print(f"{case.id}: {got}: {detail}", file=sys.stderr)
+            area = counts.setdefault(case.id.split("-")[0], dict.fromkeys(OUTCOMES, 0))
+            area[got] += 1
     finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
+        if saved is None:
+            os.environ.pop("SKELASM_CACHE", None)
+        else:
+            os.environ["SKELASM_CACHE"] = saved
+    return counts
+
+
+def counts_table(counts: dict[str, dict[str, int]]) -> str:
+    """A Markdown table of :func:`battery_counts`: one row per area, a total row."""
+    head = "| area | cases | " + " | ".join(OUTCOMES) + " |"
+    rows = [head, "|" + "---|" * (len(OUTCOMES) + 2)]
+    total = dict.fromkeys(OUTCOMES, 0)
+    for area, by in counts.items():
+        rows.append(f"| {area} | {sum(by.values())} | "
+                    + " | ".join(str(by[o]) for o in OUTCOMES) + " |")
+        for o in OUTCOMES:
+            total[o] += by[o]
+    rows.append(f"| all | {sum(total.values())} | "
+                + " | ".join(str(total[o]) for o in OUTCOMES) + " |")
+    return "\n".join(rows)
+
+
+def test_outcome_classifies_what_goes_wrong(tmp_path):
+    """The classifier tells each failure apart (so the counts mean what they say)."""
+
+    def boom(folder):
+        raise KeyError("x")
+
+    def slow(folder):
+        raise Hang("over")
+
+    cases = [
+        (Case("t-refuse-a", lambda f: 1, "refuse", ("x",)), "silent wrong result"),
+        (Case("t-refuse-b", lambda f: (_ for _ in ()).throw(InputError("a\nb")), "refuse"),
+         "unclear error"),
+        (Case("t-refuse-c", lambda f: (_ for _ in ()).throw(InputError("y")), "refuse",
+              ("x",)), "unclear error"),
+        (Case("t-refuse-d", lambda f: (_ for _ in ()).throw(InputError("x")), "refuse",
+              ("x",)), "clear error"),
+        (Case("t-accept-e", boom, "accept", check=bool), "traceback"),
+        (Case("t-accept-f", slow, "accept", check=bool), "hang"),
+        (Case("end-accept-g", lambda f: 0, "accept", check=bool), "lost data"),
+        (Case("name-accept-h", lambda f: 0, "accept", check=bool), "silent wrong result"),
+        (Case("t-accept-i", lambda f: (_ for _ in ()).throw(InputError("x")), "accept",
+              check=bool), "wrong refusal"),
+        (Case("t-accept-j", lambda f: 1, "accept", check=bool), "right result"),
+        (Case("t-refuse-k", cli("scene", "new", "--bogus"), "refuse", ("required",)),
+         "clear error"),
+    ]
+    got = [outcome(case, tmp_path)[0] for case, _ in cases]
+    assert got == [want for _, want in cases]
 
 
 def test_the_battery_has_at_least_300_cases_in_ten_areas():
@@ -847,3 +1054,7 @@ def test_the_battery_has_at_least_300_cases_in_ten_areas():
     assert areas == {"mesh", "read", "end", "jump", "cap", "range", "msg", "name", "silent",
                      "json"}
     assert len({c.id for c in CASES}) == len(CASES), "duplicate ids"
+
+
+if __name__ == "__main__":  # the battery's counts: python tests/engine/test_hostile.py
+    print(counts_table(battery_counts()))
