@@ -31,7 +31,7 @@ from app.gui.strip_chart import StripChart
 from app.gui.tasks import TaskBoard
 from app.gui.view_panel import ViewPanel
 from app.gui.viewport import VIEW_NAMES, Viewport
-from app.gui.widgets import Readouts
+from app.gui.widgets import ElidedLabel, Readouts
 from engine import pose as posemath
 from engine import runtime
 from engine.params import QuantityUnits
@@ -270,7 +270,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.dock_slice.raise_()
         self.history = PoseHistory()  # the part's poses before each change, for Undo
 
-        self.status_task = QtWidgets.QLabel("")
+        self.status_task = ElidedLabel("", 360)  # cut to fit: the messages keep their room
         self.status_task.setObjectName("status_task")
         self.status_engine = QtWidgets.QLabel("engine: -")
         self.status_engine.setObjectName("status_engine")
@@ -278,6 +278,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.status_latency = QtWidgets.QLabel("latency: -")
         for w in (self.status_task, self.status_engine, self.status_fps, self.status_latency):
             self.statusBar().addPermanentWidget(w)
+        # a message cut by the bar's width is whole in its tooltip
+        self.statusBar().messageChanged.connect(lambda text: self.statusBar().setToolTip(text))
         self._build_menus()
         self._build_toolbar()
         self.params.pause.toggled.connect(self._pause_changed)
@@ -552,7 +554,7 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.session.handle is None:
             self.show_error("There is no scene to save.")
             return
-        start = str(self.settings.value("last_dir", str(Path.cwd())))
+        start = str(self.save_folder() / Path(self.session.handle.path).name)
         path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save scene", start,
                                                         "Scenes (*.toml)")
         if path:
@@ -560,6 +562,23 @@ class MainWindow(QtWidgets.QMainWindow):
                 self.save_scene(path)
             except (OSError, ValueError):
                 pass  # save_scene has shown what went wrong; the scene in use is untouched
+
+    def save_folder(self) -> Path:
+        """Where a Save dialog starts, never the bundled examples' folder (assets/).
+
+        The folder last saved to, else the one last opened from, else home.
+        """
+        from app.gui.app import DEFAULT_SCENE
+
+        bundled = DEFAULT_SCENE.resolve().parents[1]
+        for key in ("last_save_dir", "last_dir"):
+            value = self.settings.value(key)
+            if not value:
+                continue
+            folder = Path(str(value)).resolve()
+            if folder.is_dir() and not folder.is_relative_to(bundled):
+                return folder
+        return Path.home()
 
     def save_scene(self, path: str | Path) -> Path:
         """Write the current scene, with the part where it is now, to a TOML file.
@@ -587,13 +606,15 @@ class MainWindow(QtWidgets.QMainWindow):
             self.show_error(f"Could not save the scene: {exc}")
             raise
         self._remember(str(out))
+        self.settings.setValue("last_save_dir", str(Path(out).resolve().parent))
         self.statusBar().showMessage(f"saved {out}", 5000)
         return out
 
     def screenshot_dialog(self) -> None:
         """Ask where to save a screenshot of the window and save it."""
-        path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save screenshot",
-                                                        "skelasm.png", "PNG images (*.png)")
+        path, _ = QtWidgets.QFileDialog.getSaveFileName(
+            self, "Save screenshot", str(self.save_folder() / "skelasm.png"),
+            "PNG images (*.png)")
         if path:
             try:
                 self.save_screenshot(path)
@@ -702,8 +723,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.params.set_progress(0.0, "preparing descriptors %p%", cancellable=False)
             chosen = "; ".join(f"{key} = {value}" for key, value, _ in scene.chosen)
             self.statusBar().showMessage(
-                f"{title}: preparing descriptors and correlation tables (the first time a "
-                "scene opens this can take minutes; they are cached)"
+                f"{title}: preparing descriptors (minutes the first time; then cached)"
                 + (f"; chosen from the parts: {chosen}" if chosen else ""))
         # what the scene left open and the engine chose, with why (hover the parameters)
         self.params.setToolTip("\n".join(f"{key} = {value}: chosen, {reason}"
@@ -1146,7 +1166,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.accuracy.submit(event.descriptors)
             self.engine_note = event.message
             self.statusBar().showMessage(
-                "ready: drag the orange part (or its blue ghost) towards its seat", 6000)
+                "ready: drag the orange part (or its blue ghost) to its seat", 6000)
             if event.coarse_grid is not None:  # the scene's own descriptors follow
                 self.tasks.start("descriptors", "computing the scene's descriptors (the part "
                                  f"moves on a coarse grid of {event.coarse_grid} meanwhile)")

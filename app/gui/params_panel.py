@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 from PySide6 import QtCore, QtWidgets
 
-from app.gui.widgets import SliderField
+from app.gui.widgets import ElidedProgressBar, SliderField
 from engine import runtime
 from engine.params import (
     AXES,
@@ -109,7 +109,7 @@ class ParamsPanel(QtWidgets.QWidget):
                                 "costs than a gap.")
         form.addRow("sigma", self.sigma)
         form.addRow("penalty P", self.penalty)
-        self.progress = QtWidgets.QProgressBar()
+        self.progress = ElidedProgressBar()
         self.progress.setRange(0, 1000)
         self.progress.setValue(0)
         self.progress.setTextVisible(True)

@@ -33,6 +33,8 @@ from engine import pose as posemath
 FIXED_COLOUR = "#b0b4ba"
 MOVING_COLOUR = "#f28e2b"
 GHOST_COLOUR = "#4e9ad6"
+#: The ghost's line actors, drawn over everything (the overlay layer).
+GHOST_LINES = ("ghost_edges", "ghost_outline")
 OVERLAP_COLOUR = "#d62728"  # the moving part where it interpenetrates the fixed one
 
 #: Drag constraints: free (the view plane) or along one axis.
@@ -201,7 +203,7 @@ class Viewport(QtCore.QObject):
                     # the whole part); the ghost is drawn by its edges alone there
                     ghost.SetVisibility(False)
                 self._actors.update(moving=actor, ghost=ghost, ghost_edges=ghost_edges)
-                self._part_actors.append(["moving", "ghost_edges"]
+                self._part_actors.append(["moving", "ghost_edges", "ghost_outline"]
                                          + ([] if self.software_gl else ["ghost"]))
                 self._centroid = (np.asarray(part.centre, float) if part.centre is not None
                                   else np.asarray(part.vertices, float).mean(axis=0))
@@ -241,6 +243,8 @@ class Viewport(QtCore.QObject):
         handle.SetVisibility(False)
         self._actors["axis_handle"] = handle
         self._centre_world = 0.5 * (lo + hi) if np.all(np.isfinite(hi - lo)) else np.zeros(3)
+        if "ghost_edges" in self._actors:
+            self._ghost_on_top(self._actors["ghost_edges"])
         self.plotter.add_axes()
         self._apply_fixed_look()
         self.reset_camera()
@@ -326,6 +330,31 @@ class Viewport(QtCore.QObject):
         self._dirty = True
 
     # ----------------------------------------------------------------- the fixed part
+    def _ghost_on_top(self, edges) -> None:
+        """Draw the ghost's feature edges and silhouette over everything (the overlay layer).
+
+        A ghost inside or behind the opaque part, or on it, stays visible.
+        """
+        self.plotter.renderer.RemoveActor(edges)
+        self._overlay.AddActor(edges)
+        silhouette = vtk.vtkPolyDataSilhouette()
+        silhouette.SetInputData(self._actors["moving"].GetMapper().GetInput())
+        silhouette.SetCamera(self.plotter.renderer.GetActiveCamera())
+        silhouette.SetEnableFeatureAngle(False)
+        mapper = vtk.vtkPolyDataMapper()
+        mapper.SetInputConnection(silhouette.GetOutputPort())
+        outline = vtk.vtkActor()
+        outline.SetMapper(mapper)
+        outline.GetProperty().SetColor(pv.Color(GHOST_COLOUR).float_rgb)
+        outline.GetProperty().SetLineWidth(edges.GetProperty().GetLineWidth())
+        outline.GetProperty().SetLighting(False)
+        outline.PickableOff()
+        silhouette.SetProp3D(outline)  # the silhouette of the ghost where it is placed
+        outline.SetUserMatrix(_vtk_matrix(np.eye(4)))
+        outline.GetUserMatrix().DeepCopy(edges.GetUserMatrix())
+        self._overlay.AddActor(outline)
+        self._actors["ghost_outline"] = outline
+
     def set_part_visible(self, index: int, shown: bool) -> None:
         """Show or hide part ``index`` of the scene (the moving part with its ghost)."""
         if not 0 <= index < len(self._part_actors):
@@ -403,7 +432,8 @@ class Viewport(QtCore.QObject):
             self._proxy_pose = np.asarray(proxy_pose, float).copy()
             m = posemath.pose_to_matrix(self._proxy_pose)
             _set_matrix(self._actors["ghost"], m)
-            _set_matrix(self._actors["ghost_edges"], m)
+            for key in GHOST_LINES:
+                _set_matrix(self._actors[key], m)
             self._dirty = True
         if part_pose is not None and "moving" in self._actors:
             self._part_pose = np.asarray(part_pose, float).copy()
@@ -631,7 +661,8 @@ class Viewport(QtCore.QObject):
         self._proxy_pose = pose
         m = posemath.pose_to_matrix(pose)
         _set_matrix(self._actors["ghost"], m)
-        _set_matrix(self._actors["ghost_edges"], m)
+        for key in GHOST_LINES:
+            _set_matrix(self._actors[key], m)
         self._update_axis_handle()
         self._dirty = True
         self.proxy_dragged.emit(pose.copy())

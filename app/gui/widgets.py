@@ -230,3 +230,73 @@ class Readouts(QtWidgets.QWidget):
     def text(self, key: str) -> str:
         """The text shown for the value named ``key``."""
         return self.labels[key].text()
+
+
+def elided(widget: QtWidgets.QWidget, text: str, width: int,
+           mode=QtCore.Qt.ElideRight) -> str:
+    """``text`` on one line, cut with an ellipsis to ``width`` pixels of ``widget``'s font."""
+    one_line = " ".join(text.split())
+    return widget.fontMetrics().elidedText(one_line, mode, max(width, 0))
+
+
+class ElidedProgressBar(QtWidgets.QProgressBar):
+    """A progress bar whose caption stays on one line and is cut with an ellipsis to fit.
+
+    The middle goes: the end, where the percentage and the time left are, stays.
+    ``format()`` keeps the whole caption, shown in full as the tooltip.
+    """
+
+    def text(self) -> str:  # noqa: D102 (Qt API: what the style draws)
+        return elided(self, super().text(), self.contentsRect().width() - 8,
+                      QtCore.Qt.ElideMiddle)
+
+    def setFormat(self, text: str) -> None:  # noqa: N802 (Qt API)
+        """Set the caption (``%p``: the percentage) and its tooltip."""
+        super().setFormat(text)
+        self.setToolTip(text.replace(" %p%", "").replace("%p%", ""))
+
+
+class ElidedLabel(QtWidgets.QLabel):
+    """A one-line label that takes at most ``max_width`` pixels and cuts its text to fit.
+
+    The whole text is the tooltip. In a status bar it leaves the bar's messages their room.
+    """
+
+    def __init__(self, text: str = "", max_width: int = 420, parent=None):
+        super().__init__(parent)
+        self._full = ""
+        self._max_width = max_width
+        self.setSizePolicy(QtWidgets.QSizePolicy.Preferred, QtWidgets.QSizePolicy.Fixed)
+        self.setText(text)
+
+    def full_text(self) -> str:
+        """The text as set, before cutting."""
+        return self._full
+
+    def text(self) -> str:  # noqa: D102 (the text as set, as a QLabel's)
+        return self._full
+
+    def setText(self, text: str) -> None:  # noqa: N802 (Qt API)
+        """Show ``text``, cut to the label's width, whole in the tooltip."""
+        self._full = text
+        self.setToolTip(text)
+        self._show()
+        self.updateGeometry()
+
+    def sizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
+        """As wide as the text, at most ``max_width``."""
+        hint = super().sizeHint()
+        wide = self.fontMetrics().horizontalAdvance(self._full) + 8
+        return QtCore.QSize(min(wide, self._max_width), hint.height())
+
+    def minimumSizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt API)
+        """Small: the label gives way before the bar's messages do."""
+        return QtCore.QSize(min(60, self.sizeHint().width()), super().minimumSizeHint().height())
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt API)
+        """Cut the text again to the new width."""
+        super().resizeEvent(event)
+        self._show()
+
+    def _show(self) -> None:
+        super().setText(elided(self, self._full, self.width()))

@@ -285,3 +285,70 @@ def test_ctrl_z_undoes_a_drag_and_typed_poses_and_ctrl_shift_z_redoes(make_windo
     qtbot.keyClick(win.viewport.widget, redo.key(), redo.keyboardModifiers())
     qtbot.keyClick(win.viewport.widget, redo.key(), redo.keyboardModifiers())
     at(b, dragged, "redo of the drag")
+
+
+# ------------------------------------------------------------------ cosmetics
+def test_save_starts_in_the_users_folder_not_the_bundled_assets(make_window, tmp_path,
+                                                                 monkeypatch):
+    from pathlib import Path
+
+    from PySide6 import QtWidgets
+
+    win = make_window(PEG, first_frame=False)  # opened from assets/: the last folder
+    assert Path(str(win.settings.value("last_dir"))) == PEG.parent.resolve()
+    starts = []
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
+                        staticmethod(lambda _w, _t, start, _f: (starts.append(start), ("", ""))[1]))
+    win.save_dialog()
+    assert Path(starts[-1]).parent == Path.home()
+    assert Path(starts[-1]).name == "scene.toml"
+    win.save_scene(tmp_path / "mine" / "fit.toml")
+    win.save_dialog()
+    assert Path(starts[-1]).parent == (tmp_path / "mine").resolve()
+    win.screenshot_dialog()
+    assert Path(starts[-1]) == (tmp_path / "mine").resolve() / "skelasm.png"
+
+
+def test_long_progress_and_task_texts_stay_on_one_line_within_their_widgets(make_window,
+                                                                           qtbot):
+    win = make_window(PEG, first_frame=False)
+    win.resize(1280, 800)
+    long = ("preparing descriptors and correlation tables for a scene with many parts: "
+            "23 %, about 13 s left")
+    win.params.set_progress(0.23, long)
+    bar = win.params.progress
+    shown = bar.text()
+    assert "…" in shown and shown.endswith("13 s left") and "\n" not in shown
+    assert bar.fontMetrics().horizontalAdvance(shown) <= bar.contentsRect().width()
+    assert bar.toolTip() == long and bar.format() == long
+    win.tasks.start("open", long, reports_fraction=False)
+    win.tasks.get("open").clock.started -= 5.0  # shown once a second old
+    qtbot.waitUntil(lambda: long in win.status_task.text(), timeout=5000)
+    qtbot.wait(50)
+    assert win.status_task.width() <= 360
+    assert win.status_task.toolTip() == win.status_task.text()
+    win.statusBar().showMessage("a long message " * 20)
+    assert win.statusBar().toolTip() == "a long message " * 20
+
+
+def test_the_ghost_is_drawn_over_the_opaque_part(make_window, qtbot):
+    from app.gui.viewport import GHOST_COLOUR, GHOST_LINES
+
+    win = make_window(PEG)
+    vp = win.viewport
+    for key in GHOST_LINES:  # on the overlay layer: over every surface
+        assert vp._overlay.HasViewProp(vp._actors[key]), key
+        assert not vp.plotter.renderer.HasViewProp(vp._actors[key]), key
+    blue = np.array([int(GHOST_COLOUR[i:i + 2], 16) for i in (1, 3, 5)])
+
+    def ghost_pixels() -> int:
+        vp.plotter.ren_win.Render()
+        img = vp.plotter.screenshot(return_img=True).astype(int)
+        return int((np.abs(img[..., :3] - blue).sum(axis=-1) < 60).sum())
+
+    # the ghost sits on the part at the start: its outline shows over it
+    shown = ghost_pixels()
+    for key in GHOST_LINES:
+        vp._actors[key].SetVisibility(False)
+    hidden = ghost_pixels()
+    assert shown > 300 and hidden < 0.1 * shown, (shown, hidden)
