@@ -6,9 +6,8 @@ with ``--body``) holds ``rho`` (complex64, nx x ny x nz), ``origin`` (where grid
 (0, 0, 0) lies in the part's frame), ``spacing``, ``shape`` and the parameters. A STEP file
 with several solids needs ``--body NAME`` (the error lists the names): one body per run.
 For a scene file every part is computed with the scene's shared spacing (options override
-the scene's ``[descriptor]`` values), one ``<scene>-<part>.npz`` per part in the folder
-``-o`` (default: the current directory); this also fills the cache the GUI and
-``skelasm simulate`` read.
+the scene's ``[descriptor]`` values) into the cache the GUI and ``skelasm simulate`` read;
+only with ``-o DIR`` is one ``<scene>-<part>.npz`` per part written there too.
 
 Results are cached (see ``engine.descriptor.store``): a second run with the same inputs only
 loads.
@@ -68,8 +67,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Compute the skeletal density descriptor of a part (STEP, STL, OBJ, PLY, "
         "OFF) on a regular grid in the part's own frame and write it as .npz (rho, origin, "
         "spacing, shape, sigma, penalty, lambda_out). Given a scene file (.toml), compute "
-        "both of its parts with the scene's shared spacing. Results are cached: the same "
-        "inputs load in well under a second the next time.",
+        "both of its parts with the scene's shared spacing into the cache (the window and "
+        "simulate read it), and with -o DIR also write them there. Results are cached: the "
+        "same inputs load in well under a second the next time.",
     )
     parser.add_argument("part", metavar="PART", help="part file, or a scene file (.toml)")
     size = parser.add_mutually_exclusive_group()
@@ -107,7 +107,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="compute even if cached, and store nothing in the cache")
     parser.add_argument("-o", "--output", metavar="OUT",
                         help="output .npz (default: ./<stem>.npz in the current directory); "
-                        "for a scene, a folder (default: the current directory)")
+                        "for a scene, a folder to write <scene>-<part>.npz into (default: "
+                        "none, the cache only)")
     parser.add_argument("--force", action="store_true",
                         help="replace existing output files (never an input file)")
     parser.add_argument("--json", action="store_true",
@@ -170,7 +171,7 @@ def _params(args: argparse.Namespace, base=None):
     return params
 
 
-def _record(descriptor, part, output: Path, samples) -> dict:
+def _record(descriptor, part, output: Path | None, samples) -> dict:
     g = descriptor.grid
     return {
         "part": part.source,
@@ -190,7 +191,7 @@ def _record(descriptor, part, output: Path, samples) -> dict:
         "sigma": descriptor.params.sigma,
         "penalty": descriptor.params.penalty,
         "lambda_out": descriptor.params.lambda_out,
-        "output": str(output.resolve()),
+        "output": None if output is None else str(output.resolve()),
         "warnings": list(part.warnings),
     }
 
@@ -200,7 +201,8 @@ def _describe(rec: dict) -> str:
     how = "from the cache" if rec["from_cache"] else f"computed on {rec['backend']}"
     unit = "" if rec["unit"] == "unspecified" else f" {rec['unit']}"
     return (f"{rec['name']}: {rec['triangles']} triangles, grid {nx} x {ny} x {nz} "
-            f"(h = {rec['spacing']:.4g}{unit}), {rec['seconds']:.2f} s {how} -> {rec['output']}")
+            f"(h = {rec['spacing']:.4g}{unit}), {rec['seconds']:.2f} s {how} -> "
+            f"{rec['output'] or 'the cache'}")
 
 
 def _run_part(args: argparse.Namespace, path: Path) -> int:
@@ -271,13 +273,17 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
     if args.padding is not None:
         d = replace(d, padding=args.padding)
     scene = replace(scene, descriptor=d)
-    folder = Path(args.output) if args.output else Path.cwd()
-    if not folder.is_dir():
+    # without -o the scene's descriptors only fill the cache: nothing in the current folder
+    folder = Path(args.output) if args.output else None
+    if folder is None and args.no_cache:
+        raise InputError("--no-cache without -o would keep nothing: add -o FOLDER to write "
+                         "the descriptors there, or drop --no-cache to fill the cache")
+    if folder is not None and not folder.is_dir():
         raise InputError(f"{folder}: no such folder (for a scene, -o names a folder)")
     parts = load_scene_parts(scene)
     stem = scene.path.parent.name if scene.path.name == "scene.toml" else scene.path.stem
     inputs = [scene.path, *(spec.file for spec in scene.parts)]
-    for part in parts:  # every output checked before the work
+    for part in parts if folder is not None else ():  # every output checked before the work
         check_output(folder / f"{stem}-{part.name}.npz", force=args.force, inputs=inputs,
                      what="descriptor")
     if not args.json:
@@ -293,7 +299,8 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
         close()
     records = []
     for part, descriptor in zip(parts, descriptors, strict=True):
-        written = descriptor.save(folder / f"{stem}-{part.name}.npz")
+        written = (descriptor.save(folder / f"{stem}-{part.name}.npz") if folder is not None
+                   else None)
         records.append(_record(descriptor, part, written, d.grid))
     if args.json:
         print(json.dumps({

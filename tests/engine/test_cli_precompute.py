@@ -112,14 +112,32 @@ def test_bad_options_exit_2(argv, capfd):
 
 def test_scene_computes_both_parts_with_one_spacing(capfd, tmp_path):
     scene = ROOT / "assets" / "dovetail" / "scene.toml"
-    rec = run_json(capfd, scene, *SMALL)
+    out = tmp_path / "descriptors"
+    out.mkdir()
+    rec = run_json(capfd, scene, *SMALL, "-o", out)
     assert [p["name"] for p in rec["parts"]] == ["block", "slide"]
     # the block's 40 mm side sets the spacing for both
     assert rec["spacing"] == pytest.approx(40 / 8)
     for part in rec["parts"]:
         assert part["spacing"] == pytest.approx(rec["spacing"])
-        assert Path(part["output"]).name == f"dovetail-{part['name']}.npz"
+        assert Path(part["output"]) == out / f"dovetail-{part['name']}.npz"
         assert Path(part["output"]).is_file()
+
+
+def test_a_scene_without_o_only_fills_the_cache(capfd, tmp_path):
+    scene = ROOT / "assets" / "dovetail" / "scene.toml"
+    rec = run_json(capfd, scene, *SMALL)  # the current folder is tmp_path
+    assert [p["output"] for p in rec["parts"]] == [None, None]
+    assert not list(tmp_path.glob("*.npz"))  # nothing written beside the user's files
+    assert all(not p["from_cache"] for p in rec["parts"])
+    again = run_json(capfd, scene, *SMALL)  # the cache it filled
+    assert all(p["from_cache"] for p in again["parts"])
+    assert main(["precompute", str(scene), *SMALL]) == 0
+    assert capfd.readouterr().out.count("-> the cache") == 2
+    # computing into nothing is refused with the fix
+    assert main(["precompute", str(scene), *SMALL, "--no-cache"]) == 2
+    assert "add -o FOLDER" in capfd.readouterr().err
+    assert not list(tmp_path.glob("*.npz"))
 
 
 def test_progress_bar_on_a_terminal(capfd, monkeypatch):
