@@ -119,6 +119,18 @@ OPENCL_CHUNK_SECONDS = 0.25
 PARALLEL_BATCH = 64
 FIRST_CHUNK_POINTS = 256
 MIN_CHUNK_POINTS = 4
+#: Triangles at which the first chunk is FIRST_CHUNK_POINTS; a larger mesh starts smaller,
+#: in proportion. A point's cost grows with the triangles near it: on a 10^6-triangle STL
+#: cylinder with fan caps a point took about a second (the caps' slivers all meet at their
+#: centres, and no box of the tree separates them), so a first chunk of 256 points kept
+#: Ctrl+C waiting for minutes; it starts at 4 points there.
+FIRST_CHUNK_TRIANGLES = 20_000
+
+
+def first_chunk_points(triangles: int) -> int:
+    """Points in the first chunk for a mesh of ``triangles`` (later ones are sized by time)."""
+    scaled = FIRST_CHUNK_POINTS * FIRST_CHUNK_TRIANGLES // max(int(triangles), 1)
+    return max(MIN_CHUNK_POINTS, min(FIRST_CHUNK_POINTS, scaled))
 
 
 # --------------------------------------------------------------------------------------
@@ -282,7 +294,7 @@ def _run(
     # distance to the surface), and cancel and Ctrl+C (Python runs its signal handler only
     # between chunks) must be honoured within a second. Start small and grow towards
     # CHUNK_SECONDS per chunk (OPENCL_CHUNK_SECONDS on OpenCL).
-    step = min(_c.CHUNK_POINTS, FIRST_CHUNK_POINTS)
+    step = min(_c.CHUNK_POINTS, first_chunk_points(local.tri.shape[0]))
     seconds = OPENCL_CHUNK_SECONDS if backend.name == "opencl" else CHUNK_SECONDS
     lo = 0
     while lo < n:

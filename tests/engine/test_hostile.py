@@ -902,6 +902,42 @@ accept("mesh", "trimesh-is-imported-holding-signals",
        lambda r: r[0].__name__ == "trimesh" and "SIGINT" in r[1])
 
 
+class _FirstChunk(Exception):
+    """Stops a descriptor computation at its first chunk (carrying the chunk's size)."""
+
+
+def _first_chunk(folder: Path, subdivisions: int) -> tuple[int, int]:
+    """(points in the descriptor's first chunk, triangles) for an icosphere."""
+    import trimesh
+
+    from engine.descriptor import compute
+    from engine.grid import grid_for_bounds
+
+    mesh = trimesh.creation.icosphere(subdivisions=subdivisions)
+    grid = grid_for_bounds(mesh.bounds[0], mesh.bounds[1], samples=8, padding=0.5)
+
+    def first(points, *args):
+        raise _FirstChunk(len(points))
+
+    saved = compute._evaluate_numba
+    compute._evaluate_numba = first
+    try:
+        compute.compute_descriptor(np.asarray(mesh.vertices), np.asarray(mesh.faces), grid,
+                                   backend="numba")
+    except _FirstChunk as stop:
+        return int(stop.args[0]), len(mesh.faces)
+    finally:
+        compute._evaluate_numba = saved
+    raise AssertionError("no chunk was computed")
+
+
+for subdivisions, most in ((2, 256), (6, 62), (7, 16)):
+    # 320, 81,920 and 327,680 triangles: a point's cost grows with the triangles near it,
+    # and Ctrl+C waits for the chunk in hand (a 10^6-triangle fan took a second a point)
+    accept("mesh", f"ctrl-c-first-descriptor-chunk-icosphere-{subdivisions}",
+           lambda f, s=subdivisions: _first_chunk(f, s), lambda r, n=most: 4 <= r[0] <= n)
+
+
 # --------------------------------------------------------------------------- the runner
 class Hang(BaseException):
     """A case ran past its alarm (a BaseException: no refusal may swallow it)."""
