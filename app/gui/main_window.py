@@ -31,7 +31,7 @@ from app.gui.strip_chart import StripChart
 from app.gui.tasks import TaskBoard
 from app.gui.view_panel import ViewPanel
 from app.gui.viewport import VIEW_NAMES, Viewport
-from app.gui.widgets import ElidedLabel, Readouts
+from app.gui.widgets import ContentScroll, ElidedLabel, Readouts
 from engine import pose as posemath
 from engine import runtime
 from engine.params import QuantityUnits
@@ -304,10 +304,7 @@ class MainWindow(QtWidgets.QMainWindow):
         dock.setObjectName(title.lower().replace(" ", "_"))
         # in a scroll area: a dock squeezed below its content's minimum scrolls instead of
         # laying its texts over each other, and keeps a size of its own (MIN_DOCK)
-        scroll = QtWidgets.QScrollArea()
-        scroll.setWidget(widget)
-        scroll.setWidgetResizable(True)
-        scroll.setFrameShape(QtWidgets.QFrame.NoFrame)
+        scroll = ContentScroll(widget)
         scroll.setMinimumSize(*MIN_DOCK)
         dock.setWidget(scroll)
         # a click anywhere on a dock takes the keyboard focus from the 3D view, so keys
@@ -1045,7 +1042,7 @@ class MainWindow(QtWidgets.QMainWindow):
         name = self.session.handle.parts[0].name if self.session.handle is not None else ""
         over = depth > limit
         if over:
-            text = f"OVERLAP {depth:.3g} {u} into {name}"
+            text = f"{depth:.3g} {u} into {name}"
         elif depth > 0:
             text = f"touching ({depth:.2g} {u}, within a cell of {limit:.2g} {u})"
         else:

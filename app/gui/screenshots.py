@@ -4,7 +4,10 @@
 opens the window on a scene at 1280 x 800, waits for the engine's descriptors and a
 landscape, pulls the part towards its fit with the proxy, and saves the whole window and each
 view as PNG; then it moves the proxy down the insertion axis to the assembled pose, lets the
-engine seat the part, cuts the fixed part open and saves the seated part and its readouts.
+engine seat the part, cuts the fixed part open and saves the seated part and its readouts;
+then, paused, it places the part past its seat (into a blind bore's floor: the overlap
+readout and the red part) and saves the window at 1280 x 800 and at 1920 x 1080 (the
+virtual screen must be that large: ``xvfb-run -a -s "-screen 0 2000x1200x24"``).
 """
 
 from __future__ import annotations
@@ -99,6 +102,18 @@ def take(outdir: str | Path, scene: str | Path | None = None, *, wait_ready: flo
     written += [win.save_screenshot(outdir / "seated_window.png"),
                 win.save_screenshot(outdir / "seated_view_3d.png", win.viewport.widget),
                 win.save_screenshot(outdir / "seated_readouts.png", win.dock_readouts)]
+    # past the seat, paused so that it stays: the overlap readout and the red part
+    win.pause_action.trigger()
+    axis = handle.scene.insertion_axis
+    past = goal.copy()
+    past[:3] += 0.1 * size * (np.asarray(axis, float) if axis is not None else [0, 0, -1.0])
+    win.session.send(runtime.Reset(tuple(float(v) for v in past)))
+    spin(3.0, lambda: win.overlap_depth is not None and win.overlap_depth > 0)
+    spin(1.0)
+    written.append(win.save_screenshot(outdir / "overshoot_window.png"))
+    win.resize(1920, 1080)
+    spin(2.0)
+    written.append(win.save_screenshot(outdir / "window_1920x1080.png"))
     win.close()
     tmp.cleanup()
     from app.gui.session import wait_for_workers

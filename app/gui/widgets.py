@@ -300,3 +300,42 @@ class ElidedLabel(QtWidgets.QLabel):
 
     def _show(self) -> None:
         super().setText(elided(self, self._full, self.width()))
+
+
+class ContentScroll(QtWidgets.QScrollArea):
+    """A dock's scroll area that never gives its widget less height than its width needs.
+
+    A ``QScrollArea`` that resizes its widget goes by the widget's minimum size, which for
+    word-wrapped labels is one line: squeezed, a wrapped readout lay over the next row. Here
+    the widget's minimum height follows its layout's ``minimumHeightForWidth`` at the width
+    shown, on every resize and every change of its layout (a longer text), so a dock too
+    short for its content scrolls instead.
+    """
+
+    def __init__(self, widget: QtWidgets.QWidget, parent=None):
+        super().__init__(parent)
+        self.setWidget(widget)
+        self.setWidgetResizable(True)
+        self.setFrameShape(QtWidgets.QFrame.NoFrame)
+        widget.installEventFilter(self)
+
+    def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt API)
+        """Fit again when the widget's layout asks to be redone."""
+        if obj is self.widget() and event.type() == QtCore.QEvent.LayoutRequest:
+            self.fit()
+        return False
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt API)
+        """Fit the widget's minimum height to the new width."""
+        super().resizeEvent(event)
+        self.fit()
+
+    def fit(self) -> None:
+        """Set the widget's minimum height to what its layout needs at the visible width."""
+        widget = self.widget()
+        layout = widget.layout() if widget is not None else None
+        if layout is None or not layout.hasHeightForWidth():
+            return
+        need = layout.minimumHeightForWidth(max(self.viewport().width(), 1))
+        if need > 0 and widget.minimumHeight() != need:
+            widget.setMinimumHeight(need)

@@ -89,6 +89,13 @@ def test_at_500_by_350_the_view_and_every_dock_keep_a_size_and_nothing_overlaps(
         assert not _overlapping_siblings(content.widget()), dock.objectName()
     for i, a in enumerate(rects):
         assert not any(a.intersects(b) for b in rects[i + 1:])
+    # a wrapped readout gets the height its text needs at its width (it lay over the next row)
+    win.readouts.set("pose", "at (0.000, 0.000, -18.000) mm, turned 3.01° about (0.00, 1.00, "
+                     "0.01), a text long enough to wrap in a narrow dock")
+    qtbot.wait(200)
+    for label in [*win.readouts.labels.values(), win.seat_detail, win.seat_label]:
+        if label.isVisible() and label.text():
+            assert label.height() >= label.heightForWidth(label.width()), label.objectName()
 
 
 def test_view_reset_layout_brings_back_the_default_docks(make_window, qtbot):
@@ -187,7 +194,7 @@ def test_a_part_pushed_into_the_blind_floor_shows_the_overlap(make_window, wait_
     def colour():
         return "#" + "".join(f"{round(255 * c):02x}" for c in actor.GetProperty().GetColor())
 
-    for past, text in ((1.5, "OVERLAP 1."), (0.0, None), (-27.0, "none")):
+    for past, text in ((1.5, "1."), (0.0, None), (-27.0, "none")):
         pose = seated + [0, 0, -past, 0, 0, 0]  # down the bore: into its floor
         win.session.send(runtime.Reset(tuple(float(v) for v in pose)))
         wait_until(lambda p=pose: np.allclose(win.latest_frame.part_pose, p, atol=1e-9),
@@ -199,9 +206,10 @@ def test_a_part_pushed_into_the_blind_floor_shows_the_overlap(make_window, wait_
             assert win.overlap_depth == pytest.approx(past, abs=0.5 * cell), shown
             assert shown.startswith(text) and shown.endswith(" mm into block"), shown
             assert colour() == OVERLAP_COLOUR
+            assert "#c0392b" in win.readouts.labels["overlap"].styleSheet()  # white on red
         else:
             assert win.overlap_depth <= cell, shown  # seated: at most contact
-            assert not shown.startswith("OVERLAP"), shown
+            assert "into" not in shown, shown
             assert colour() == MOVING_COLOUR.lower()
         if text == "none":
             assert shown == "none" and win.overlap_depth == 0.0
