@@ -65,8 +65,11 @@ class LandscapeView(QtWidgets.QWidget):
                                 QtWidgets.QSizePolicy.Preferred)
         row.addWidget(QtWidgets.QLabel("section"))
         row.addWidget(self.plane)
-        row.addWidget(self.info, 1)
+        row.addStretch(1)
         lay.addLayout(row)
+        # on a line of its own, the whole width: beside the combo box the row's height was
+        # worked out for another width than the label got, and its wrapped lines overran it
+        lay.addWidget(self.info)
         self.canvas = FieldCanvas()
         self.canvas.clear("landscape not computed yet")
         lay.addWidget(self.canvas, 1)

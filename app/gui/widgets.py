@@ -198,6 +198,8 @@ class Readouts(QtWidgets.QWidget):
         lay.setContentsMargins(4, 4, 4, 4)
         lay.setHorizontalSpacing(12)
         lay.setVerticalSpacing(2)
+        # a narrow dock puts a value under its name rather than squeezing it to nothing
+        lay.setRowWrapPolicy(QtWidgets.QFormLayout.WrapLongRows)
         self.labels: dict[str, QtWidgets.QLabel] = {}
         for key, title in names:
             label = QtWidgets.QLabel("-")
@@ -205,6 +207,7 @@ class Readouts(QtWidgets.QWidget):
             label.setObjectName(f"readout_{key}")
             label.setWordWrap(True)
             label.setSizePolicy(QtWidgets.QSizePolicy.Ignored, QtWidgets.QSizePolicy.Preferred)
+            label.setMinimumWidth(80)
             lay.addRow(title, label)
             self.labels[key] = label
 

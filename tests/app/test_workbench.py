@@ -92,9 +92,13 @@ def test_at_500_by_350_the_view_and_every_dock_keep_a_size_and_nothing_overlaps(
     # a wrapped readout gets the height its text needs at its width (it lay over the next row)
     win.readouts.set("pose", "at (0.000, 0.000, -18.000) mm, turned 3.01° about (0.00, 1.00, "
                      "0.01), a text long enough to wrap in a narrow dock")
+    win.landscape_view.set_progress("computing the energy landscape at this orientation: 0 %, "
+                                    "estimating the time left")
     qtbot.wait(200)
-    for label in [*win.readouts.labels.values(), win.seat_detail, win.seat_label]:
+    for label in [*win.readouts.labels.values(), win.seat_detail, win.seat_label,
+                  win.landscape_view.info]:
         if label.isVisible() and label.text():
+            assert label.width() >= 60, label.objectName()  # not squeezed to nothing
             assert label.height() >= label.heightForWidth(label.width()), label.objectName()
 
 
