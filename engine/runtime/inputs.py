@@ -102,10 +102,10 @@ class DeviceSlot:
             elif not self.jumped and self._big_jump():
                 self.jumped = True
                 name = self.device.name
+                gap = float(np.linalg.norm(self.target[:3] - self.sim.proxy_pose[:3]))
                 self.events.append(DeviceEvent(name, True, (
-                    f"{name}'s pose jumped "
-                    f"{np.linalg.norm(self.target[:3] - self.sim.proxy_pose[:3]):.4g} in one "
-                    "reading; the proxy follows it at most "
+                    f"{name}'s pose jumped {gap:.4g} ({gap / self.sim.physics.length:.3g} "
+                    "part lengths) in one reading; the proxy follows it at most "
                     f"{MAX_PROXY_STEP_LENGTHS:g} part lengths and {MAX_PROXY_STEP_RADIANS:g} "
                     "rad per step (later jumps are followed without a message)"), name))
         if pose is None:

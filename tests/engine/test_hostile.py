@@ -499,6 +499,11 @@ for far in ([1980, 0, 0, 0, 0, 0], [0, 1980, 0, 0, 0, 0], [0, 0, -1980, 0, 0, 0]
                lambda f, p=far, g=gap: _jump(f, p, g),
                lambda r: (np.all(np.isfinite(r[0]))
                           and not any(type(e).__name__ == "ErrorEvent" for e in r[1])))
+accept("jump", "peer-jump-said-once-naming-the-device-in-part-lengths",
+       lambda f: [e.message for e in _jump(f, [0, 1980, 0, 0, 0, 0], 300)[1]
+                  if type(e).__name__ == "DeviceEvent"],
+       lambda r: len(r) == 1 and r[0].startswith("udp's pose jumped 1980 (")
+       and "part lengths) in one reading" in r[0])
 refuse("jump", "peer-out-of-reach-dropped-with-a-word",
        lambda f: (_ for _ in ()).throw(InputError(next(
            e.message for e in _jump(f, [1e9, 0, 0, 0, 0, 0], 1)[1]
