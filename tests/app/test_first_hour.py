@@ -33,7 +33,9 @@ ENGINE_START_MS = 600_000
 def _place(win, pose, wait_until):
     """Put part and proxy at ``pose`` (relative to part 1) at rest and wait for the frame."""
     win.session.send(runtime.Reset(tuple(float(v) for v in pose)))
-    wait_until(lambda: np.allclose(win.latest_frame.part_pose[:3], pose[:3], atol=0.2)
+    # on the scene's own descriptors (cached by an earlier test) the peg put at its seat
+    # rests 0.242 mm below it; on the coarse first field within 0.2 mm
+    wait_until(lambda: np.allclose(win.latest_frame.part_pose[:3], pose[:3], atol=0.3)
                and np.allclose(win.latest_frame.proxy_pose, pose, atol=1e-6), 10000,
                "the part at the pose asked for")
 
