@@ -532,10 +532,29 @@ class MainWindow(QtWidgets.QMainWindow):
     def open_dialog(self) -> None:
         """Ask for a scene or part file and open it."""
         start = str(self.settings.value("last_dir", str(Path.cwd())))
-        path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Open scene or part", start,
-                                                        FILE_FILTER)
-        if path:
-            self.open_path(path)
+        dialog = self.file_dialog("Open scene or part", start, FILE_FILTER)
+        dialog.setFileMode(QtWidgets.QFileDialog.ExistingFile)
+        if dialog.exec() and dialog.selectedFiles():
+            self.open_path(dialog.selectedFiles()[0])
+
+    def file_dialog(self, title: str, start: str, filters: str) -> QtWidgets.QFileDialog:
+        """A file dialog large enough for its columns: 80 % of the window, at least 820 x 520.
+
+        Qt's own dialog opened at its default size, and the file names were cut.
+        """
+        dialog = QtWidgets.QFileDialog(self, title, start, filters)
+        area = self._available_geometry()
+        width = min(max(int(0.8 * self.width()), 820), area.width())
+        height = min(max(int(0.8 * self.height()), 520), area.height())
+        dialog.resize(width, height)
+        view = dialog.findChild(QtWidgets.QTreeView)  # Qt's own dialog; none when native
+        if view is not None:
+            header = view.header()
+            header.setStretchLastSection(False)
+            header.setSectionResizeMode(0, QtWidgets.QHeaderView.Stretch)
+            for column in range(1, header.count()):
+                header.setSectionResizeMode(column, QtWidgets.QHeaderView.ResizeToContents)
+        return dialog
 
     def open_path(self, path: str | Path, *, wait: bool = False) -> None:
         """Open a scene (or a part as the moving part); ``wait`` loads in this thread."""

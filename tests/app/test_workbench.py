@@ -364,3 +364,27 @@ def test_the_ghost_is_drawn_over_the_opaque_part(make_window, qtbot):
         vp._actors[key].SetVisibility(False)
     hidden = ghost_pixels()
     assert shown > 300 and hidden < 0.1 * shown, (shown, hidden)
+
+
+def test_the_open_dialog_shows_its_columns_whole(make_window, qtbot):
+    from PySide6 import QtWidgets
+
+    from app.gui.session import FILE_FILTER
+
+    win = make_window(PEG, first_frame=False)
+    win.resize(1280, 800)
+    dialog = win.file_dialog("Open scene or part", str(PEG.parent), FILE_FILTER)
+    view = dialog.findChild(QtWidgets.QTreeView)
+    if view is None:
+        pytest.skip("the platform's own file dialog is used here: Qt's columns do not apply")
+    dialog.show()
+    try:
+        assert dialog.width() >= 820 and dialog.height() >= 520
+        qtbot.waitUntil(lambda: view.model().rowCount(view.rootIndex()) >= 3, timeout=5000)
+        qtbot.wait(100)
+        header = view.header()
+        for column in range(1, header.count()):  # size, type, date: as wide as their text
+            if not header.isSectionHidden(column):
+                assert header.sectionSize(column) >= view.sizeHintForColumn(column), column
+    finally:
+        dialog.close()
