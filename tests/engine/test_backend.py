@@ -204,41 +204,46 @@ def test_commands_and_benchmarks_offer_the_registrys_choices():
                               set(descriptor) - {"auto"}), (name, names)
 
 
-def test_no_module_declares_its_own_list_of_backends():
-    """Tuples or lists naming numba and opencl together live in engine/backend.py only."""
+def _sources_beside_the_registry():
+    """Every module of engine/, app/ and bench/ but engine/backend.py, parsed.
+
+    Yields (path relative to the project, module tree).
+    """
     import ast
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    found = []
     for folder in ("engine", "app", "bench"):
         for source in (root / folder).rglob("*.py"):
-            if source == root / "engine" / "backend.py":
-                continue
-            for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
-                if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
-                    names = {e.value for e in node.elts if isinstance(e, ast.Constant)}
-                    if {"numba", "opencl"} <= names:
-                        found.append(f"{source.relative_to(root)}:{node.lineno}")
+            if source != root / "engine" / "backend.py":
+                yield source.relative_to(root), ast.parse(source.read_text(encoding="utf-8"))
+
+
+def test_no_module_declares_its_own_list_of_backends():
+    """Tuples or lists naming numba and opencl together live in engine/backend.py only."""
+    import ast
+
+    found = []
+    for path, tree in _sources_beside_the_registry():
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+                names = {e.value for e in node.elts if isinstance(e, ast.Constant)}
+                if {"numba", "opencl"} <= names:
+                    found.append(f"{path}:{node.lineno}")
     assert not found, f"backend lists outside the registry: {found}"
 
 
 def test_no_module_keeps_a_second_name_for_the_registrys_backends():
     """Callers ask engine.backend (choices, CAPABILITIES); no other module re-exports them."""
     import ast
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[2]
     found = []
-    for folder in ("engine", "app", "bench"):
-        for source in (root / folder).rglob("*.py"):
-            if source == root / "engine" / "backend.py":
-                continue
-            for node in ast.parse(source.read_text(encoding="utf-8")).body:
-                targets = node.targets if isinstance(node, ast.Assign) else []
-                for target in targets:
-                    if isinstance(target, ast.Name) and "BACKEND" in target.id:
-                        found.append(f"{source.relative_to(root)}:{node.lineno} {target.id}")
+    for path, tree in _sources_beside_the_registry():
+        for node in tree.body:
+            targets = node.targets if isinstance(node, ast.Assign) else []
+            for target in targets:
+                if isinstance(target, ast.Name) and "BACKEND" in target.id:
+                    found.append(f"{path}:{node.lineno} {target.id}")
     assert not found, f"backend vocabularies outside the registry: {found}"
 
 
