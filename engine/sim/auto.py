@@ -280,10 +280,14 @@ def choose_settings(scene: Scene, parts: list[Part], *, fit: FitMeasure | None =
             f"width {fit.width:.4g} {unit} (odd: a band symmetric about zero)")
     tolerance = None
     if fit.tightest is not None:
-        tolerance = max(TOLERANCE_PER_GAP * fit.tightest, TOLERANCE_FLOOR * fit.size)
+        third, floor = TOLERANCE_PER_GAP * fit.tightest, TOLERANCE_FLOOR * fit.size
+        tolerance = max(third, floor)
         reasons["part.tolerance"] = (
             f"a third of the fit's tightest gap ({fit.tightest:.3g} {unit}; median clearance "
-            f"{fit.clearance:.3g} {unit}): the tessellated parts stay apart")
+            f"{fit.clearance:.3g} {unit}): the tessellated parts stay apart" if third >= floor
+            else f"{TOLERANCE_FLOOR:g} of the parts' size {fit.size:.4g} {unit}, the finest "
+            f"kept (a third of the fit's tightest gap, {fit.tightest:.3g} {unit}, would "
+            "tessellate curved faces into fans of slivers)")
     tolerance = None if tolerance is None else float(f"{tolerance:.3g}")
     return Settings(spacing=float(spacing), modes=int(modes), tolerance=tolerance,
                     reasons=reasons, fit=fit)
@@ -322,7 +326,8 @@ def complete_scene(scene: Scene) -> tuple[Scene, list[Part]]:
             specs[i] = replace(specs[i], tolerance=settings.tolerance * factor)
             chosen.append((f"part.{i}.tolerance",
                            f"{settings.tolerance:.3g} {scene.units}",
-                           settings.reasons["part.tolerance"]))
+                           settings.reasons["part.tolerance"]
+                           + f"; written in the file's unit, {file_units[i]}"))
         scene = replace(scene, parts=tuple(specs))
         parts, _ = load_scene_parts_and_units(scene)
         settings = choose_settings(scene, parts)

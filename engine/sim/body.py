@@ -161,6 +161,23 @@ def kinetic_energy(body: RigidBody, state: BodyState) -> float:
     )
 
 
+def shed(body: RigidBody, state: BodyState, energy: float) -> float:
+    """Take up to ``energy`` out of the part's kinetic energy in place; returns what was taken.
+
+    Velocity and angular velocity are scaled by one factor (directions kept), never below rest.
+    """
+    if not energy > 0.0:
+        return 0.0
+    have = kinetic_energy(body, state)
+    if not have > 0.0:
+        return 0.0
+    take = min(energy, have)
+    scale = math.sqrt(max(0.0, 1.0 - take / have))
+    state.velocity = state.velocity * scale
+    state.omega = state.omega * scale
+    return take
+
+
 def quaternion_step(quat: np.ndarray, omega: np.ndarray, dt: float) -> np.ndarray:
     """(4,) orientation after turning at world angular velocity ``omega`` for ``dt``."""
     angle = float(math.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)) * dt

@@ -19,7 +19,7 @@ import numpy as np
 from engine.correlation import Evaluation, add_evaluations
 from engine.params import Effects, HapticLimits, Physics, SimulationParams
 from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
-from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy
+from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy, shed
 from engine.sim.coupling import coupling_energy, coupling_wrench, for_step, haptic_reaction
 from engine.sim.fields import ZERO_EVALUATION, GeometricField, field_correlator
 
@@ -27,6 +27,9 @@ if TYPE_CHECKING:
     from engine.correlation.near import NearField
 from engine.sim.guard import check_motion, check_proxy_pose
 
+#: Take the energy the field releases out of the part's motion each step (damping on):
+#: a part drawn into a seat is led, not flung. False keeps it as speed (for comparisons).
+SHED_RELEASE = True
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 
@@ -161,6 +164,8 @@ class Simulation:
         self.steps = 0
         #: Energy taken back from the part's motion at changes of model (:meth:`_take_back`).
         self.taken_back = 0.0
+        #: Energy the field released into motion and the step took out (:meth:`step`).
+        self.released = 0.0
         self._ledger = 0.0  # energy the changes of model gave, net, not yet taken back
         self.set_proxy(pose)
         self.sample: Evaluation = ZERO_EVALUATION
@@ -208,14 +213,7 @@ class Simulation:
         self._ledger += jump
         if not self._ledger > 0.0:
             return
-        state = self.state
-        energy = kinetic_energy(self.body, state)
-        if not energy > 0.0:
-            return
-        take = min(self._ledger, energy)
-        scale = math.sqrt(max(0.0, 1.0 - take / energy))
-        state.velocity = state.velocity * scale
-        state.omega = state.omega * scale
+        take = shed(self.body, self.state, self._ledger)
         self._ledger -= take
         self.taken_back += take
 
@@ -311,7 +309,7 @@ class Simulation:
         step, the coupling to the proxy as it is now), a drift, the field at the new pose, half a
         kick with the new forces. One field evaluation per step; second order, so a free part
         keeps its energy far better than with symplectic Euler at the same step. The sample is
-        also in :attr:`sample`.
+        also in :attr:`sample`. Damped, the field's release is shed (:data:`SHED_RELEASE`).
         """
         state, body, dt = self.state, self.body, self._dt
         if not self._sample_fresh:
@@ -325,8 +323,11 @@ class Simulation:
         kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
         check_motion(self)  # before the drift takes a sine of a diverged angle
         drift(body, state, dt, translation_mask=tmask, rotation_mask=rmask)
+        before = self.sample.energy
         sample = self.evaluate_field()
         self._take_back(sample.switched)
+        if SHED_RELEASE and self.effects.damping and self.coupled:  # led, not flung
+            self.released += shed(body, state, before - sample.energy)
         force, torque = self._total_forces()
         kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
         check_motion(self)

@@ -133,6 +133,20 @@ def test_a_tighter_fit_asks_for_a_finer_tessellation(tmp_path):
     assert tolerances[1] < 0.2 * tolerances[0]
 
 
+def test_a_tolerance_at_its_floor_says_so(tmp_path):
+    """A gap so tight that a third of it is below the floor: the floor is chosen, and the
+    reason names the floor, not the third of the gap.
+    """
+    from engine.sim.auto import TOLERANCE_FLOOR, choose_settings
+
+    block, peg = peg_and_bore(10.0, 0.0005)
+    s = choose_settings(_scene(block, peg, tmp_path), [block, peg], budget=(25, "test"))
+    assert s.tolerance == pytest.approx(TOLERANCE_FLOOR * s.fit.size, rel=1e-2)
+    assert s.tolerance > s.fit.tightest / 3.0
+    assert "of the parts' size" in s.reasons["part.tolerance"]
+    assert "finest kept" in s.reasons["part.tolerance"]
+
+
 def test_what_the_user_gives_wins_and_the_rest_is_chosen(tmp_path):
     from engine.sim.auto import complete_scene
 
