@@ -160,8 +160,10 @@ def run(args: argparse.Namespace) -> int:
         # the repairs made to the parts (duplicates dropped, holes): what was evaluated
         "notes": [str(w) for part in handle.parts for w in part.warnings],
     }
-    for note in out["notes"]:
-        print(f"note: {note}", file=sys.stderr)
+    from engine.scene.parts import say_notes
+
+    for line in say_notes(out["notes"]):
+        print(line, file=sys.stderr)
     if args.json:
         print(json.dumps(out))
         return 0

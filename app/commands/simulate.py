@@ -201,8 +201,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        for n in notes:
-            print(f"note: {n}", file=sys.stderr)
+        from engine.scene.parts import say_notes
+
+        for line in say_notes(notes):
+            print(line, file=sys.stderr)
         f = result["final_pose"]
         mode = "realtime" if args.realtime else "as fast as possible"
         print(f"{result['scene']}: {taken} steps ({sim.time:.3f} s simulated) in {wall:.2f} s "

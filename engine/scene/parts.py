@@ -223,5 +223,19 @@ def unit_mismatch(sizes: list[float], names: list[str], units: list[str], kinds:
     )
 
 
+#: The unit checks' lines begin so, and the commands print them as warnings, not notes.
+UNITS_PREFIX = "units: "
+
+
 def _warn(part: Part, line: str) -> Part:
-    return replace(part, warnings=(*part.warnings, line))
+    return replace(part, warnings=(*part.warnings, UNITS_PREFIX + line))
+
+
+def say_notes(lines: list[str]) -> list[str]:
+    """The parts' lines as a command prints them.
+
+    ``warning:`` for the unit checks' (the parts overlap or never meet), ``note:`` for the
+    loader's repairs.
+    """
+    return [f"warning: {line}" if line.startswith(UNITS_PREFIX) else f"note: {line}"
+            for line in lines]

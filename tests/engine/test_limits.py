@@ -433,6 +433,12 @@ def test_poses_a_sliver_of_the_parts_warn(folder):
     warning = parts[1].warnings[-1]
     assert "part 2 starts 5 um from part 1 and is assembled 15 um from it" in warning
     assert "the parts overlap" in warning and "units" in warning
+    # the commands print it as a warning, the loader's repairs as notes
+    from engine.scene.parts import say_notes
+
+    said = say_notes([warning, "welded 3 duplicate vertices"])
+    assert said[0].startswith("warning: units: ") and "part 2 starts 5 um" in said[0]
+    assert said[1] == "note: welded 3 duplicate vertices"
     # the same scene in millimetres gives no such warning
     parts = load_scene_parts(load_scene(scene(folder)))
     assert not any("overlap wherever" in w for p in parts for w in p.warnings)
