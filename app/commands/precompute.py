@@ -20,6 +20,7 @@ import json
 import sys
 from pathlib import Path
 
+from app.commands.arguments import int_in_range
 from engine.backend import choices, describe_auto
 from engine.loading import DEFAULT_RELATIVE_TOLERANCE
 from engine.params import DEFAULT_GRID, DescriptorParams
@@ -71,7 +72,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "simulate read it), and with -o DIR also write them there. Results are cached: the "
         "same inputs load in well under a second the next time.",
     )
-    parser.add_argument("part", metavar="PART", help="part file, or a scene file (.toml)")
+    parser.add_argument("part", metavar="PART", nargs="+",
+                        help="part file, or a scene file (.toml); several part files: a "
+                        "parts library, each part into the cache (or -o FOLDER), resumable")
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--grid", type=_grid_samples, metavar="N",
                       help="samples along the part's longest side, padding not included "
@@ -111,6 +114,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "none, the cache only)")
     parser.add_argument("--force", action="store_true",
                         help="replace existing output files (never an input file)")
+    parser.add_argument("--workers", type=int_in_range(1, 1024), metavar="N",
+                        help="several parts: compute them on a local Dask cluster of N "
+                        "processes, a task per part (default: one after another here)")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="several parts: on the Dask scheduler at ADDRESS "
+                        "(tcp://host:8786), a task per part")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (grid, spacing, triangles, seconds, "
                         "backend, output, ...) instead of text")
@@ -122,7 +131,18 @@ def run(args: argparse.Namespace) -> int:
 
     Returns the exit status.
     """
-    path = Path(args.part)
+    from engine.errors import InputError
+
+    if args.workers is not None and args.scheduler is not None:
+        raise InputError("--workers and --scheduler: give one (a local cluster, or an address)")
+    if len(args.part) > 1:
+        from app.commands.library import run_library
+
+        return run_library(args, [Path(p) for p in args.part], _params(args))
+    if args.workers is not None or args.scheduler is not None:
+        raise InputError("--workers and --scheduler share out several parts: give two or "
+                         "more part files")
+    path = Path(args.part[0])
     if path.suffix.lower() == ".toml":
         return _run_scene(args, path)
     return _run_part(args, path)

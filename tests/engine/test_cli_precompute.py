@@ -148,3 +148,75 @@ def test_progress_bar_on_a_terminal(capfd, monkeypatch):
     out, err = capfd.readouterr()
     assert "100%|" in err  # tqdm's bar, on stderr
     assert "%|" not in out
+
+
+# ------------------------------------------------------------------------ a parts library
+def _library(tmp_path):
+    """Three small part files (a copy of the slide under another name among them)."""
+    import shutil
+
+    folder = tmp_path / "library"
+    folder.mkdir()
+    for name in ("slide", "block"):
+        shutil.copy(ROOT / "assets" / "dovetail" / f"{name}.step", folder / f"{name}.step")
+    shutil.copy(SLIDE, folder / "copy.step")
+    return sorted(folder.glob("*.step"))
+
+
+def test_a_library_runs_a_task_per_part_resumably_into_a_folder(capfd, tmp_path):
+    parts = _library(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    first = run_json(capfd, *parts, *SMALL, "-o", out)
+    assert first["failed"] == 0 and len(first["parts"]) == 3
+    assert sorted(Path(r["output"]).name for r in first["parts"]) == [
+        "block.npz", "copy.npz", "slide.npz"]
+    # the copy is the same bytes: the cache serves it
+    by_name = {Path(r["part"]).stem: r for r in first["parts"]}
+    assert by_name["copy"]["from_cache"] != by_name["slide"]["from_cache"]
+    # a second run keeps what is there; --force computes again (from the cache)
+    again = run_json(capfd, *parts, *SMALL, "-o", out)
+    assert all(r.get("kept") for r in again["parts"])
+    forced = run_json(capfd, *parts, *SMALL, "-o", out, "--force")
+    assert all(r["from_cache"] for r in forced["parts"])
+
+
+def test_a_bad_part_in_a_library_fails_alone(capfd, tmp_path):
+    parts = _library(tmp_path)
+    bad = tmp_path / "library" / "bad.step"
+    bad.write_text("ISO-10303-21;\nnot a step file\n")
+    code = main(["precompute", *map(str, [*parts, bad]), *SMALL, "--json"])
+    out, err = capfd.readouterr()
+    assert code == 2
+    rec = json.loads(out)
+    assert rec["failed"] == 1 and len(rec["parts"]) == 4
+    (failed,) = [r for r in rec["parts"] if "error" in r]
+    assert "bad.step" in failed["error"] and "Traceback" not in err
+
+
+def test_a_library_on_dask_gives_the_same_descriptors(capfd, tmp_path):
+    pytest.importorskip("distributed")
+    parts = _library(tmp_path)[:2]
+    serial, dask = tmp_path / "serial", tmp_path / "dask"
+    serial.mkdir()
+    dask.mkdir()
+    run_json(capfd, *parts, *SMALL, "--no-cache", "-o", serial)
+    rec = run_json(capfd, *parts, *SMALL, "--no-cache", "-o", dask, "--workers", "2")
+    assert rec["failed"] == 0
+    for name in ("block.npz", "copy.npz"):
+        with np.load(serial / name) as a, np.load(dask / name) as b:
+            assert np.array_equal(a["rho"], b["rho"])  # bit for bit
+            np.testing.assert_array_equal(a["origin"], b["origin"])
+
+
+def test_library_options_that_do_not_fit_say_so(capfd, tmp_path):
+    parts = _library(tmp_path)
+    for argv, words in (
+        ([parts[0], "--workers", "2"], "several parts"),
+        ([*parts, "--workers", "2", "--scheduler", "tcp://x:1"], "give one"),
+        ([*parts, "-o", tmp_path / "nowhere"], "no such folder"),
+        ([*parts, "--body", "x"], "one by one"),
+    ):
+        code = main(["precompute", *map(str, argv), *SMALL])
+        _, err = capfd.readouterr()
+        assert code == 2 and words in err and "Traceback" not in err, err
