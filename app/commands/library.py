@@ -64,18 +64,14 @@ def compute_part(job: PartJob, cancelled=None) -> dict:
     except (ResourceError, OSError, ValueError, MemoryError) as exc:  # InputError too
         return {"part": job.path, "error": str(exc),
                 "seconds": round(time.perf_counter() - start, 3)}
-    g = descriptor.grid
-    return {"part": job.path, "name": part.name, "unit": part.unit, "grid": list(g.shape),
-            "spacing": g.spacing, "triangles": descriptor.triangles,
-            "seconds": round(time.perf_counter() - start, 3),
-            "from_cache": descriptor.from_cache, "backend": descriptor.backend,
-            "output": None if written is None else str(Path(written).resolve()),
-            "warnings": list(part.warnings)}
+    from app.commands.precompute import _record
+
+    return _record(descriptor, part, written, job.samples)
 
 
 def _jobs(args: argparse.Namespace, paths: list[Path], params) -> tuple[list[PartJob], list]:
     """(jobs to run, records of outputs kept as they are)."""
-    from engine.params import DEFAULT_PADDING
+    from engine.params import DEFAULT_GRID, DEFAULT_PADDING
 
     folder = Path(args.output) if args.output else None
     if folder is not None and not folder.is_dir():
@@ -88,7 +84,7 @@ def _jobs(args: argparse.Namespace, paths: list[Path], params) -> tuple[list[Par
     if folder is not None and twice:
         raise InputError(f"two parts would write {folder / (twice[0] + '.npz')}: give parts "
                          "with different names, or leave out -o (the cache keeps both)")
-    samples = None if args.spacing is not None else (args.grid or 64)
+    samples = None if args.spacing is not None else (args.grid or DEFAULT_GRID)
     padding = DEFAULT_PADDING if args.padding is None else args.padding
     jobs, kept = [], []
     for path in paths:
@@ -154,10 +150,9 @@ def _run_jobs(jobs: list[PartJob], work, args: argparse.Namespace, start: float)
         if "error" in rec:
             print(f"error: {rec['error']}", file=sys.stderr)
         else:
-            nx, ny, nz = rec["grid"]
-            how = "from the cache" if rec["from_cache"] else f"computed on {rec['backend']}"
-            print(f"{rec['name']}: grid {nx} x {ny} x {nz}, {rec['seconds']:.2f} s {how} -> "
-                  f"{rec['output'] or 'the cache'}")
+            from app.commands.precompute import _describe
+
+            print(_describe(rec))
         print(f"  {n} of {total} done, {elapsed:.0f} s, about {left:.0f} s left",
               file=sys.stderr)
 

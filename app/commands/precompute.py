@@ -246,7 +246,7 @@ def _run_part(args: argparse.Namespace, path: Path) -> int:
     part = load_part(path, tolerance=args.tolerance, body=args.body)
     samples = None
     if args.spacing is None:
-        samples = args.grid or 64
+        samples = args.grid or DEFAULT_GRID
     padding = DEFAULT_PADDING if args.padding is None else args.padding
     grid = grid_for_part(part, samples=samples, spacing=args.spacing, padding=padding)
     if not args.json:
