@@ -71,21 +71,15 @@ def compute_part(job: PartJob, cancelled=None) -> dict:
 
 def _jobs(args: argparse.Namespace, paths: list[Path], params) -> tuple[list[PartJob], list]:
     """(jobs to run, records of outputs kept as they are)."""
-    from engine.params import DEFAULT_GRID, DEFAULT_PADDING
+    from app.commands.precompute import _output_folder, _samples_padding
 
-    folder = Path(args.output) if args.output else None
-    if folder is not None and not folder.is_dir():
-        raise InputError(f"{folder}: no such folder (for several parts, -o names a folder)")
-    if folder is None and args.no_cache:
-        raise InputError("--no-cache without -o would keep nothing: add -o FOLDER to write "
-                         "the descriptors there, or drop --no-cache to fill the cache")
+    folder = _output_folder(args, "for several parts")
     stems = [p.stem for p in paths]
     twice = sorted({s for s in stems if stems.count(s) > 1})
     if folder is not None and twice:
         raise InputError(f"two parts would write {folder / (twice[0] + '.npz')}: give parts "
                          "with different names, or leave out -o (the cache keeps both)")
-    samples = None if args.spacing is not None else (args.grid or DEFAULT_GRID)
-    padding = DEFAULT_PADDING if args.padding is None else args.padding
+    samples, padding = _samples_padding(args)
     jobs, kept = [], []
     for path in paths:
         output = None if folder is None else folder / f"{path.stem}.npz"

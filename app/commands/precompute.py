@@ -191,6 +191,27 @@ def _params(args: argparse.Namespace, base=None):
     return params
 
 
+def _samples_padding(args: argparse.Namespace) -> tuple[int | None, float]:
+    """(samples along the longest side, or None for ``--spacing``; padding cells) of a part."""
+    from engine.params import DEFAULT_PADDING
+
+    samples = None if args.spacing is not None else (args.grid or DEFAULT_GRID)
+    return samples, DEFAULT_PADDING if args.padding is None else args.padding
+
+
+def _output_folder(args: argparse.Namespace, what: str) -> Path | None:
+    """The ``-o`` folder of a scene or a library (None: the cache only), checked."""
+    from engine.errors import InputError
+
+    folder = Path(args.output) if args.output else None
+    if folder is None and args.no_cache:
+        raise InputError("--no-cache without -o would keep nothing: add -o FOLDER to write "
+                         "the descriptors there, or drop --no-cache to fill the cache")
+    if folder is not None and not folder.is_dir():
+        raise InputError(f"{folder}: no such folder ({what}, -o names a folder)")
+    return folder
+
+
 def _record(descriptor, part, output: Path | None, samples) -> dict:
     g = descriptor.grid
     return {
@@ -230,7 +251,6 @@ def _run_part(args: argparse.Namespace, path: Path) -> int:
     from engine.errors import InputError
     from engine.files import check_output
     from engine.loading import load_part
-    from engine.params import DEFAULT_PADDING
 
     stem = path.stem if args.body is None else f"{path.stem}-{args.body}"
     if args.output and Path(args.output).is_dir():
@@ -244,10 +264,7 @@ def _run_part(args: argparse.Namespace, path: Path) -> int:
         output = Path.cwd() / f"{stem}.npz"
     check_output(output, force=args.force, inputs=[path], what="descriptor")
     part = load_part(path, tolerance=args.tolerance, body=args.body)
-    samples = None
-    if args.spacing is None:
-        samples = args.grid or DEFAULT_GRID
-    padding = DEFAULT_PADDING if args.padding is None else args.padding
+    samples, padding = _samples_padding(args)
     grid = grid_for_part(part, samples=samples, spacing=args.spacing, padding=padding)
     if not args.json:
         for line in part.warnings:
@@ -273,7 +290,6 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
     from dataclasses import replace
 
     from engine.descriptor import descriptors_for_scene, scene_spacing
-    from engine.errors import InputError
     from engine.files import check_output
     from engine.scene import load_scene, load_scene_parts, require_assembled
     from engine.sim.auto import complete_scene
@@ -294,12 +310,7 @@ def _run_scene(args: argparse.Namespace, path: Path) -> int:
         d = replace(d, padding=args.padding)
     scene = replace(scene, descriptor=d)
     # without -o the scene's descriptors only fill the cache: nothing in the current folder
-    folder = Path(args.output) if args.output else None
-    if folder is None and args.no_cache:
-        raise InputError("--no-cache without -o would keep nothing: add -o FOLDER to write "
-                         "the descriptors there, or drop --no-cache to fill the cache")
-    if folder is not None and not folder.is_dir():
-        raise InputError(f"{folder}: no such folder (for a scene, -o names a folder)")
+    folder = _output_folder(args, "for a scene")
     parts = load_scene_parts(scene)
     stem = scene.path.parent.name if scene.path.name == "scene.toml" else scene.path.stem
     inputs = [scene.path, *(spec.file for spec in scene.parts)]
