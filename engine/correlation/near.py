@@ -181,6 +181,10 @@ class NearLevel:
     walls : WallShell or None
         Part 1's distance map and part 2's point shell over the same box
         (:mod:`engine.correlation.walls`); None: no walls.
+    anchor : (3,) or None
+        The point of part 2 (its frame) that lies at the centre of the box at the seat:
+        how far it is from the box says how near the part is to its fit
+        (:meth:`NearField.closeness`). None: unknown, the part counts as near.
     """
 
     fixed_nodes: Grid
@@ -195,6 +199,7 @@ class NearLevel:
     ratio: int
     smooth: bool = True
     walls: WallShell | None = None
+    anchor: np.ndarray | None = None
 
     @classmethod
     def from_samples(cls, fixed_nodes: Grid, fixed_node_rho: np.ndarray,
@@ -202,7 +207,8 @@ class NearLevel:
                      fixed_grid: Grid | None, fixed_rho: np.ndarray | None,
                      moving_grid: Grid, moving_rho: np.ndarray, moving_window: np.ndarray,
                      coarse_grid: Grid, coarse_rho: np.ndarray, *,
-                     smooth: bool = True, walls: WallShell | None = None) -> NearLevel:
+                     smooth: bool = True, walls: WallShell | None = None,
+                     anchor: np.ndarray | None = None) -> NearLevel:
         """Assemble a level; part 2's fine samples are blended into its coarse ones.
 
         ``moving_window`` (1 inside part 2's fine region, 0 at its edge) blends
@@ -232,7 +238,8 @@ class NearLevel:
                    fixed_rho=None if fixed_rho is None else np.asarray(fixed_rho, np.complex64),
                    moving_grid=moving_grid, moving=_pairs(blended),
                    coarse_grid=coarse_grid, coarse=_pairs(coarse_rho), ratio=r,
-                   smooth=smooth, walls=walls)
+                   smooth=smooth, walls=walls,
+                   anchor=None if anchor is None else np.asarray(anchor, float).reshape(3))
 
     def window(self, grid: Grid) -> np.ndarray:
         """``w`` on ``grid``."""
@@ -355,6 +362,22 @@ class NearField:
                               self.level.fixed_nodes)
             self.prepare(table, band, table.modes)
         return True
+
+    def closeness(self, rotation: np.ndarray, translation: np.ndarray) -> float:
+        """1 where part 2 at ``(rotation, translation)`` is in its fit, 0 a box away.
+
+        Measured at the level's anchor (part 2's point at the box's centre at the seat)
+        against the box where the window is 1; it falls by a raised cosine over the
+        window's taper beyond it: a part counts as near once it has entered its fit.
+        """
+        if self.level.anchor is None:
+            return 1.0
+        lo, hi, reach = self.level.window_box
+        point = np.asarray(rotation) @ self.level.anchor + np.asarray(translation)
+        d = float(np.linalg.norm(np.maximum(0.0, np.maximum(lo - point, point - hi))))
+        if d >= reach:
+            return 0.0
+        return 0.5 * (1.0 + math.cos(math.pi * d / reach))
 
     def raw(self, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
         """(7,) float64 ``Re sum m rho2``, ``Re sum m g`` (3), ``Re sum m q x g`` (3)."""

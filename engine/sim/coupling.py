@@ -17,7 +17,9 @@ up to the angle ``rot_play`` between the two; past it the spring stiffens to ``k
 torque ``k_r play + k_r' (angle - play)`` along the same axis) and the damping to ``c_r'``.
 Near a fit the soft spring lets the fit's torque turn the part into line within the hand's
 play; beyond it the hand holds the part, so a torque at a hole's mouth cannot throw it over
-(``engine.sim.build.resolve_physics`` chooses the three).
+(``engine.sim.build.resolve_physics`` chooses the three). The play is the hand's only near
+the fit: away from it (:func:`near_fit`, the fine level's closeness to the seat) it
+closes, and the stiff spring holds the part's orientation from the first degree.
 
 (damping against the world: robust to jerky mouse input, which has no clean velocity).
 Holding the part at its centre of mass, not at its file's origin, keeps the lever of the
@@ -29,6 +31,7 @@ norm to ``max_force`` / ``max_torque``. The part itself feels the unclamped coup
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -117,6 +120,25 @@ def for_step(gains: Physics, dt: float) -> Physics:
     # the damping keeps its ratio: it scales with the square root of the stiffness
     damping = gains.c_rot_hard * math.sqrt(k / gains.k_rot_hard)
     return replace(gains, k_rot_hard=k if k > gains.k_rot else 0.0, c_rot_hard=damping)
+
+
+def near_fit(gains: Physics, near: Any, rotation: np.ndarray, origin: np.ndarray) -> Physics:
+    """``gains`` with the hand's play opened as the part at ``(rotation, origin)`` nears its fit.
+
+    ``near`` is the fine level (:class:`engine.correlation.near.NearField`; None: no fit
+    known, the play everywhere): its closeness scales the play, 0 away from the fit and 1
+    in it. Away from the fit the hand holds the part's orientation with its stiff spring
+    from the first degree, so the band's stray torque on the way cannot turn it; near the
+    fit the play lets the fit turn the part into line.
+    """
+    if near is None or gains.k_rot_hard <= gains.k_rot:
+        return gains
+    closeness = near.closeness(rotation, origin)
+    if closeness >= 1.0:
+        return gains
+    from dataclasses import replace
+
+    return replace(gains, rot_play=gains.rot_play * max(closeness, 0.0))
 
 
 def coupling_energy(

@@ -133,6 +133,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     if grids is None:
         return None
     nodes, ratio, lo1, hi1, g2, lo2, hi2 = grids
+    pose = np.asarray(assembled_pose, float).reshape(6)
     h = fixed_desc.grid.spacing
     taper = TAPER_CELLS * h
 
@@ -159,7 +160,8 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     return NearLevel.from_samples(
         nodes, node_rho, (lo1, hi1, taper), g1, rho1,
         g2, rho2, smooth_window(g2, lo2, hi2, taper),
-        moving_desc.grid, moving_desc.rho, smooth=smooths(ratio), walls=walls)
+        moving_desc.grid, moving_desc.rho, smooth=smooths(ratio), walls=walls,
+        anchor=(0.5 * (lo1 + hi1) - pose[:3]) @ rotation_matrix(pose[3:]))
 
 
 def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,

@@ -20,7 +20,13 @@ from engine.correlation import Evaluation, add_evaluations
 from engine.params import Effects, HapticLimits, Physics, SimulationParams
 from engine.pose import quaternion_to_matrix, rotvec_to_quaternion
 from engine.sim.body import BodyState, RigidBody, cross3, drift, kick, kinetic_energy, shed
-from engine.sim.coupling import coupling_energy, coupling_wrench, for_step, haptic_reaction
+from engine.sim.coupling import (
+    coupling_energy,
+    coupling_wrench,
+    for_step,
+    haptic_reaction,
+    near_fit,
+)
 from engine.sim.fields import ZERO_EVALUATION, GeometricField, field_correlator
 
 if TYPE_CHECKING:
@@ -247,7 +253,9 @@ class Simulation:
         e -= float(self._gravity_force @ self.state.com)
         if self.coupled:
             lever = self.state.rotation @ (self.hold - self.body.centre)
-            e += coupling_energy(self.physics, self.state.com + lever, self.state.quat,
+            gains = near_fit(self.physics, self.near, self.state.rotation,
+                             self.state.origin(self.body))
+            e += coupling_energy(gains, self.state.com + lever, self.state.quat,
                                  self._proxy_hold, self._proxy_q)
         return e
 
@@ -285,9 +293,9 @@ class Simulation:
         if self.coupled:
             lever = state.rotation @ (self.hold - body.centre)  # centre of mass -> hold
             fc, tc = coupling_wrench(
-                p, state.com + lever, state.quat, state.velocity + cross3(state.omega, lever),
-                state.omega, self._proxy_hold, self._proxy_q,
-            )
+                near_fit(p, self.near, state.rotation, state.origin(body)), state.com + lever,
+                state.quat, state.velocity + cross3(state.omega, lever), state.omega,
+                self._proxy_hold, self._proxy_q)
             self.coupling_force = fc
             self.coupling_torque = tc + cross3(arm + lever, fc)
             self.haptic_force, self.haptic_torque = haptic_reaction(

@@ -538,3 +538,61 @@ def test_the_fields_release_is_not_kept_as_speed():
     assert sim.released > 0.2 * depth  # what the motion held of it is booked
     balance = 10.0 / 11.0 * shift  # the well's pull against the hand's spring
     np.testing.assert_allclose(sim.part_pose()[:3], balance, atol=0.02 * 0.2)
+
+
+class _Reach:
+    """A stand-in for the fine level: its closeness to the fit, and nothing to add."""
+
+    def __init__(self, closeness):
+        self.value = float(closeness)
+        self.asked = []
+
+    def attach(self, physics, dt):
+        pass
+
+    def follow(self, table):
+        return False
+
+    def closeness(self, rotation, translation):
+        self.asked.append((np.array(rotation), np.array(translation)))
+        return self.value
+
+
+def test_away_from_the_fit_the_hand_holds_the_orientation_and_in_it_the_play_opens():
+    """The torque that turns a lowered spring 60 degrees: in the fit's reach the part turns
+    to the hand's play (the fit may turn it into line), away from it the stiff spring holds
+    it within a fraction of the play (a band's stray torque on the way cannot turn it);
+    half way, half the play. The closeness is asked of the part's pose.
+    """
+    from sim_fakes import SpringCorrelator
+
+    from engine.pose import rotation_matrix
+    from engine.sim import rotational_stiffness
+
+    v, f = box_mesh()
+    config = SimConfig()
+    hand = resolve_physics(config, v, f)
+    pts = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, -1.0, 0.0]])
+    unit = rotational_stiffness(CorrelatorField(SpringCorrelator(pts, pts, 1.0), 1.0),
+                                np.zeros(6))
+    turned = pts @ rotation_matrix(np.array([math.radians(60.0), 0.0, 0.0])).T
+    spring = SpringCorrelator(pts, turned, 0.05 * hand.k_rot / unit)
+    spring.table = None  # no mode table: the stand-in level adds nothing
+    pull = CorrelatorField(spring, 1.0)
+    phys = resolve_physics(config, v, f, kappa=1.0, geometric_rotation=1e-9)
+    body = RigidBody(phys.mass, phys.inertia, phys.centre)
+    hold = np.array([0.1, -0.2, 0.3])
+    angles = {}
+    for closeness in (1.0, 0.5, 0.0):
+        sim = Simulation(body, phys, config.effects, pull, np.zeros(6), hold=hold)
+        reach = _Reach(closeness)
+        sim.set_near(reach)
+        sim.set_proxy(np.zeros(6))
+        sim.run(12000)
+        angles[closeness] = math.degrees(float(np.linalg.norm(sim.part_pose()[3:])))
+        rotation, translation = reach.asked[-1]
+        np.testing.assert_allclose(rotation, sim.state.rotation, atol=1e-12)
+        np.testing.assert_allclose(translation, sim.state.origin(body), atol=1e-12)
+    assert 2.9 < angles[1.0] < 3.2  # at the play, as without a fit
+    assert 1.4 < angles[0.5] < 1.7
+    assert angles[0.0] < 0.2  # the stiff spring from the first degree
