@@ -403,7 +403,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from engine.backend import choices
 
     parser.add_argument("--pairs", nargs="*", default=None, metavar="NAME",
-                        help="folders of assets/real (default: every pair)")
+                        help="folders of assets/real (default: every pair); with "
+                        "--generated, the generated pairs whose folder names contain one "
+                        "(such as 002_round_blind or 002)")
     parser.add_argument("--guidance", choices=("skeletal", "collision", "both"),
                         default="both", help="guided, collision-only, or both (default)")
     parser.add_argument("--seconds", type=float, default=5.0,
@@ -590,6 +592,12 @@ def run_generated(args: argparse.Namespace) -> int:
             print(f"skelasm bench seating: {exc}", file=sys.stderr)
             return 2
         bar.end()
+        if args.pairs:
+            pairs = [p for p in pairs if any(n in p.folder.name for n in args.pairs)]
+            if not pairs:
+                print(f"skelasm bench seating: no generated pair is named like "
+                      f"{' or '.join(args.pairs)} (the folders are NNN_family)", file=sys.stderr)
+                return 2
         results = _push_all([generated_case(p) for p in pairs], args)
     print(family_table(results, seed=seed, count=args.generated))
     print()

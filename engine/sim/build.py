@@ -628,10 +628,11 @@ def coupling_choices(config: SimConfig, physics: Physics,
         out.append(("coupling.angular_stiffness", physics.k_rot, why))
         if physics.k_rot_hard > 0:
             out.append(("coupling.hand_stiffness", physics.k_rot_hard,
-                        f"past {math.degrees(physics.rot_play):g} degrees from the hand, as "
-                        f"stiff as a {1000.0 / config.simulation.rate_hz:g} ms step integrates "
-                        "about the part's weakest axis: a torque at a hole's mouth cannot "
-                        "throw the part over"))
+                        f"past {math.degrees(physics.rot_play):g} degrees from the hand in "
+                        "the fit (from the first degree away from it), as stiff as a "
+                        f"{1000.0 / config.simulation.rate_hz:g} ms step integrates about the "
+                        "part's weakest axis: a torque on the way in cannot throw the part "
+                        "over"))
     return out
 
 

@@ -117,6 +117,38 @@ def test_the_bench_without_the_kernel_exits_2_with_that_line(monkeypatch, tmp_pa
     assert not (tmp_path / "p.png").exists()
 
 
+def test_the_bench_pushes_only_the_generated_pairs_it_is_given(generated, monkeypatch,
+                                                              tmp_path, capsys):
+    import argparse
+
+    from bench import seating
+
+    pushed: list = []
+
+    class Pushed(Exception):
+        pass
+
+    def push_all(cases, args):
+        pushed.extend(c.name for c in cases)
+        raise Pushed
+
+    monkeypatch.setattr(seating, "_push_all", push_all)
+    parser = argparse.ArgumentParser()
+    seating.add_arguments(parser)
+    root = str(generated[0].folder.parent)  # the set on disk: reused, not modelled again
+    base = ["--generated", str(COUNT), "--seed", str(SEED), "--keep", root, "-o",
+            str(tmp_path / "p.png")]
+    with pytest.raises(Pushed):
+        seating.run(parser.parse_args(base + ["--pairs", "round_blind", "002"]))
+    names = [p.folder.name for p in generated]
+    assert pushed == [n for n in names if "round_blind" in n or "002" in n]
+    assert 1 <= len(pushed) < COUNT
+    pushed.clear()
+    assert seating.run(parser.parse_args(base + ["--pairs", "gearbox"])) == 2
+    assert pushed == []
+    assert "no generated pair is named like gearbox" in capsys.readouterr().err
+
+
 def test_t_junctions_keep_the_surface_and_open_it():
     import trimesh
 
