@@ -241,27 +241,27 @@ def test_a_free_part_keeps_its_energy_with_the_level():
     assert np.max(np.abs(np.asarray(energy) - e0)) < 0.05 * scale
 
 
-def test_closeness_is_one_in_the_fit_and_falls_smoothly_to_zero_a_taper_away():
+def test_closeness_is_one_in_the_fit_and_falls_smoothly_to_zero_half_a_box_away():
     from types import SimpleNamespace
 
     from engine.correlation.near import NearField
     from engine.pose import rotation_matrix
 
-    lo, hi, taper = np.array([0.0, 0.0, 0.0]), np.array([4.0, 2.0, 10.0]), 2.0
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([4.0, 2.0, 10.0])  # reach: 5
     anchor = np.array([1.0, -2.0, 0.5])  # part 2's point at the box's centre at the seat
     turn = rotation_matrix(np.array([0.3, -0.2, 0.9]))
     seat = np.array([2.0, 1.0, 5.0]) - turn @ anchor
 
     def at(*shift, anchored=True):
-        level = SimpleNamespace(window_box=(lo, hi, taper), anchor=anchor if anchored else None)
+        level = SimpleNamespace(window_box=(lo, hi, 1.0), anchor=anchor if anchored else None)
         return NearField.closeness(SimpleNamespace(level=level), turn,
                                    seat + np.array(shift, float))
 
     assert at(0, 0, 0) == 1.0 and at(2.0, -1.0, 5.0) == 1.0  # seated, on the box's edge
-    assert at(0, 0, 5.0 + 1.0) == pytest.approx(0.5)         # half the taper beyond
-    assert at(0, -1.2 - 1.0, 5.0 + 1.6) == pytest.approx(0.0)  # a taper away, diagonally
+    assert at(0, 0, 5.0 + 2.5) == pytest.approx(0.5)         # half the reach beyond
+    assert at(0, -4.0, 9.0) == pytest.approx(0.0)              # 5 away, diagonally
     assert at(-9.0, 0, 0) == 0.0
-    ramp = [at(0, 0, 5.0 + d) for d in np.linspace(0.0, taper, 51)]
+    ramp = [at(0, 0, 5.0 + d) for d in np.linspace(0.0, 5.0, 51)]
     assert all(a >= b for a, b in zip(ramp[:-1], ramp[1:], strict=True))  # falls
     assert ramp[1] > 0.99 and ramp[-2] < 0.01                # flat at both ends (C1)
     assert at(0, 0, 100.0, anchored=False) == 1.0            # no anchor: near
