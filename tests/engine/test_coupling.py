@@ -421,25 +421,30 @@ def test_past_the_hands_play_the_rotational_spring_stiffens_continuously():
         np.testing.assert_allclose(torque, -grad, rtol=1e-4, atol=1e-9)
 
 
-def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play():
-    """A soft fit lowers the spring; a pull that would turn the part far is held near the
-    proxy: past the hand's play the mass-based spring takes over.
+def _pull_sixty_degrees(hand):
+    """A spring correlator pulling towards a pose turned 60 degrees about x, a twentieth as
+    stiff in rotation as the mass-based spring of ``hand`` (resolved physics).
     """
     from sim_fakes import SpringCorrelator
 
     from engine.pose import rotation_matrix
     from engine.sim import rotational_stiffness
 
-    v, f = box_mesh()
-    config = SimConfig()
-    hand = resolve_physics(config, v, f)
     pts = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, -1.0, 0.0]])
     unit = rotational_stiffness(CorrelatorField(SpringCorrelator(pts, pts, 1.0), 1.0),
                                 np.zeros(6))
-    # a pull towards a pose turned 60 degrees about x, a twentieth as stiff as the
-    # mass-based spring
     turned = pts @ rotation_matrix(np.array([math.radians(60.0), 0.0, 0.0])).T
-    pull = CorrelatorField(SpringCorrelator(pts, turned, 0.05 * hand.k_rot / unit), 1.0)
+    return SpringCorrelator(pts, turned, 0.05 * hand.k_rot / unit)
+
+
+def test_a_lowered_rotational_coupling_still_holds_the_part_past_the_hands_play():
+    """A soft fit lowers the spring; a pull that would turn the part far is held near the
+    proxy: past the hand's play the mass-based spring takes over.
+    """
+    v, f = box_mesh()
+    config = SimConfig()
+    hand = resolve_physics(config, v, f)
+    pull = CorrelatorField(_pull_sixty_degrees(hand), 1.0)
     # the fit measured at the seat is soft: the spring is lowered to its floor
     phys = resolve_physics(config, v, f, kappa=1.0, geometric_rotation=1e-9)
     assert phys.k_rot < 0.02 * hand.k_rot
@@ -564,19 +569,10 @@ def test_away_from_the_fit_the_hand_holds_the_orientation_and_in_it_the_play_ope
     it within a fraction of the play (a band's stray torque on the way cannot turn it);
     half way, half the play. The closeness is asked of the part's pose.
     """
-    from sim_fakes import SpringCorrelator
-
-    from engine.pose import rotation_matrix
-    from engine.sim import rotational_stiffness
-
     v, f = box_mesh()
     config = SimConfig()
     hand = resolve_physics(config, v, f)
-    pts = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, -1.0, 0.0]])
-    unit = rotational_stiffness(CorrelatorField(SpringCorrelator(pts, pts, 1.0), 1.0),
-                                np.zeros(6))
-    turned = pts @ rotation_matrix(np.array([math.radians(60.0), 0.0, 0.0])).T
-    spring = SpringCorrelator(pts, turned, 0.05 * hand.k_rot / unit)
+    spring = _pull_sixty_degrees(hand)
     spring.table = None  # no mode table: the stand-in level adds nothing
     pull = CorrelatorField(spring, 1.0)
     phys = resolve_physics(config, v, f, kappa=1.0, geometric_rotation=1e-9)
