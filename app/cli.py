@@ -149,6 +149,23 @@ def _unavailable(name: str):
     return run
 
 
+def _leave(status: int, argv: list[str] | None) -> int:
+    """``status``, or the process ended with it at once if a signal left a call running.
+
+    When a signal made the command abandon a compiled call (:func:`engine.interrupt.in_flight`)
+    the command's own clean-up has run, and finalising the runtime under that call aborted
+    the exit (PoCL, SIGABRT). Only for the console script (``argv`` None); a caller in
+    Python gets the status back.
+    """
+    from engine.interrupt import in_flight
+
+    if argv is None and in_flight():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    return status
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `skelasm` console script."""
     from engine.backend import check_environment
@@ -183,12 +200,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"skelasm: stopped by {name}", file=sys.stderr)
         if as_json:
             _print_json_error(f"stopped by {name}", None, None)
-        return 128 + exc.signum
+        return _leave(128 + exc.signum, argv)
     except KeyboardInterrupt:
         print("skelasm: interrupted", file=sys.stderr)
         if as_json:
             _print_json_error("interrupted", None, None)
-        return 130
+        return _leave(130, argv)
     except (UserError, ValueError, OSError, ResourceError) as exc:
         # Every engine error meant for the user is a ValueError/OSError subclass with a message
         # that names the problem and the fix; a traceback would only hide it. A refusal for

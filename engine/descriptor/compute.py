@@ -93,6 +93,7 @@ from engine.descriptor.opencl_kernels import OpenCLDescriptor, kernel_builds
 from engine.descriptor.tree import TriangleTree, build_tree, pack_triangles, split_slivers
 from engine.errors import Cancelled, InputError
 from engine.grid import DESCRIPTOR_BYTES_PER_SAMPLE, Grid, check_memory
+from engine.interrupt import call_interruptibly
 from engine.params import SIGMA_GRID_MAX, SIGMA_RANGE, DescriptorParams
 
 _log = logging.getLogger(__name__)
@@ -302,7 +303,8 @@ def _run(
             raise Cancelled("descriptor computation cancelled")
         hi = min(n, lo + step)
         started = time.perf_counter()
-        chunk(lo, hi)
+        # on a worker: Ctrl+C acts mid-chunk, however long a chunk of points takes
+        call_interruptibly(chunk, lo, hi)
         took = time.perf_counter() - started
         if progress is not None:
             progress(hi / n)

@@ -238,6 +238,103 @@ def test_descriptor_chunks_are_sized_by_time(monkeypatch):
     assert max(np.diff(polls)) <= 0.3 and polls[-1] < 3.3
 
 
+def _blocking_kernel(release: object, timed_out: list[bool]):
+    """A descriptor kernel that blocks in C, where Python runs no signal handler: it waits
+    on a POSIX mutex another thread holds until ``release`` is set (or 20 s pass, noted in
+    ``timed_out``), and sends this process SIGINT 0.2 s after it starts waiting.
+    """
+    import ctypes
+    import os
+    import signal
+    import threading
+
+    libc = ctypes.CDLL(None)
+    mutex = ctypes.create_string_buffer(128)  # pthread_mutex_t, zeroed: a default mutex
+    libc.pthread_mutex_init(mutex, None)
+    held = threading.Event()
+
+    def hold() -> None:
+        libc.pthread_mutex_lock(mutex)
+        held.set()
+        timed_out.append(not release.wait(20.0))  # type: ignore[attr-defined]
+        libc.pthread_mutex_unlock(mutex)
+
+    threading.Thread(target=hold, daemon=True).start()
+    held.wait(5.0)
+
+    def kernel(points, *args):
+        threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT)).start()
+        libc.pthread_mutex_lock(mutex)  # a signal does not end this wait (POSIX)
+        libc.pthread_mutex_unlock(mutex)
+        args[-1][:] = 0.0
+
+    return kernel
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="POSIX mutex via glibc")
+def test_ctrl_c_acts_while_a_chunk_of_points_is_still_running(monkeypatch):
+    """Ctrl+C during one long compiled chunk (a point took a second on a 10^6-triangle fan
+    mesh) acts while the chunk still runs: the chunk runs on a worker and the main thread's
+    wait is interrupted (:func:`engine.interrupt.call_interruptibly`). Run on the main
+    thread, the chunk would hold the handler until it returned, 20 s here.
+    """
+    import threading
+
+    release = threading.Event()
+    timed_out: list[bool] = []
+    monkeypatch.setattr(compute, "_evaluate_numba", _blocking_kernel(release, timed_out))
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    grid = grid_for_bounds(v.min(0), v.max(0), samples=8, padding=2)
+    import engine.interrupt as interrupt
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            compute.compute_descriptor(v, f, grid, backend="numba", method="tree")
+        still_running = not timed_out  # the chunk has not been let go yet
+        in_flight = interrupt.in_flight()
+    finally:
+        release.set()
+    assert still_running and in_flight
+    for _ in range(200):  # the abandoned chunk ends once let go
+        if not interrupt.in_flight():
+            break
+        threading.Event().wait(0.05)
+    assert not interrupt.in_flight()
+
+
+def test_a_signal_that_leaves_a_compiled_call_running_ends_the_process_at_once(monkeypatch):
+    """The console script leaves by ``os._exit`` with the signal's status while an abandoned
+    call still runs (finalising PoCL under it aborted the exit); a Python caller gets the
+    status back, and with nothing in flight the exit is the ordinary one.
+    """
+    import app.cli as cli
+    import engine.interrupt as interrupt
+
+    exits: list[int] = []
+    monkeypatch.setattr(cli.os, "_exit", exits.append)
+    monkeypatch.setattr(interrupt, "in_flight", lambda: True)
+    assert cli._leave(143, ["precompute"]) == 143 and exits == []
+    cli._leave(130, None)
+    assert exits == [130]
+    monkeypatch.setattr(interrupt, "in_flight", lambda: False)
+    assert cli._leave(130, None) == 130 and exits == [130]
+
+
+def test_a_kernels_own_error_comes_back_through_the_worker(monkeypatch):
+    """An exception the chunk raises on the worker is raised in the caller, unchanged."""
+
+    def kernel(points, *args):
+        raise InputError("the kernel's own message")
+
+    monkeypatch.setattr(compute, "_evaluate_numba", kernel)
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    grid = grid_for_bounds(v.min(0), v.max(0), samples=8, padding=2)
+    with pytest.raises(InputError, match="the kernel's own message"):
+        compute.compute_descriptor(v, f, grid, backend="numba", method="tree")
+
+
 def test_opencl_chunks_grow_past_a_fixed_launch_latency(monkeypatch):
     """On a GPU a launch costs about 20 ms whatever the chunk holds; chunks sized by the rate
     of a small one used to stay small (an H100 ran a 32^3 grid as 808 chunks of ~70 points,
