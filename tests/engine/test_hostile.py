@@ -907,6 +907,31 @@ accept("mesh", "trimesh-is-imported-holding-signals",
        lambda r: r[0].__name__ == "trimesh" and "SIGINT" in r[1])
 
 
+
+def _held_part_of_the_trimesh_import(folder: Path) -> list[str]:
+    """Which of trimesh's slow dependencies a fresh interpreter has imported when the import
+    with signals held starts (trimesh itself must not be among them).
+    """
+    import subprocess
+
+    probe = ("import sys, engine.loading as L\n"
+             "real = L.import_holding_signals\n"
+             "def spy(name):\n"
+             "    print(','.join(m for m in L.TRIMESH_DEPENDENCIES + ('trimesh',)"
+             " if m in sys.modules))\n"
+             "    return real(name)\n"
+             "L.import_holding_signals = spy\n"
+             "L.import_trimesh()\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         cwd=ROOT, timeout=120, check=True)
+    return out.stdout.strip().split(",")
+
+
+accept("mesh", "trimesh-slow-dependencies-are-imported-before-signals-are-held",
+       _held_part_of_the_trimesh_import,
+       lambda r: "trimesh" not in r and {"scipy.spatial", "PIL.Image", "rtree.index"} <= set(r))
+
+
 class _FirstChunk(Exception):
     """Stops a descriptor computation at its first chunk (carrying the chunk's size)."""
 
