@@ -188,6 +188,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command != "gui":  # the window handles its own ending
             replaced = _catch_termination()
+            if argv is None:  # the console script: a signal acts inside compiled calls too
+                from engine.interrupt import enable
+
+                enable()
             # trimesh swallows a signal that lands in its imports: import it first, held
             from engine.loading import import_trimesh
 

@@ -10,14 +10,16 @@ thread, where a wait is interrupted by a signal: the handler runs within
 is in (its result is dropped) and takes the next; it is a daemon, so a process ended by the
 signal does not wait for it.
 
-One worker serves every caller, so compiled code never runs on two threads at once from
-here (numba's thread pool and an OpenCL queue are each used by one thread at a time). A
-call made off the main thread (the window's jobs) runs where it is: signals are not
-delivered there, and its caller's cancel flag is polled between calls.
+Only the command line turns this on (:func:`enable`, for the console script): there the
+process ends with the signal. Elsewhere, and off the main thread (the window's jobs, the
+engine's processes, a script), a call runs where it is, as it always did: cancel is polled
+between calls. One worker serves every caller, so compiled code never runs on two threads
+at once from here; a forked child starts with the routing off and no worker.
 """
 
 from __future__ import annotations
 
+import os
 import queue
 import threading
 from collections.abc import Callable
@@ -30,6 +32,7 @@ T = TypeVar("T")
 WAIT_SLICE_S = 0.05
 
 _lock = threading.Lock()
+_enabled = False  # enable(): the command line's console script
 _running = threading.Event()  # set while the worker is inside a call
 _jobs: queue.SimpleQueue[tuple[Callable[..., Any], tuple[Any, ...], list[Any],
                                threading.Event]] | None = None
@@ -53,21 +56,40 @@ def _worker() -> queue.SimpleQueue:  # type: ignore[type-arg]
     with _lock:
         if _jobs is None:
             jobs: queue.SimpleQueue = queue.SimpleQueue()  # type: ignore[type-arg]
-            threading.Thread(target=_serve, args=(jobs,), name="skelasm-compiled-calls",
+            # not named "skelasm-...": the window waits for those at its end, and this one
+            # idles for the process's life
+            threading.Thread(target=_serve, args=(jobs,), name="interruptible-calls",
                              daemon=True).start()
             _jobs = jobs
         return _jobs
 
 
+def enable() -> None:
+    """Run the main thread's compiled calls on the worker from now on (the command line)."""
+    global _enabled
+    _enabled = True
+
+
+def _forked() -> None:
+    """In a forked child: the parent's worker thread is not there."""
+    global _enabled, _jobs
+    _enabled = False
+    _jobs = None
+    _running.clear()
+
+
+os.register_at_fork(after_in_child=_forked)
+
+
 def call_interruptibly(fn: Callable[..., T], *args: Any) -> T:
     """``fn(*args)``, with a signal acting within :data:`WAIT_SLICE_S` while it runs.
 
-    On the main thread the call runs on the worker and an exception a signal handler raises
-    here (``KeyboardInterrupt``, the command line's ``Terminated``) propagates at once,
-    while the abandoned call runs to its end on the worker. ``fn``'s own exceptions are
-    re-raised here. Off the main thread, a plain call.
+    Once enabled (:func:`enable`), on the main thread the call runs on the worker, and an
+    exception a signal handler raises here (``KeyboardInterrupt``, the command line's
+    ``Terminated``) propagates at once while the abandoned call runs to its end on the
+    worker. ``fn``'s own exceptions are re-raised here. Otherwise a plain call.
     """
-    if threading.current_thread() is not threading.main_thread():
+    if not _enabled or threading.current_thread() is not threading.main_thread():
         return fn(*args)
     box: list[tuple[bool, Any]] = []
     done = threading.Event()

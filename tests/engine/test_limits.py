@@ -278,16 +278,19 @@ def test_ctrl_c_acts_while_a_chunk_of_points_is_still_running(monkeypatch):
     wait is interrupted (:func:`engine.interrupt.call_interruptibly`). Run on the main
     thread, the chunk would hold the handler until it returned, 20 s here.
     """
+    import signal
     import threading
 
+    import engine.interrupt as interrupt
+
+    monkeypatch.setattr(interrupt, "_enabled", True)  # as the console script has it
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     release = threading.Event()
     timed_out: list[bool] = []
     monkeypatch.setattr(compute, "_evaluate_numba", _blocking_kernel(release, timed_out))
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     grid = grid_for_bounds(v.min(0), v.max(0), samples=8, padding=2)
-    import engine.interrupt as interrupt
-
     try:
         with pytest.raises(KeyboardInterrupt):
             compute.compute_descriptor(v, f, grid, backend="numba", method="tree")
@@ -295,12 +298,38 @@ def test_ctrl_c_acts_while_a_chunk_of_points_is_still_running(monkeypatch):
         in_flight = interrupt.in_flight()
     finally:
         release.set()
+        signal.signal(signal.SIGINT, previous)
     assert still_running and in_flight
     for _ in range(200):  # the abandoned chunk ends once let go
         if not interrupt.in_flight():
             break
         threading.Event().wait(0.05)
     assert not interrupt.in_flight()
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+@pytest.mark.filterwarnings("ignore:This process .* is multi-threaded:DeprecationWarning")
+def test_a_forked_child_calls_directly_without_the_parents_worker(monkeypatch):
+    """A child forked after the routing is on has no worker thread: it calls directly (a
+    call queued for the parent's worker would wait for ever).
+    """
+    import multiprocessing
+
+    import engine.interrupt as interrupt
+
+    monkeypatch.setattr(interrupt, "_enabled", True)
+    assert interrupt.call_interruptibly(sum, (1, 2)) == 3  # the parent's worker started
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        state = pool.apply_async(_routing_in_child).get(timeout=30)
+    assert state == (False, True, 3)
+
+
+def _routing_in_child() -> tuple[bool, bool, int]:
+    import engine.interrupt as interrupt
+
+    return interrupt._enabled, interrupt._jobs is None, interrupt.call_interruptibly(sum,
+                                                                                      (1, 2))
 
 
 def test_a_signal_that_leaves_a_compiled_call_running_ends_the_process_at_once(monkeypatch):
@@ -382,12 +411,17 @@ def test_ctrl_c_stops_a_slow_descriptor_within_a_second(tmp_path):
     if os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1):
         pytest.skip(f"machine loaded (load average {os.getloadavg()[0]:.1f})")
     env = dict(os.environ, SKELASM_CACHE=str(tmp_path / "cache"))
+    # the console script, as a user runs it (main() called from Python does not route the
+    # compiled calls through the worker); grid 96: about a minute on a quiet 2-core machine
+    script = str(Path(sys.executable).with_name("skelasm"))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "precompute", str(PEG / "peg.step"), "--grid", "48",
+        [script, "precompute", str(PEG / "peg.step"), "--grid", "96",
          "--sigma", str(SIGMA_RANGE[0]), "--no-cache", "-o", str(tmp_path / "p.npz")],
-        env=env, stderr=subprocess.PIPE, cwd=ROOT)
+        env=env, stderr=subprocess.DEVNULL, cwd=ROOT)
     time.sleep(12.0)  # imports, the STEP part, then well into the computation
-    assert proc.poll() is None
+    if proc.poll() is not None:
+        pytest.skip(f"the computation ended (exit {proc.returncode}) before the signal: this "
+                    "machine is too fast for the check")
     sent = time.monotonic()
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=30)
