@@ -71,11 +71,15 @@ def enable() -> None:
 
 
 def _forked() -> None:
-    """In a forked child: the parent's worker thread is not there."""
-    global _enabled, _jobs
+    """Reset the routing in a forked child, with new locks.
+
+    The parent's worker thread is not there, and a lock held at the fork stays held.
+    """
+    global _enabled, _jobs, _lock, _running
     _enabled = False
     _jobs = None
-    _running.clear()
+    _lock = threading.Lock()
+    _running = threading.Event()
 
 
 os.register_at_fork(after_in_child=_forked)
