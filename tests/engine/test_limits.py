@@ -206,6 +206,12 @@ def test_fft_is_guarded_before_it_allocates(monkeypatch):
 
 
 # --------------------------------------------------------------------------- cancel
+#: A closed tetrahedron (vertices, faces): a mesh for the chunking and interrupt tests,
+#: whose kernels are replaced.
+TETRAHEDRON = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float),
+               np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+
+
 def test_descriptor_chunks_are_sized_by_time(monkeypatch):
     """Cancel is polled between chunks; each chunk takes about CHUNK_SECONDS of (fake) time.
 
@@ -223,8 +229,7 @@ def test_descriptor_chunks_are_sized_by_time(monkeypatch):
 
     monkeypatch.setattr(compute, "_evaluate_numba", kernel)
     monkeypatch.setattr(compute.time, "perf_counter", lambda: clock[0])
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
-    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    v, f = TETRAHEDRON
     grid = grid_for_bounds(v.min(0), v.max(0), samples=16, padding=6)
     polls: list[float] = []
 
@@ -288,8 +293,7 @@ def test_ctrl_c_acts_while_a_chunk_of_points_is_still_running(monkeypatch):
     release = threading.Event()
     timed_out: list[bool] = []
     monkeypatch.setattr(compute, "_evaluate_numba", _blocking_kernel(release, timed_out))
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
-    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    v, f = TETRAHEDRON
     grid = grid_for_bounds(v.min(0), v.max(0), samples=8, padding=2)
     try:
         with pytest.raises(KeyboardInterrupt):
@@ -357,8 +361,7 @@ def test_a_kernels_own_error_comes_back_through_the_worker(monkeypatch):
         raise InputError("the kernel's own message")
 
     monkeypatch.setattr(compute, "_evaluate_numba", kernel)
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
-    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    v, f = TETRAHEDRON
     grid = grid_for_bounds(v.min(0), v.max(0), samples=8, padding=2)
     with pytest.raises(InputError, match="the kernel's own message"):
         compute.compute_descriptor(v, f, grid, backend="numba", method="tree")
@@ -386,8 +389,7 @@ def test_opencl_chunks_grow_past_a_fixed_launch_latency(monkeypatch):
                         classmethod(lambda cls, backend: Runner()))
     monkeypatch.setattr(compute.time, "perf_counter", lambda: clock[0])
     backend = types.SimpleNamespace(name="opencl")
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
-    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    v, f = TETRAHEDRON
     grid = grid_for_bounds(v.min(0), v.max(0), samples=40, padding=4)
     local = compute._localise(compute._triangles(v, f), grid.centre, grid.spacing, True)
     points = grid.points().reshape(-1, 3)
