@@ -566,7 +566,9 @@ class OpenCLDescriptor:
 
         self.backend = backend
         self.program = build_program(backend.context, double=double)
-        self.kernel = self.program.skeletal
+        # A kernel object of its own: the program is shared per context, and pyopencl warns
+        # (an error under the tests' filters) when ``program.skeletal`` is read twice.
+        self.kernel = cl.Kernel(self.program, "skeletal")
         #: Work items per group: LOCAL_SIZE, or less where the device cannot run that many
         #: of this kernel at once (its registers or private memory per item).
         try:

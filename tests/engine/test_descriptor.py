@@ -173,6 +173,22 @@ def test_opencl_float_accumulation_matches_numpy(opencl_backend):
     assert _rel_l2(got[:, 0] + 1j * got[:, 1], rho_ref) < 1e-3
 
 
+def test_opencl_descriptors_on_one_context_share_the_program_not_the_kernel(opencl_backend):
+    # the program is built once per context; each descriptor object takes a kernel of its
+    # own. Reading ``program.skeletal`` twice made pyopencl warn (RepeatedKernelRetrieval),
+    # an error under the tests' filters: the window's engine failed to start on Python 3.10
+    import warnings
+
+    from engine.descriptor.opencl_kernels import OpenCLDescriptor
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        first = OpenCLDescriptor(opencl_backend)
+        second = OpenCLDescriptor(opencl_backend)
+    assert first.program is second.program
+    assert first.kernel is not second.kernel
+
+
 def test_opencl_launches_split_a_chunk_into_work_groups(opencl_backend, monkeypatch):
     # with the work-group size left to the driver, PoCL ran each chunk (thousands of
     # points) as one work-group: one CPU core busy, the descriptor twice as slow on two.
