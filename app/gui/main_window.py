@@ -258,6 +258,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
         self.slice_view = SliceView()
         self.slice_view.plane_changed.connect(self.viewport.show_slice_plane)
+        self.params.descriptor_preview.connect(self.slice_view.preview)
         self.dock_slice = self._dock("Descriptor slice", self.slice_view,
                                      QtCore.Qt.LeftDockWidgetArea)
         self.landscape_view = LandscapeView()
@@ -1186,6 +1187,15 @@ class MainWindow(QtWidgets.QMainWindow):
             if event.coarse_grid is not None:  # the scene's own descriptors follow
                 self.tasks.start("descriptors", "computing the scene's descriptors (the part "
                                  f"moves on a coarse grid of {event.coarse_grid} meanwhile)")
+        elif isinstance(event, runtime.DescriptorsSwapped) and event.coarse_grid is not None:
+            # a new sigma on a coarse grid: the part moves on it while the scene's grid is
+            # computed; the sigma before stays "in use" for Cancel, which returns to it
+            self.guidance_ready = bool(event.descriptors)
+            self.slice_view.set_descriptors(event.descriptors)
+            self.tasks.start("descriptors", f"sigma {event.sigma:.3g} on a coarse grid of "
+                             f"{event.coarse_grid} in {event.seconds:.1f} s; now the scene's grid")
+            self.landscape_view.set_landscape(None)
+            self._landscape_pending = False
         elif isinstance(event, runtime.DescriptorsSwapped):
             self.guidance_ready = bool(event.descriptors)
             self.tasks.finish("descriptors")
@@ -1260,6 +1270,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.save_layout()
         self._tick_timer.stop()
         self.accuracy.shutdown()
+        self.slice_view.previews.shutdown()
         self.overlap.shutdown()
         self.session.close()
         self.viewport.close()

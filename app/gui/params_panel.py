@@ -43,9 +43,13 @@ class ParamsPanel(QtWidgets.QWidget):
     -------
     command(object)
         An ``engine.runtime`` command to send.
+    descriptor_preview(object)
+        While the sigma or penalty slider is held: the descriptor parameters it would
+        apply (the slice view previews them).
     """
 
     command = QtCore.Signal(object)
+    descriptor_preview = QtCore.Signal(object)
 
     def __init__(self, parent=None):
         super().__init__(parent)
@@ -103,10 +107,13 @@ class ParamsPanel(QtWidgets.QWidget):
         self.sigma = SliderField(CONTROLS["sigma"], on_release=True)
         self.penalty = SliderField(CONTROLS["penalty"], on_release=True)
         self.sigma.setToolTip("Width of the skeletal density's kernel (dimensionless). Applies "
-                              "when the slider is let go\nor a typed value is entered; the "
-                              "recompute can take minutes on a fine grid.")
+                              "when the slider is let go\nor a typed value is entered: the "
+                              "part moves on a coarse grid at the new sigma within seconds,\n"
+                              "then on the scene's grid. While the slider is held the slice "
+                              "view previews it.")
         self.penalty.setToolTip("Penalty P = lambda_in / lambda_out: how much more an overlap "
-                                "costs than a gap.")
+                                "costs than a gap.\nA new penalty rescales the descriptors "
+                                "(a second or so); the slice view previews it while held.")
         form.addRow("sigma", self.sigma)
         form.addRow("penalty P", self.penalty)
         self.progress = ElidedProgressBar()
@@ -124,8 +131,9 @@ class ParamsPanel(QtWidgets.QWidget):
         self.recompute_cost.setObjectName("recompute_cost")
         self.recompute_cost.setWordWrap(True)
         self.recompute_cost.setToolTip(
-            "sigma and penalty cost once, when the descriptors are recomputed (seconds on\n"
-            "a coarse grid, minutes on a fine one); the cost per pose does not change.")
+            "sigma costs once, when the descriptors are recomputed (seconds on a coarse\n"
+            "grid, up to a minute on a fine one); a penalty rescales them; the cost per pose\n"
+            "does not change.")
         form.addRow("cost", self.recompute_cost)
         self.in_use = QtWidgets.QLabel("-")
         self.in_use.setObjectName("descriptors_in_use")
@@ -135,6 +143,10 @@ class ParamsPanel(QtWidgets.QWidget):
                                "show them again.")
         form.addRow("in use", self.in_use)
         self.sigma.valueChanged.connect(lambda _v: self._send_descriptor_params())
+        self.sigma.previewed.connect(lambda v: self.descriptor_preview.emit(
+            replace(self.descriptor_params(), sigma=float(v))))
+        self.penalty.previewed.connect(lambda v: self.descriptor_preview.emit(
+            replace(self.descriptor_params(), penalty=float(v))))
         self.penalty.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.cancel.clicked.connect(self._cancel)
         lay.addWidget(desc)
@@ -369,10 +381,12 @@ class ParamsPanel(QtWidgets.QWidget):
         if self._pending is not None:
             values, self._pending = self._pending, None
             self._show_in_use(values)
+        self.descriptor_preview.emit(None)  # what was previewed is in use now
 
     def recompute_ended(self, text: str) -> None:
         """A recompute was cancelled or failed: the boxes show the values in use again."""
         self._pending = None
+        self.descriptor_preview.emit(None)
         self.sigma.setValueSilently(self._in_use[0])
         self.penalty.setValueSilently(self._in_use[1])
         self._show_in_use(self._in_use)

@@ -34,13 +34,24 @@ def slice_values(rho: np.ndarray, axis: int, index: int, component: str) -> np.n
 
 
 class SliceView(QtWidgets.QWidget):
-    """Signals: ``plane_changed(object)`` with (4, 3) world corners of the plane, or None."""
+    """Signals: ``plane_changed(object)`` with (4, 3) world corners of the plane, or None.
+
+    :meth:`preview` shows the plane at other descriptor parameters (a sigma or penalty
+    slider held) until it is called with None.
+    """
 
     plane_changed = QtCore.Signal(object)
 
     def __init__(self, parent=None):
         super().__init__(parent)
+        from app.gui.slice_preview import SlicePreview
+
         self._descriptors: tuple = ()
+        self._preview_params = None  # the parameters previewed, None: those in use
+        self._preview: tuple | None = None  # (key, plane) of the last preview computed
+        self.previews = SlicePreview(self)
+        self.previews.ready.connect(self._preview_ready)
+        self.previews.failed.connect(self._preview_failed)
         self._meshes: list = []  # (name, vertices, faces) per part
         self._world: list[np.ndarray] = []  # (4, 4) world transform per part
         self._lut_div = colourmap.table("diverging")
@@ -68,6 +79,12 @@ class SliceView(QtWidgets.QWidget):
         row.addWidget(self.offset, 1)
         row.addWidget(self.offset_label)
         lay.addLayout(row)
+        self.preview_note = QtWidgets.QLabel("")
+        self.preview_note.setObjectName("slice_preview_note")
+        self.preview_note.setWordWrap(True)
+        self.preview_note.setStyleSheet("color: #8a5a00")
+        self.preview_note.hide()
+        lay.addWidget(self.preview_note)
         self.canvas = FieldCanvas()
         self.canvas.clear("descriptors not ready yet")
         lay.addWidget(self.canvas, 1)
@@ -112,6 +129,56 @@ class SliceView(QtWidgets.QWidget):
             self.canvas.clear("no descriptors (guidance off or not ready)")
             return
         self._reset_range(keep=True)
+
+    def preview(self, params) -> None:
+        """Show the plane at ``params`` (DescriptorParams), or with None the ones in use.
+
+        Computed in the background, for whichever plane is shown.
+        """
+        self._preview_params = params
+        if params is None:
+            self.previews.clear()
+            self._preview = None
+            self.preview_note.hide()
+        self.refresh()
+
+    def _preview_key(self):
+        d = self._current()
+        if d is None or self._preview_params is None:
+            return None
+        i = self.part.currentIndex()
+        return (i, self.axis.currentIndex(), self.offset.value(), d.grid, self._preview_params)
+
+    def _preview_values(self):
+        """The previewed plane's complex values, or None (then asks for them)."""
+        key = self._preview_key()
+        if key is None:
+            return None
+        if self._preview is not None and self._preview[0] == key:
+            return self._preview[1]
+        i, axis, index, grid, params = key
+        if i < len(self._meshes):
+            _, vertices, faces = self._meshes[i]
+            self.preview_note.setText(f"computing the preview at sigma {params.sigma:.3g}, "
+                                      f"penalty {params.penalty:.3g}…")
+            self.preview_note.show()
+            self.previews.request(key, np.asarray(vertices), np.asarray(faces), grid, axis,
+                                  index, params)
+        return None
+
+    def _preview_ready(self, key, plane) -> None:
+        if key != self._preview_key():
+            return
+        self._preview = (key, plane)
+        params = key[-1]
+        self.preview_note.setText(f"preview at sigma {params.sigma:.3g}, penalty "
+                                  f"{params.penalty:.3g}: not in use until its descriptors "
+                                  "are computed")
+        self.refresh()
+
+    def _preview_failed(self, key, message: str) -> None:
+        if key == self._preview_key():
+            self.preview_note.setText(f"no preview: {message}")
 
     # ------------------------------------------------------------------ state
     def _current(self):
@@ -167,6 +234,9 @@ class SliceView(QtWidgets.QWidget):
         d = self._current()
         if d is None:
             return None
+        plane = self._preview_values()
+        if plane is not None:  # the previewed parameters' plane (axis 0 of a 1-thick block)
+            return slice_values(plane[None], 0, 0, self.component.currentText())
         return slice_values(d.rho, self.axis.currentIndex(), self.offset.value(),
                             self.component.currentText())
 

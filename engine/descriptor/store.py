@@ -29,7 +29,7 @@ import numpy as np
 
 import engine.descriptor.constants as _c
 from engine.cache import code_digest, content_key, entry_path, load_or_compute
-from engine.descriptor.compute import BackendLike, compute_descriptor, resolve_backend
+from engine.descriptor.compute import BackendLike, descriptor_and_side, resolve_backend
 from engine.errors import InputError
 from engine.files import atomic_write
 from engine.grid import Grid, grid_for_bounds
@@ -237,14 +237,19 @@ def cache_key_parts(part: Part, grid: Grid, params: DescriptorParams,
         "origin": list(grid.origin),
         "spacing": grid.spacing,
         "shape": list(grid.shape),
+        # not the penalty nor lambda_out: the entry holds rho / c and the side of each
+        # sample, so any weights are a rescale of it (descriptor_for_part)
         "sigma": params.sigma,
-        "penalty": params.penalty,
-        "lambda_out": params.lambda_out,
         "method": method,
         "format": FORMAT_VERSION,
         "constants": _c.as_dict(),
         "code": descriptor_code_digest(),
     }
+
+
+def _side_factor(inside: np.ndarray, params: DescriptorParams) -> np.ndarray:
+    """``c`` per sample: ``lambda_in`` inside, ``-lambda_out`` outside (float32)."""
+    return np.where(inside, np.float32(params.lambda_in), np.float32(-params.lambda_out))
 
 
 def descriptor_for_part(
@@ -291,21 +296,25 @@ def descriptor_for_part(
         resolved = resolve_backend(backend)
         used["backend"] = resolved.name
         start = time.perf_counter()
-        rho = compute_descriptor(part.vertices, part.faces, grid, params, backend=resolved,
-                                 method=method, progress=progress, cancel=cancel)
+        rho, inside = descriptor_and_side(part.vertices, part.faces, grid, params,
+                                          backend=resolved, method=method, progress=progress,
+                                          cancel=cancel)
         seconds = time.perf_counter() - start
         return {
-            "rho": np.ascontiguousarray(rho, dtype=np.complex64),
+            "unit": np.ascontiguousarray(rho / _side_factor(inside, params), np.complex64),
+            "inside": np.packbits(inside, axis=None),
             "backend": np.asarray(used["backend"]),
             "compute_seconds": np.asarray(seconds, dtype=np.float64),
         }
 
     arrays, hit = load_or_compute(CACHE_KIND, cache_key_parts(part, grid, params, method),
                                   compute, use_cache=use_cache)
-    bad = int(np.count_nonzero(~np.isfinite(arrays["rho"])))
+    inside = np.unpackbits(arrays["inside"], count=grid.size).reshape(grid.shape).view(bool)
+    rho = (arrays["unit"] * _side_factor(inside, params)).astype(np.complex64)
+    bad = int(np.count_nonzero(~np.isfinite(rho)))
     if bad:  # never cached (engine.cache refuses it); never handed on either
         raise InputError(
-            f"{part.source or part.name}: the descriptor has {bad} of {arrays['rho'].size} "
+            f"{part.source or part.name}: the descriptor has {bad} of {rho.size} "
             f"non-finite samples (NaN or infinity) with sigma = {params.sigma:g}, penalty = "
             f"{params.penalty:g}, lambda_out = {params.lambda_out:g} on a grid of spacing "
             f"{grid.spacing:.4g}; use parameters nearer the defaults (sigma 0.5, penalty 3)"
@@ -313,7 +322,7 @@ def descriptor_for_part(
     if hit and progress is not None:
         progress(1.0)
     return Descriptor(
-        rho=arrays["rho"], grid=grid, params=params, triangles=int(len(part.faces)),
+        rho=rho, grid=grid, params=params, triangles=int(len(part.faces)),
         backend=str(arrays.get("backend", used.get("backend", "unknown"))),
         seconds=time.perf_counter() - t0, from_cache=hit, name=str(getattr(part, "name", "")),
         method=method, compute_seconds=float(arrays.get("compute_seconds", np.nan)),

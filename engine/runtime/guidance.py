@@ -115,6 +115,8 @@ class Guidance:
         # mesh's mass properties (milliseconds), so a K change must not do it on the loop
         self._resolved: tuple[tuple[object, ...], Physics] | None = None
         self._deferred = False  # a field change waits for the descriptors being computed
+        #: What was in use before a coarse field at new parameters (None: no coarse one)
+        self._coarse_from: tuple[str, DescriptorParams | None] | None = None
 
     # -- requests -------------------------------------------------------------------------------
     def prepare(self, modes: int) -> None:
@@ -136,9 +138,13 @@ class Guidance:
         self._request("field")
 
     def set_descriptor_params(self, params: DescriptorParams) -> None:
-        """New descriptor parameters (the scene's replaced whole): recompute in the background."""
+        """New descriptor parameters (the scene's replaced whole): recompute in the background.
+
+        A new penalty rescales the cached descriptors. A new sigma gets a coarse field
+        first (seconds), then the scene's own grid; Cancel returns to the sigma before.
+        """
         self.descriptor = params
-        self._request("descriptors")
+        self._request("descriptors", coarse_first=True)
 
     def set_effects(self, effects: Effects) -> None:
         """New effects: axes, damping and gravity at once.
@@ -167,7 +173,10 @@ class Guidance:
         self._field_id = 0
         self.handover.drop()
         self.recompute = None
-        _, self.descriptor = self._in_use
+        _, self.descriptor = self._coarse_from or self._in_use
+        if self._coarse_from is not None:  # back to the descriptors before the coarse field
+            self._request("descriptors")
+            return
         if self._deferred:  # a K or rotation change waited for the cancelled job
             self._deferred = False
             self._request("field")
@@ -305,6 +314,10 @@ class Guidance:
             self.model.geometric_rotation = r.stiffness
         self._physics_dirty = True
         self.descriptors = r.descriptors
+        if req.task == "descriptors" and r.coarse_grid is not None:
+            self._coarse_from = self._coarse_from or self._in_use
+        elif req.task != "field":
+            self._coarse_from = None
         self._in_use = (req.effects.guidance, req.descriptor)
         if req.task == "correlator":
             message = self.ready_message
@@ -321,32 +334,16 @@ class Guidance:
             params = r.descriptors[0].params if r.descriptors else req.descriptor
             sigma, penalty = (0.0, 0.0) if params is None else (params.sigma, params.penalty)
             self.events.append(DescriptorsSwapped(r.descriptors, float(sigma), float(penalty),
-                                                  r.seconds))
-            if self._deferred or req.modes != self.modes or req.effects != self.effects:
+                                                  r.seconds, coarse_grid=r.coarse_grid))
+            if r.coarse_grid is not None:  # the scene's own grid at these parameters follows
+                self._request("descriptors")
+            elif self._deferred or req.modes != self.modes or req.effects != self.effects:
                 self._deferred = False
                 self._request("field")
 
     def offload(self, fld: GeometricField) -> None:
-        """Have the job process compute ``fld``'s correlator's truncations and landscapes.
-
-        A worker job (the spectra cross once); a new K's correlators share it. Nothing
-        when :attr:`job_process` is off.
-        """
-        corr = field_correlator(fld)
-        if (not self.job_process or not isinstance(corr, Correlator)
-                or not isinstance(corr.spectral, LocalSpectral)):
-            return
-
-        def run(cancelled: Callable[[], bool]) -> None:
-            try:
-                if self.jobs is None:
-                    self.jobs = JobProcess()
-                corr.spectral = self.jobs.spectral(corr.spectra)  # one assignment
-            except (JobProcessGone, OSError) as exc:  # the work stays here: same results
-                self.jobs_problem = str(exc)
-                _log.warning("truncations and landscapes run in the loop's process: %s", exc)
-
-        self.worker.submit("offload", run)
+        """Have the job process compute ``fld``'s truncations and landscapes (:func:`offload`)."""
+        offload(self, fld)
 
     def _physics(self) -> Physics:
         if self.model is None:
@@ -363,3 +360,26 @@ class Guidance:
         self.refresh_lane.shutdown()
         if self.jobs is not None:
             self.jobs.close()
+
+
+def offload(guidance: Guidance, fld: GeometricField) -> None:
+    """Have the job process compute ``fld``'s correlator's truncations and landscapes.
+
+    A worker job (the spectra cross once); a new K's correlators share it. Nothing when
+    the guidance's :attr:`Guidance.job_process` is off.
+    """
+    corr = field_correlator(fld)
+    if (not guidance.job_process or not isinstance(corr, Correlator)
+            or not isinstance(corr.spectral, LocalSpectral)):
+        return
+
+    def run(cancelled: Callable[[], bool]) -> None:
+        try:
+            if guidance.jobs is None:
+                guidance.jobs = JobProcess()
+            corr.spectral = guidance.jobs.spectral(corr.spectra)  # one assignment
+        except (JobProcessGone, OSError) as exc:  # the work stays here: same results
+            guidance.jobs_problem = str(exc)
+            _log.warning("truncations and landscapes run in the loop's process: %s", exc)
+
+    guidance.worker.submit("offload", run)

@@ -308,12 +308,18 @@ class ReadyEvent:
 
 @dataclass(frozen=True)
 class DescriptorsSwapped:
-    """New descriptors are in use (after SetDescriptorParams / SetEffects)."""
+    """New descriptors are in use (after SetDescriptorParams / SetEffects).
+
+    ``coarse_grid``: they are a coarse first field's at the new parameters (a new sigma),
+    on this grid; the scene's own grid follows (progress task "descriptors", then another
+    DescriptorsSwapped). None: the scene's own grid.
+    """
 
     descriptors: tuple[Descriptor, ...] = ()
     sigma: float = 0.0
     penalty: float = 0.0
     seconds: float = 0.0
+    coarse_grid: int | None = None
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from engine.pose import rotation_matrix
 if TYPE_CHECKING:
     from engine.descriptor import Descriptor
     from engine.loading import Part
+    from engine.sim.auto import FitMeasure
 
 #: The fit's box grows by this many coarse cells before the taper (a blind bore's floor).
 BOX_CELLS = 2.0
@@ -115,18 +116,22 @@ def level_grids(fixed_desc: Descriptor, moving_desc: Descriptor, box_lo: np.ndar
 
 def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: Descriptor,
                 assembled_pose: np.ndarray, axis: np.ndarray | None, *,
+                fit: FitMeasure | None = None,
                 progress: Callable[[float], None] | None = None,
                 cancel: Callable[[], bool] | None = None) -> NearLevel | None:
     """The fine level of a pair at its seat, or None where the parts do not meet there.
 
     The descriptors' parameters (sigma, penalty) are the coarse ones', so the levels are
     one density sampled twice. At ``r = 1`` no descriptor is computed: the level is the
-    descriptors' own samples in the box.
+    descriptors' own samples in the box. ``fit``: the pair's measure at that pose, where
+    the caller keeps it (it depends on the meshes alone; seconds on a part of many
+    triangles, which a new sigma or penalty would pay again).
     """
     from engine.descriptor.store import descriptor_for_part
     from engine.sim.auto import measure_fit
 
-    fit = measure_fit(fixed, moving, assembled_pose, axis)
+    if fit is None:
+        fit = measure_fit(fixed, moving, assembled_pose, axis)
     if fit.points < 8:
         return None
     grids = level_grids(fixed_desc, moving_desc, fit.box_lo, fit.box_hi, assembled_pose)

@@ -54,7 +54,7 @@ def test_sigma_reaches_the_kernel_as_the_object_the_widget_built(qtbot, small_sc
         carriers: list[tuple[str, object]] = []
         real_build, real_scene, real_compute = (guidance.build_field,
                                                 store.descriptors_for_scene,
-                                                store.compute_descriptor)
+                                                store.descriptor_and_side)
 
         def build_field(model, request, **kw):
             carriers.append(("FieldRequest", request.descriptor))
@@ -64,14 +64,14 @@ def test_sigma_reaches_the_kernel_as_the_object_the_widget_built(qtbot, small_sc
             carriers.append(("Scene", scene.descriptor))
             return real_scene(scene, **kw)
 
-        def compute_descriptor(vertices, faces, grid, params, **kw):
+        def descriptor_and_side(vertices, faces, grid, params, **kw):
             carriers.append(("compute_descriptor", params))
             ready.set()
             return real_compute(vertices, faces, grid, params, **kw)
 
         monkeypatch.setattr(guidance, "build_field", build_field)  # as the worker calls it
         monkeypatch.setattr(store, "descriptors_for_scene", descriptors_for_scene)
-        monkeypatch.setattr(store, "compute_descriptor", compute_descriptor)
+        monkeypatch.setattr(store, "descriptor_and_side", descriptor_and_side)
 
         panel.sigma.setValue(0.8)  # a typed value: applied at once
         (command,) = [c for c in sent if isinstance(c, runtime.SetDescriptorParams)]

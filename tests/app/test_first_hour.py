@@ -8,6 +8,7 @@ test scene.
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -530,3 +531,49 @@ def test_a_coarse_first_field_shows_the_scenes_descriptors_as_a_task(make_window
     assert win.tasks.get("descriptors") is None
     wait_until(lambda: "coarse" not in win.seat_detail.text(), 5000,
                "the seat readout without the coarse field")
+
+
+def test_a_new_sigma_on_a_coarse_grid_keeps_the_sigma_before_for_cancel(make_window,
+                                                                       small_scene, wait_until):
+    # a new sigma is draggable on a coarse grid within seconds while the scene's grid is
+    # computed: the window says so, and until the scene's grid is in use the sigma before
+    # is the one "in use" (Cancel returns the engine to it)
+    win = make_window(small_scene)
+    wait_until(lambda: win.guidance_ready, ENGINE_START_MS, "the engine to be ready")
+    before = win.params.in_use.text()
+    win.params.sigma.setValue(0.8)  # a typed value: sent at once
+    assert "until sigma 0.8" in win.params.in_use.text()
+    descriptors = tuple(win.slice_view._descriptors)
+    win._handle_event(runtime.DescriptorsSwapped(descriptors, 0.8, 3.0, 1.5, coarse_grid=24))
+    task = win.tasks.get("descriptors")
+    assert task is not None and "sigma 0.8 on a coarse grid of 24" in task.label
+    assert "until sigma 0.8" in win.params.in_use.text()  # not yet the scene's grid
+    win.params._cancel()
+    assert win.params.sigma.value() == pytest.approx(float(before.split()[1].rstrip(",")))
+
+
+def test_holding_the_sigma_slider_previews_the_slice_at_its_value(make_window, small_scene,
+                                                                 wait_until):
+    # the slice view shows the plane at the value under the slider before it is applied,
+    # computed alone in the background; letting go of the change (Cancel) shows the
+    # descriptors in use again
+    from engine.descriptor import descriptor_slice
+
+    win = make_window(small_scene)
+    wait_until(lambda: win.guidance_ready, ENGINE_START_MS, "the engine to be ready")
+    view = win.slice_view
+    in_use = view.current_values().copy()
+    win.params.sigma.previewed.emit(0.9)  # as sliderMoved does while the slider is held
+    wait_until(lambda: view._preview is not None, 30000, "the preview of sigma 0.9")
+    assert "preview at sigma 0.9" in view.preview_note.text()
+    part, axis, offset = view.plane()
+    d = view._current()
+    _, vertices, faces = view._meshes[part]
+    expected = descriptor_slice(vertices, faces, d.grid, axis, view.offset.value(),
+                                replace(d.params, sigma=0.9), backend="numba")
+    shown = view.current_values()
+    np.testing.assert_allclose(shown, expected.imag, rtol=1e-5, atol=1e-6)
+    assert not np.allclose(shown, in_use, rtol=1e-2)
+    win.params.recompute_ended("cancelled")
+    assert view.preview_note.isHidden()
+    np.testing.assert_array_equal(view.current_values(), in_use)

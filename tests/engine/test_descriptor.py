@@ -816,3 +816,20 @@ def test_bent_clusters_are_opened_where_a_part_is_small_on_its_grid():
                                  method="tree")  # fmt: skip
     rho = compute_descriptor(part.vertices, part.faces, grid, backend="numba")
     assert _rel_l2(rho, ref) < 1e-3
+
+
+def test_a_slice_at_other_parameters_is_that_plane_of_the_grid():
+    # the window's preview of a new sigma or penalty: one plane, computed alone, must be
+    # the plane of the whole grid computed at those parameters
+    from engine.descriptor import descriptor_slice
+
+    v, f = MESHES["annulus"]()
+    grid = grid_for_bounds(v.min(axis=0), v.max(axis=0), samples=10, padding=2)
+    params = DescriptorParams(sigma=0.8, penalty=5.0)
+    whole = compute_descriptor(v, f, grid, params, backend="numba", method="tree")
+    for axis, index in ((0, 3), (1, grid.shape[1] // 2), (2, 0)):
+        plane = descriptor_slice(v, f, grid, axis, index, params, backend="numba")
+        np.testing.assert_allclose(plane, np.take(whole, index, axis=axis), rtol=1e-5,
+                                   atol=1e-6 * np.abs(whole).max())
+    with pytest.raises(ValueError, match="no plane 99 along axis 2"):
+        descriptor_slice(v, f, grid, 2, 99, params)

@@ -109,7 +109,7 @@ def no_work(monkeypatch):
     import engine.sim
 
     monkeypatch.setattr(compute, "compute_descriptor", reached)
-    monkeypatch.setattr(engine.descriptor.store, "compute_descriptor", reached)
+    monkeypatch.setattr(engine.descriptor.store, "descriptor_and_side", reached)
     monkeypatch.setattr(engine.sim, "build_simulation", reached)
 
 

@@ -840,6 +840,42 @@ def test_an_uncached_scene_is_draggable_on_a_coarse_field_first():
     assert loop.sim.field.correlator is [c for c in model.built if hasattr(c, "grid")][-1]
 
 
+def test_a_new_sigma_is_draggable_on_a_coarse_field_then_the_scenes_grid():
+    # a new sigma took minutes on the scene's grid before anything changed; now a coarse
+    # field at the new sigma comes first (as on a first start), then the scene's own grid
+    loop, _, model = make_loop(realtime=True)
+    model.coarse = 8
+    loop.start()
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.8)))
+    assert wait_for(lambda: sum(isinstance(e, rt.DescriptorsSwapped)
+                                for e in list(loop.events)) == 2, 10.0)
+    loop.stop()
+    swapped = [e for e in loop.poll_events() if isinstance(e, rt.DescriptorsSwapped)]
+    assert [(e.sigma, e.coarse_grid) for e in swapped] == [(0.8, 8), (0.8, None)]
+    assert [(c.grid, c.sigma) for c in model.built] == [(8, 0.8), (None, 0.8)]
+    assert loop.sim.field.correlator is model.built[-1]
+
+
+def test_cancel_after_the_coarse_field_returns_to_the_sigma_before():
+    loop, _, model = make_loop(realtime=True)
+    model.coarse = 8
+    model.delay = 0.3
+    loop.start()
+    loop.send(rt.SetDescriptorParams(params=DescriptorParams(sigma=0.8)))
+    assert wait_for(lambda: any(isinstance(e, rt.DescriptorsSwapped)
+                                for e in list(loop.events)), 10.0)
+    model.coarse = None  # the descriptors before are cached
+    loop.send(rt.CancelRecompute())  # while the scene's grid at 0.8 is computed
+    assert wait_for(lambda: sum(isinstance(e, rt.DescriptorsSwapped)
+                                for e in list(loop.events)) == 2, 10.0)
+    loop.stop()
+    swapped = [e for e in loop.poll_events() if isinstance(e, rt.DescriptorsSwapped)]
+    assert [e.coarse_grid for e in swapped] == [8, None]
+    assert swapped[-1].sigma == DescriptorParams().sigma  # the scene's, not the coarse 0.8
+    assert model.built[-1].descriptor is None and model.built[-1].grid is None
+    assert loop.guidance.descriptor is None and loop.guidance.recompute is None
+
+
 def test_a_k_change_does_not_cancel_descriptors_being_computed():
     loop, _, model = make_loop(realtime=True)
     loop.start()

@@ -44,9 +44,9 @@ def fake_compute(monkeypatch):
         if progress is not None:
             progress(0.5)
             progress(1.0)
-        return value.astype(np.complex64)
+        return value.astype(np.complex64), pts[..., 2] < 0
 
-    monkeypatch.setattr(store_module, "compute_descriptor", compute)
+    monkeypatch.setattr(store_module, "descriptor_and_side", compute)
     return calls
 
 
@@ -73,11 +73,18 @@ def test_cache_hit_and_miss(fake_compute, private_cache):
     assert second.compute_seconds == first.compute_seconds
     # any changed input recomputes
     descriptor_for_part(part, grid, DescriptorParams(sigma=0.6), backend="numba")
-    descriptor_for_part(part, grid, DescriptorParams(penalty=2.0), backend="numba")
     descriptor_for_part(part, grid_for_part(part, samples=9, padding=2), backend="numba")
     descriptor_for_part(box_part(shift=1e-9), grid, backend="numba")
     descriptor_for_part(part, grid, method="brute", backend="numba")
-    assert len(fake_compute) == 6
+    assert len(fake_compute) == 5
+    # but not the weights: a new penalty or lambda_out rescales the entry on each side
+    other = descriptor_for_part(part, grid, DescriptorParams(penalty=2.0, lambda_out=0.5),
+                                backend="numba")
+    assert other.from_cache and len(fake_compute) == 5
+    assert other.params == DescriptorParams(penalty=2.0, lambda_out=0.5)
+    inside = grid.points()[..., 2] < 0
+    np.testing.assert_allclose(other.rho[inside], first.rho[inside] * (1.0 / 3.0), rtol=1e-6)
+    np.testing.assert_allclose(other.rho[~inside], first.rho[~inside] * 0.5, rtol=1e-6)
     # and the originals still hit
     assert descriptor_for_part(part, grid, DescriptorParams(), backend="numba").from_cache
 
@@ -181,10 +188,38 @@ def test_real_descriptor_is_cached_and_loads_fast(private_cache, monkeypatch):
     def no_kernel(*args, **kwargs):
         raise AssertionError("the descriptor was computed again")
 
-    monkeypatch.setattr(store_module, "compute_descriptor", no_kernel)
+    monkeypatch.setattr(store_module, "descriptor_and_side", no_kernel)
     second = descriptor_for_part(part, grid, backend="numba")
     assert second.from_cache
     np.testing.assert_array_equal(second.rho, first.rho)
+
+
+@pytest.mark.parametrize("method", ["tree", "adaptive"])
+def test_a_new_penalty_rescales_the_cached_descriptor_as_the_kernel_computes_it(
+        private_cache, monkeypatch, method):
+    # rho is c(p) times a sum that neither weight touches: the cache keeps the sum and each
+    # sample's side, so the window's penalty slider costs no kernel run. Against the
+    # kernel run afresh at the new weights: every sample where each is evaluated (tree);
+    # within the sampler's interpolation where it decides again which samples it
+    # interpolates (adaptive)
+    part = load_part(ROOT / "assets" / "dovetail" / "slide.step")
+    grid = grid_for_part(part, samples=10, padding=2)
+    descriptor_for_part(part, grid, DescriptorParams(penalty=3.0), backend="numba",
+                        method=method)
+    new = DescriptorParams(penalty=7.5, lambda_out=0.8)
+    fresh = descriptor_for_part(part, grid, new, backend="numba", method=method,
+                                use_cache=False)
+
+    def no_kernel(*args, **kwargs):
+        raise AssertionError("the descriptor was computed again for a new penalty")
+
+    monkeypatch.setattr(store_module, "descriptor_and_side", no_kernel)
+    rescaled = descriptor_for_part(part, grid, new, backend="numba", method=method)
+    assert rescaled.from_cache and rescaled.params == new
+    both = (fresh.rho.imag > 0) == (rescaled.rho.imag > 0)
+    assert both.mean() > 0.999  # the same side, so c(p) picked the same weight
+    err = np.linalg.norm(rescaled.rho - fresh.rho) / np.linalg.norm(fresh.rho)
+    assert err < (1e-6 if method == "tree" else 2e-3), err
 
 
 def test_changed_descriptor_code_recomputes(fake_compute, monkeypatch):
@@ -271,9 +306,9 @@ def test_save_is_atomic_and_keeps_the_old_file_on_failure(tmp_path, monkeypatch)
 
 def test_a_non_finite_descriptor_is_refused_and_not_cached(monkeypatch, private_cache):
     def nan_compute(vertices, faces, grid, params, **kwargs):
-        return np.full(grid.shape, np.nan, dtype=np.complex64)
+        return np.full(grid.shape, np.nan, dtype=np.complex64), np.zeros(grid.shape, bool)
 
-    monkeypatch.setattr(store_module, "compute_descriptor", nan_compute)
+    monkeypatch.setattr(store_module, "descriptor_and_side", nan_compute)
     part = box_part()
     grid = grid_for_part(part, samples=8, padding=1)
     with pytest.raises(InputError, match=r"box: the descriptor has 1331 of 1331 non-finite "
