@@ -12,7 +12,7 @@ import threading
 
 #: Subcommand name -> module in app.commands providing add_parser(subparsers) and run(args).
 COMMANDS = ("scene", "precompute", "evaluate", "landscape", "search", "simulate", "bench", "report",
-            "gui")
+            "gui", "warm")
 
 
 class UserError(Exception):

@@ -22,6 +22,7 @@ BENCHMARKS = {
     "loading": "seconds and peak memory to load STL meshes of 1e4 to 1e6 triangles with "
                "fans and doubled faces",
     "tuning": "seconds from a new sigma or penalty to the running engine using it",
+    "launch": "seconds from `skelasm gui` to a part that can be dragged, in a fresh cache",
 }
 
 
