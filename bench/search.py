@@ -40,6 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pairs", choices=("bundled", "real", "all"), default="bundled",
                         help="which scenes (default: the bundled pairs)")
     parser.add_argument("--scene", nargs="+", help="these scenes instead")
+    parser.add_argument("--generated", type=int, metavar="N",
+                        help="N unseen pairs of bench.fitgen instead (with --seed), judged "
+                        "against their ground truth (fit.json)")
+    parser.add_argument("--seed", type=int, help="the seed of --generated")
     parser.add_argument("--angle", type=float, nargs="+", default=[30.0],
                         help="rotation grid spacings in degrees (default 30)")
     parser.add_argument("--scan-modes", type=int, default=16, help="scan modes (default 16)")
@@ -83,7 +87,8 @@ def errors(fit_rotation, fit_translation, pose, points, dense, free_axes=()) -> 
     """Geometry, centre (% of size) and axes (degrees) errors of a fit (module docstring).
 
     ``free_axes``: the scene's declared free axes; the fit is first slid along the free
-    translations (part 1's x, y, z) to the assembled pose's centroid.
+    translations (part 1's x, y, z, or unit vectors: a generated fit's) to the assembled
+    pose's centroid.
     """
     from scipy.spatial import cKDTree
 
@@ -96,9 +101,13 @@ def errors(fit_rotation, fit_translation, pose, points, dense, free_axes=()) -> 
     gap = want.mean(axis=0) - placed(dense, fit_rotation, fit_translation).mean(axis=0)
     slide = np.zeros(3)
     for axis in free_axes or ():
-        if axis in ("x", "y", "z"):
-            index = "xyz".index(axis)
-            slide[index] = gap[index]
+        if isinstance(axis, str):
+            if axis in ("x", "y", "z"):
+                index = "xyz".index(axis)
+                slide[index] = gap[index]
+        else:  # a unit direction
+            v = np.asarray(axis, float)
+            slide += v * float(gap @ v)
     fit_translation = np.asarray(fit_translation, float) + slide
     got = placed(points, fit_rotation, fit_translation)
     geometry = 100.0 * float(np.mean(cKDTree(want).query(got)[0])) / size
@@ -119,7 +128,20 @@ def run(args: argparse.Namespace) -> int:
     from engine.search import SearchSettings, level_for, search_scene
     from engine.sim.auto import complete_scene
 
-    if args.scene:
+    truths: dict[Path, object] = {}
+    if args.generated:
+        import tempfile
+
+        from bench.fitgen.generate import generate
+        from bench.fitgen.truth import TRUTH_FILE, read_truth
+
+        if args.seed is None:
+            raise ValueError("--generated needs --seed")
+        folder = Path(tempfile.mkdtemp(prefix=f"skelasm-search-{args.seed}-"))
+        generate(args.generated, args.seed, folder)
+        scenes = sorted(folder.glob("*/scene.toml"))
+        truths = {p: read_truth(p.parent / TRUTH_FILE) for p in scenes}
+    elif args.scene:
         scenes = [Path(s) for s in args.scene]
     else:
         scenes = []
@@ -135,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     print(f"{'scene':34} {'deg':>4} {'rot':>6} {'scan s':>7} {'ms/rot':>6} {'total s':>7} "
           f"{'rank':>4} {'geom %':>6} {'centre %':>8} {'axes deg':>8} {'joint':>11} "
-          f"{'expected':>11}")
+          f"{'at seat':>11} {'expected':>11}")
     try:
         for path in scenes:
             scene, _ = complete_scene(load_scene(path))
@@ -148,11 +170,22 @@ def run(args: argparse.Namespace) -> int:
                 start = time.perf_counter()
                 result = search_scene(scene, settings, work=work)
                 wall = time.perf_counter() - start
+                truth = truths.get(path)
+                free = (scene.seat.free_axes if truth is None
+                        else truth.free_translations)  # type: ignore[attr-defined]
                 errs = [errors(f.rotation, f.translation, scene.assembled_pose, points, dense,
-                               scene.seat.free_axes) for f in result.fits]
+                               free) for f in result.fits]
                 rank = next((i + 1 for i, e in enumerate(errs)
                              if e["geometry_percent"] < FOUND_PERCENT), None)
                 top = result.fits[0] if result.fits else None
+                seat = result.fits[rank - 1] if rank else None
+                if truth is None:
+                    expected = expected_kind(scene.seat.free_axes)
+                else:
+                    from engine.search.joint import _kind
+
+                    expected = _kind(tuple(np.asarray(v) for v in truth.free_translations),
+                                     [np.asarray(v) for v in truth.free_rotations])
                 row = {"scene": str(path.relative_to(ROOT) if path.is_relative_to(ROOT)
                                     else path),
                        "angle": settings.angle, "rotations": settings.rotations,
@@ -162,7 +195,9 @@ def run(args: argparse.Namespace) -> int:
                        "rank": rank, **(errs[0] if errs else {}),
                        "joint": top.joint.kind if top else None,
                        "confidence": top.joint.confidence if top else None,
-                       "expected": expected_kind(scene.seat.free_axes)}
+                       "joint_at_seat": seat.joint.kind if seat else None,
+                       "family": getattr(truth, "family", None),
+                       "expected": expected}
                 rows.append(row)
                 print(f"{path.parent.name:34} {settings.angle:4g} {settings.rotations:6d} "
                       f"{result.scan_seconds:7.1f} {row['ms_per_rotation']:6.1f} "
@@ -170,10 +205,18 @@ def run(args: argparse.Namespace) -> int:
                       f"{row.get('geometry_percent', float('nan')):6.2f} "
                       f"{row.get('centre_percent', float('nan')):8.2f} "
                       f"{row.get('axes_degrees', float('nan')):8.2f} "
-                      f"{row['joint'] or '-':>11} {row['expected']:>11}", flush=True)
+                      f"{row['joint'] or '-':>11} {row['joint_at_seat'] or '-':>11} "
+                      f"{row['expected']:>11}", flush=True)
     finally:
         if work is not None:
             work.shutdown()
+    if rows:
+        found = [r for r in rows if r["rank"]]
+        print(f"seat found (within {FOUND_PERCENT:g} %) in {len(found)} of {len(rows)}; "
+              f"joint kind right at the top fit in "
+              f"{sum(r['joint'] == r['expected'] for r in rows)} of {len(rows)}, at the seat "
+              f"where found in {sum(r['joint_at_seat'] == r['expected'] for r in found)} of "
+              f"{len(found)}")
     Path(args.output).write_text(json.dumps(rows, indent=1) + "\n")
     print(f"wrote {args.output}")
     return 0

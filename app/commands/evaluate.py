@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from engine.correlation import add_evaluations, correlator_for_scene
     from engine.pose import rotation_matrix
     from engine.runtime import open_scene
+    from engine.search.joint import MOTION_ANGLE, REACH, Surfaces, axis_names, motion_joint
     from engine.sim import mass_properties
     from engine.sim.build import hold_point
     from engine.sim.joints import find_free_axes
@@ -115,8 +116,15 @@ def run(args: argparse.Namespace) -> int:
     moving = handle.parts[-1]
     spec = handle.config.mass_spec(len(handle.parts) - 1)
     _, _, centre = mass_properties(moving.vertices, moving.faces, spec, scene.units)
+    # the joint from the motions the parts allow there; where they do not meet, the
+    # energy's curvature one cell each way (engine.sim.joints)
+    length = 0.5 * float(np.max(np.ptp(moving.vertices, axis=0)))
+    motion = motion_joint(Surfaces.of(handle.parts[0].vertices, handle.parts[0].faces,
+                                      moving.vertices, moving.faces),
+                          rot, t, length=length) if len(handle.parts) > 1 else None
     joint = find_free_axes(lambda r, tr: evaluate(r, tr).energy, pose, centre,
                            float(np.linalg.norm(np.ptp(moving.vertices, axis=0))), corr.spacing)
+    found, unnamed = axis_names(motion) if motion is not None else (joint.free, ())
     held = hold_point(handle)  # where the simulation's coupling holds the part
     coupling = _coupling(handle, corr, scale.kappa)
     if scene.parts[-1].hold is not None:
@@ -145,11 +153,18 @@ def run(args: argparse.Namespace) -> int:
                 "energy": walls.energy, "force": [float(x) for x in walls.force],
                 "torque": [float(x) for x in walls.torque]}},
         **scale.as_json(),
-        "free_axes": {"found": list(joint.free),
+        "free_axes": {"found": list(found),
                       "declared": (None if scene.seat.free_axes is None
                                    else list(scene.seat.free_axes)),
+                      "from": "motions" if motion is not None else "energy",
+                      "unnamed": [[float(x) for x in d] for d in unnamed],
                       "curvature": joint.curvature, "step": joint.step,
                       "angle_deg": float(np.degrees(joint.angle))},
+        "joint": None if motion is None else {
+            "kind": motion.kind, "confidence": motion.confidence,
+            "slides": [[float(x) for x in d] for d in motion.slides],
+            "turns": [{"axis": [float(x) for x in a], "point": [float(x) for x in p]}
+                      for a, p in motion.turns]},
         "hold": {"point": [float(x) for x in held], "source": hold_source},
         # the settings the scene leaves open, chosen from the parts, and why
         "chosen": [{"key": key, "value": value, "reason": reason}
@@ -179,9 +194,19 @@ def run(args: argparse.Namespace) -> int:
     print(f"scale      {scale.describe()}")
     declared = ("" if scene.seat.free_axes is None
                 else f" (the scene declares: {', '.join(scene.seat.free_axes) or 'none'})")
-    print(f"free axes  {', '.join(joint.free) or 'none'} at this pose{declared}: along them "
-          f"the energy's curvature over one cell ({joint.step:.3g} {units.length}, or "
-          f"{np.degrees(joint.angle):.2g} deg) is under 5 % of the largest of their kind")
+    if motion is not None:
+        extra = "".join(f", and along {np.array2string(d, precision=3)}" for d in unnamed)
+        which = ("only these keep" if found or unnamed else "none keeps")
+        print(f"free axes  {', '.join(found) or 'none'}{extra} at this pose{declared}: a "
+              f"{motion.kind} joint (confidence {motion.confidence:.2f}); of slides by "
+              f"{REACH * length:.3g} {units.length} and turns by "
+              f"{np.degrees(MOTION_ANGLE):.0f} deg each way along and about the contact's "
+              f"principal directions, {which} part 2 out of part 1")
+    else:
+        print(f"free axes  {', '.join(joint.free) or 'none'} at this pose{declared}: the "
+              f"parts do not meet here; along them the energy's curvature over one cell "
+              f"({joint.step:.3g} {units.length}, or {np.degrees(joint.angle):.2g} deg) is "
+              "under 5 % of the largest of their kind")
     where = {"scene": "named by the scene", "fit": "the middle of the fit",
              "centre of mass": "its centre of mass"}[hold_source]
     print(f"held at    {np.array2string(held, precision=4)} {units.length} in part 2's frame "

@@ -18,8 +18,11 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
+
+T = TypeVar("T")
 
 #: Where the engine's cache lives (engine.cache); the warm-up points it at a folder of its own.
 CACHE_ENV = "SKELASM_CACHE"
@@ -82,7 +85,7 @@ def _warm(scene: Path, stages: list[tuple[str, float]],
     from engine.runtime.api import start_engine
     from engine.runtime.scene_handle import open_scene
 
-    def stage(name: str, fn: Callable[[], object]) -> object:
+    def stage(name: str, fn: Callable[[], T]) -> T:
         if progress is not None:
             progress(name)
         t0 = time.perf_counter()
@@ -91,9 +94,9 @@ def _warm(scene: Path, stages: list[tuple[str, float]],
         return out
 
     handle = stage("loading the parts", lambda: open_scene(scene))
-    d = handle.scene.descriptor  # type: ignore[attr-defined]
+    d = handle.scene.descriptor
     coarse = replace(d, grid=WARM_GRID, spacing=None)
-    small = replace(handle, scene=replace(handle.scene, descriptor=coarse))  # type: ignore
+    small = replace(handle, scene=replace(handle.scene, descriptor=coarse))
     # the engine as the window starts it, in a thread: the loop, its job worker, its arrays
     # as they come (read-only ones compile specialisations of their own)
     engine = start_engine(small, modes=WARM_MODES, process=False)

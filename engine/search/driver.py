@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -30,7 +30,7 @@ from engine.correlation import Correlator, Spectra
 from engine.errors import Cancelled
 from engine.pose import rotation_vector
 from engine.search.cluster import cluster_poses, surface_spread
-from engine.search.joint import Joint, find_joint
+from engine.search.joint import Joint, Surfaces, find_joint, motion_joint
 from engine.search.refine import descend, minimise
 from engine.search.rotations import RotationGrid
 from engine.search.scan import BlockResult, Candidates, ScanBlock
@@ -124,7 +124,7 @@ def default_points(correlator: Correlator) -> np.ndarray:
 
 def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
               points: np.ndarray | None = None, scan: Spectra | None = None,
-              work: BlockWork | None = None,
+              work: BlockWork | None = None, surfaces: Surfaces | None = None,
               progress: Progress | None = None,
               cancel: Callable[[], bool] | None = None) -> SearchResult:
     """The ``settings.top`` lowest-energy fits of part 2 on part 1 (see the module docstring).
@@ -146,6 +146,10 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
     work : BlockWork, optional
         Where the scan's blocks run (:class:`~engine.search.distributed.DaskWork`);
         default: here, in order.
+    surfaces : Surfaces, optional
+        The parts' surfaces: each fit's joint is then the one the parts' motions allow
+        (:func:`~engine.search.joint.motion_joint`), the energy's (:func:`find_joint`)
+        where they do not meet; without them, the energy's.
     progress : callable(fraction, seconds_left), optional
     cancel : callable() -> bool, optional
         Raises :class:`engine.errors.Cancelled` once it returns True.
@@ -193,7 +197,7 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
     out = []
     for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged, start=1):
         began = time.perf_counter()
-        joint = _joint(fine, rot, t, 0.5 * size)
+        joint = _joint(fine, rot, t, 0.5 * size, surfaces)
         out.append(Fit(rank, rot, t, energy, scan_energy, members, joint,
                        seconds + time.perf_counter() - began))
     report(1.0)
@@ -208,7 +212,8 @@ def _even_above(value: int) -> int:
     return value + 2 - value % 2
 
 
-def _joint(fine: Correlator, rot: np.ndarray, t: np.ndarray, length: float) -> Joint:
+def _joint(fine: Correlator, rot: np.ndarray, t: np.ndarray, length: float,
+           surfaces: Surfaces | None = None) -> Joint:
     def gradient(r: np.ndarray, tt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ev = fine.evaluate(r, tt)
         return ev.force, (ev.torque if ev.torque is not None else np.zeros(3))
@@ -216,8 +221,11 @@ def _joint(fine: Correlator, rot: np.ndarray, t: np.ndarray, length: float) -> J
     def energy(r: np.ndarray, tt: np.ndarray) -> float:
         return float(fine.evaluate(r, tt).energy)
 
-    return find_joint(energy, gradient, rot, t, fine.centre_moving, step=fine.spacing,
-                      length=length)
+    by_energy = find_joint(energy, gradient, rot, t, fine.centre_moving, step=fine.spacing,
+                           length=length)
+    moved = None if surfaces is None else motion_joint(surfaces, rot, t, length=length)
+    # the energy's stiffness stays with the joint either way
+    return by_energy if moved is None else replace(moved, stiffness=by_energy.stiffness)
 
 
 def _merge(fits: list[tuple[float, np.ndarray, np.ndarray, float, int, float]],

@@ -15,6 +15,7 @@ from engine.descriptor import descriptors_for_scene
 from engine.scene import Scene, load_scene
 from engine.scene.parts import load_scene_parts
 from engine.search.driver import Progress, SearchResult, find_fits
+from engine.search.joint import Surfaces
 from engine.search.settings import SearchSettings
 from engine.search.work import BlockWork
 
@@ -58,5 +59,7 @@ def search_scene(scene: Scene | str | Path, settings: SearchSettings | None = No
         if progress is not None:
             progress(0.1 + 0.9 * fraction, left)
 
+    surfaces = Surfaces.of(parts[0].vertices, parts[0].faces, parts[1].vertices,
+                           parts[1].faces)
     return find_fits(correlator, settings, points=points, scan=scan, work=work,
-                     progress=searching, cancel=cancel)
+                     surfaces=surfaces, progress=searching, cancel=cancel)

@@ -239,3 +239,152 @@ def _kind(slides: tuple[np.ndarray, ...], axes: list[np.ndarray]) -> str:
         if abs(float(normal @ axes[0])) >= parallel * np.linalg.norm(normal):
             return "planar"
     return "other"
+
+
+# ------------------------------------------------------------------ the motions the parts allow
+
+#: Part 2's surface samples the motion test moves.
+MOTION_SAMPLES = 3000
+
+#: The turns of the motion test (radians each way): a faceted bore's facets, a key or a
+#: spline's teeth all stop a turn this large, while a round fit's lets it through.
+MOTION_ANGLE = 0.5
+
+#: A motion is stopped when it drives part 2's surface deeper into part 1 than at the fit
+#: by more than this fraction of how far the motion moves the fit's surface.
+STOP_FRACTION = 0.05
+
+
+@dataclass(frozen=True)
+class Surfaces:
+    """The parts' surfaces for :func:`motion_joint`.
+
+    Attributes
+    ----------
+    fixed_vertices : (n, 3) float64, fixed_faces : (m, 3) int64
+        Part 1's mesh (its frame).
+    points, normals : (k, 3) float64
+        Samples of part 2's surface and their outward unit normals, part 2's frame.
+    """
+
+    fixed_vertices: np.ndarray
+    fixed_faces: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+
+    @classmethod
+    def of(cls, fixed_vertices: np.ndarray, fixed_faces: np.ndarray,
+           moving_vertices: np.ndarray, moving_faces: np.ndarray,
+           count: int = MOTION_SAMPLES) -> Surfaces:
+        """Part 1's mesh and ``count`` area-uniform samples of part 2's (the same per mesh)."""
+        from engine.correlation.walls import surface_samples
+
+        points, normals = surface_samples(moving_vertices, moving_faces, count, 0)
+        return cls(np.asarray(fixed_vertices, np.float64), np.asarray(fixed_faces, np.int64),
+                   points, normals)
+
+
+def motion_joint(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray, *,
+                 length: float, axes: np.ndarray | None = None, reach: float = REACH,
+                 angle: float = MOTION_ANGLE, stop: float = STOP_FRACTION) -> Joint | None:
+    """The joint at a fit from the motions the parts allow, or None where they do not meet.
+
+    Where part 2 touches part 1 (its samples within a few times the fit's median gap of
+    part 1's surface), the contact's normals give the candidate directions: the eigenvectors
+    of their scatter matrix (a round bore's axis is the one its normals leave out, a flat
+    seat's normal the one they share), with ``axes`` added (say the stiffness's principal
+    slides). Part 2 is then slid ``reach * length`` each way along each, and turned
+    ``angle`` each way about each through the contact's centre; a motion is free when in
+    both directions no sample of part 2 goes deeper into part 1 than at the fit by more than
+    ``stop`` of how far the motion carries the contact. The free slides and turns are
+    reduced to their span (two slides in a plane are one plane, whatever the candidates),
+    and the kind follows as in :func:`find_joint`. The confidence is how far the stopped
+    motions' depths and the free ones' lie from the threshold (log scale, as there).
+
+    ``stiffness`` and ``rises`` of the result hold zeros and the depths: the six
+    candidates' extra depth over the threshold, slides first.
+    """
+    from engine.descriptor.compute import signed_distance
+
+    rot = np.asarray(rotation, np.float64)
+    t = np.asarray(translation, np.float64)
+    placed = surfaces.points @ rot.T + t
+    normals = surfaces.normals @ rot.T
+    d0 = signed_distance(surfaces.fixed_vertices, surfaces.fixed_faces, placed)
+    gap = np.abs(d0)
+    reach_gap = 0.1 * length
+    near = gap < reach_gap
+    if near.sum() < 8:
+        return None
+    median = float(np.median(gap[near]))
+    contact = near & (gap <= max(4.0 * median, 1e-6 * length))
+    if contact.sum() < 8:
+        contact = near
+    centre = placed[contact].mean(axis=0)
+    n = normals[contact]
+    _, vectors = np.linalg.eigh(n.T @ n / len(n))
+    candidates = [vectors[:, i] for i in range(3)]
+    for extra in (np.zeros((0, 3)) if axes is None else np.asarray(axes, np.float64)):
+        if all(abs(float(extra @ c)) < math.cos(math.radians(PARALLEL_DEGREES)) for c in
+               candidates):
+            candidates.append(extra / np.linalg.norm(extra))
+    depth0 = float(max(0.0, -d0.min()))
+    arm = float(np.sqrt(np.mean(np.sum((placed[contact] - centre) ** 2, axis=1))))
+    moved, carries = [], []
+    for a in candidates:
+        for sign in (1.0, -1.0):
+            moved.append(placed + sign * reach * length * a)
+        carries.append(reach * length)
+    for a in candidates:
+        for sign in (1.0, -1.0):
+            turn = rotation_matrix(sign * angle * a)
+            moved.append((placed - centre) @ turn.T + centre)
+        # how far the turn carries the contact: its points' mean distance from the axis
+        off = placed[contact] - centre
+        across = off - np.outer(off @ a, a)
+        carries.append(angle * max(float(np.sqrt(np.mean(np.sum(across ** 2, axis=1)))),
+                                   1e-3 * arm, 1e-9))
+    d = signed_distance(surfaces.fixed_vertices, surfaces.fixed_faces, np.concatenate(moved))
+    depth = np.maximum(0.0, -d.reshape(len(moved), -1).min(axis=1)) - depth0
+    k = len(candidates)
+    both = np.maximum(depth[0::2], depth[1::2])  # a free motion is free both ways
+    ratio = both / (stop * np.array(carries))
+    free = ratio < 1.0
+    free_slides = _span([candidates[i] for i in range(k) if free[i]])
+    free_axes = _span([candidates[i] for i in range(k) if free[k + i]])
+    turns = tuple((a, centre - a * float(a @ centre)) for a in free_axes)
+    scale = math.log(1.0 / stop)
+    margins = [1.0 if r <= 0 else min(1.0, abs(math.log(r)) / scale) for r in ratio]
+    return Joint(kind=_kind(free_slides, list(free_axes)), slides=free_slides, turns=turns,
+                 confidence=float(min(margins)), stiffness=np.zeros((6, 6)),
+                 rises=np.asarray(ratio[:3].tolist() + ratio[k:k + 3].tolist()))
+
+
+def _span(directions: list[np.ndarray]) -> tuple[np.ndarray, ...]:
+    """An orthonormal basis of the directions' span (canonical signs)."""
+    if not directions:
+        return ()
+    _, s, vt = np.linalg.svd(np.stack(directions), full_matrices=False)
+    rank = int(np.sum(s > 0.5 * s[0]))
+    return tuple(_canonical(vt[i]) for i in range(rank))
+
+
+def axis_names(joint: Joint) -> tuple[tuple[str, ...], tuple[np.ndarray, ...]]:
+    """The joint's free directions as names of part 1's axes (x, y, z, rx, ry, rz).
+
+    Returns the names of the free slides and turns that lie within
+    :data:`PARALLEL_DEGREES` of an axis, and the unit directions of those that do not
+    (slides first), which no name describes.
+    """
+    parallel = math.cos(math.radians(PARALLEL_DEGREES))
+    names: list[str] = []
+    others: list[np.ndarray] = []
+    for prefix, directions in (("", joint.slides), ("r", [a for a, _ in joint.turns])):
+        for d in directions:
+            i = int(np.argmax(np.abs(d)))
+            if abs(float(d[i])) >= parallel:
+                names.append(prefix + "xyz"[i])
+            else:
+                others.append(np.asarray(d, np.float64))
+    order = ("x", "y", "z", "rx", "ry", "rz")
+    return tuple(sorted(set(names), key=order.index)), tuple(others)
