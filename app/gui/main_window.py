@@ -286,6 +286,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.params.pause.toggled.connect(self._pause_changed)
         self.viewport.constraint_changed.connect(self._constraint_changed)
         self.pose_dialog: PoseDialog | None = None
+        self.fit_dialog = None  # Edit > Set up the fit (app.gui.fit_dialog), made on first use
 
         self.latency = LatencyMonitor(self)
         self._tick_timer = QtCore.QTimer(self)
@@ -362,6 +363,8 @@ class MainWindow(QtWidgets.QMainWindow):
                                         QtGui.QKeySequence.Undo)
         self.redo_action = self._action(edit, "&Redo pose", self.redo_pose,
                                         QtGui.QKeySequence.Redo)
+        edit.addSeparator()
+        self._action(edit, "Set up the &fit…", self.fit_dialog_open)
         view = self._menu(bar, "&View")
         for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape,
                      self.dock_parts):
@@ -596,6 +599,75 @@ class MainWindow(QtWidgets.QMainWindow):
             if folder.is_dir() and not folder.is_relative_to(bundled):
                 return folder
         return Path.home()
+
+    def fit_dialog_open(self) -> None:
+        """The scene's fit (assembled pose, insertion axis, free axes, seat tolerance)."""
+        from app.gui.fit_dialog import FitDialog
+
+        handle = self.session.handle
+        if handle is None or len(handle.parts) < 2:
+            self.show_error("Open a scene with two parts to set up their fit.")
+            return
+        if self.fit_dialog is None:
+            self.fit_dialog = FitDialog(
+                self, unit=self.units.length, current_pose=self._current_part_pose,
+                view_direction=self._view_direction_in_part1, measure=self._measure_free_axes)
+            self.fit_dialog.applied.connect(self.apply_fit)
+        self.fit_dialog.set_scene(handle.scene)
+        self.fit_dialog.show()
+        self.fit_dialog.raise_()
+
+    def _current_part_pose(self) -> np.ndarray:
+        handle = self.session.handle
+        return np.asarray(self.latest_frame.part_pose if self.latest_frame is not None
+                          else handle.start_pose, float)
+
+    def _view_direction_in_part1(self) -> np.ndarray:
+        """Into the screen, in part 1's frame."""
+        d = np.asarray(self.viewport.plotter.camera.direction, float)
+        part1 = posemath.pose_to_matrix(self.session.handle.part1_world_pose)
+        return part1[:3, :3].T @ (d / np.linalg.norm(d))
+
+    def _measure_free_axes(self, pose: np.ndarray):
+        """The free axes the parts' motions allow at ``pose``, and a line on what was found."""
+        from engine.pose import rotation_matrix
+        from engine.search.joint import Surfaces, axis_names, motion_joint
+
+        fixed, moving = self.session.handle.parts[0], self.session.handle.parts[-1]
+        length = 0.5 * float(np.max(np.ptp(moving.vertices, axis=0)))
+        joint = motion_joint(Surfaces.of(fixed.vertices, fixed.faces, moving.vertices,
+                                         moving.faces),
+                             rotation_matrix(pose[3:]), pose[:3], length=length)
+        if joint is None:
+            return None, "The parts do not meet at this pose: nothing to measure."
+        names, others = axis_names(joint)
+        line = (f"A {joint.kind} joint (confidence {joint.confidence:.2f}): free "
+                f"{', '.join(names) or 'none'}")
+        if others:
+            line += f", and {len(others)} direction(s) along no axis of part 1"
+        return names, line + "."
+
+    def apply_fit(self, setup) -> None:
+        """Write the fit into the scene file (Save as for a bundled one) and open it again."""
+        from app.gui.scene_file import write_scene
+
+        handle = self.session.handle
+        target = Path(handle.scene.path)
+        bundled = Path(__file__).resolve().parents[2] / "assets"
+        if target.resolve().is_relative_to(bundled):
+            path, _ = QtWidgets.QFileDialog.getSaveFileName(
+                self, "Save the scene with its fit", str(self.save_folder() / target.name),
+                "Scenes (*.toml)")
+            if not path:
+                return
+            target = Path(path)
+        try:
+            out = write_scene(handle, target, fit=setup, **self.params.scene_settings())
+        except (OSError, ValueError) as exc:
+            self.show_error(f"Could not save the fit: {exc}")
+            return
+        self.statusBar().showMessage(f"saved the fit in {out}; opening it again", 5000)
+        self.open_path(out)
 
     def save_scene(self, path: str | Path) -> Path:
         """Write the current scene, with the part where it is now, to a TOML file.

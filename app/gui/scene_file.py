@@ -8,14 +8,30 @@ back the same.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from engine.params import CouplingParams, DescriptorParams, Effects
+from engine.params import CouplingParams, DescriptorParams, Effects, SeatSpec
 from engine.scene import save_scene
+
+
+@dataclass(frozen=True)
+class FitSetup:
+    """The fit as the window's Fit dialog sets it up (part 1's frame, the scene's unit).
+
+    ``insertion_axis`` None: the scene gives none; ``seat_distance`` None: the default
+    share of part 2's size.
+    """
+
+    assembled_pose: tuple[float, ...]
+    insertion_axis: tuple[float, float, float] | None
+    free_axes: tuple[str, ...]
+    seat_distance: float | None
+    seat_degrees: float
+
 
 #: ``kappa=KEEP``: the scene's own ``[simulation] kappa`` is written as it was.
 KEEP = object()
@@ -26,7 +42,8 @@ DESCRIPTOR_KEYS = ("sigma", "penalty", "lambda_out", "padding")
 def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | None = None,
                 descriptor: DescriptorParams | None = None,
                 modes: int | None = None, effects: Effects | None = None,
-                coupling: CouplingParams | None = None, kappa: Any = KEEP) -> Path:
+                coupling: CouplingParams | None = None, kappa: Any = KEEP,
+                fit: FitSetup | None = None) -> Path:
     """Write ``handle``'s scene to ``path`` (TOML) and return the path written.
 
     Parameters
@@ -45,6 +62,9 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
     kappa : float or None, optional
         ``[simulation] kappa``: a value, or None for the scale-free default; by default
         (:data:`KEEP`) the scene's own.
+    fit : FitSetup, optional
+        The fit as set up in the window (assembled pose, insertion axis, free axes, seat
+        tolerance), replacing the scene's.
 
     Raises
     ------
@@ -68,6 +88,12 @@ def write_scene(handle: Any, path: Path, *, moving_relative_pose: np.ndarray | N
     if kappa is not KEEP:
         config = replace(config, simulation=replace(
             config.simulation, kappa=None if kappa is None else float(kappa)))
+    if fit is not None:
+        scene = replace(scene, assembled_pose=np.asarray(fit.assembled_pose, float),
+                        assembled_known=True, insertion_axis=fit.insertion_axis,
+                        seat=SeatSpec(free_axes=tuple(fit.free_axes),
+                                      distance=fit.seat_distance,
+                                      angle_deg=float(fit.seat_degrees)))
     scene = replace(
         scene,
         parts=tuple(parts),

@@ -577,3 +577,42 @@ def test_holding_the_sigma_slider_previews_the_slice_at_its_value(make_window, s
     win.params.recompute_ended("cancelled")
     assert view.preview_note.isHidden()
     np.testing.assert_array_equal(view.current_values(), in_use)
+
+
+def test_the_fit_is_set_up_in_the_window_and_saved_with_the_scene(make_window, small_scene,
+                                                                  tmp_path, wait_until):
+    # the assembled pose, insertion axis, free axes and seat tolerance were the TOML's or
+    # `scene new`'s alone; now Edit > Set up the fit sets them, measures the free axes from
+    # the parts' motions, writes them into the scene and opens it again
+    import shutil
+
+    for f in small_scene.parent.glob("*.*"):
+        if f.is_file():
+            shutil.copy(f, tmp_path / f.name)
+    scene = tmp_path / "scene.toml"
+    win = make_window(scene)
+    wait_until(lambda: win.session.handle is not None, 20000, "the scene")
+    win.fit_dialog_open()
+    dialog = win.fit_dialog
+    assert dialog.isVisible()
+    np.testing.assert_allclose(dialog.assembled(), [0, 0, 3, 0, 0, 0])
+    dialog.set_assembled([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # the block resting on the plate
+    dialog._measured()
+    assert "planar" in dialog.note.text(), dialog.note.text()
+    assert {n for n, c in dialog.free.items() if c.isChecked()} == {"x", "y", "rz"}
+    dialog.set_axis([0.0, 0.0, -2.0])
+    dialog.distance.setValue(0.25)
+    dialog.degrees.setValue(2.0)
+    before = scene.read_text()
+    dialog._apply()
+    wait_until(lambda: win.session.handle is not None
+               and np.allclose(win.session.handle.scene.assembled_pose, 0.0), 20000,
+               "the scene opened again with its new fit")
+    s = win.session.handle.scene
+    np.testing.assert_allclose(s.insertion_axis, [0, 0, -1])
+    assert s.seat.free_axes == ("x", "y", "rz")
+    assert s.seat.distance == pytest.approx(0.25) and s.seat.angle_deg == pytest.approx(2.0)
+    text = scene.read_text()
+    assert text != before and "free_axes" in text and "insertion_axis" in text
+    # the scene's other settings stay as they were
+    assert s.descriptor.grid == 12 and s.modes == 8
