@@ -21,6 +21,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from app.gui import quantities
 from app.gui.accuracy import AccuracyIndicator
 from app.gui.contact import OverlapGauge
+from app.gui.fits_panel import FitsPanel
 from app.gui.landscape_view import LandscapeView
 from app.gui.params_panel import ParamsPanel
 from app.gui.parts_panel import PartsPanel, PoseHistory
@@ -268,6 +269,13 @@ class MainWindow(QtWidgets.QMainWindow):
         self.parts_panel.visibility_changed.connect(self.viewport.set_part_visible)
         self.dock_parts = self._dock("Parts", self.parts_panel, QtCore.Qt.LeftDockWidgetArea)
         self.tabifyDockWidget(self.dock_slice, self.dock_parts)
+        self.fits_panel = FitsPanel()
+        self.fits_panel.find.clicked.connect(self.find_fits)
+        self.fits_panel.chosen.connect(self._show_fit)
+        self.fits_panel.place.connect(self._typed_part_pose)
+        self.fits_panel.use_as_seat.connect(self._fit_as_seat)
+        self.dock_fits = self._dock("Fits", self.fits_panel, QtCore.Qt.LeftDockWidgetArea)
+        self.tabifyDockWidget(self.dock_parts, self.dock_fits)
         self.dock_slice.raise_()
         self.history = PoseHistory()  # the part's poses before each change, for Undo
 
@@ -364,10 +372,11 @@ class MainWindow(QtWidgets.QMainWindow):
         self.redo_action = self._action(edit, "&Redo pose", self.redo_pose,
                                         QtGui.QKeySequence.Redo)
         edit.addSeparator()
+        self._action(edit, "&Find fits", self.find_fits)
         self._action(edit, "Set up the &fit…", self.fit_dialog_open)
         view = self._menu(bar, "&View")
         for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape,
-                     self.dock_parts):
+                     self.dock_parts, self.dock_fits):
             view.addAction(toggle_view_action(dock))
         view.addSeparator()
         self._action(view, "Reset &layout", self.reset_layout)
@@ -454,7 +463,7 @@ class MainWindow(QtWidgets.QMainWindow):
         """Every dock back where a first launch puts it, at its default size."""
         self.restoreState(self._default_state)
         for dock in (self.dock_readouts, self.dock_params, self.dock_slice, self.dock_landscape,
-                     self.dock_parts):
+                     self.dock_parts, self.dock_fits):
             dock.setFloating(False)
             dock.show()
         self.dock_slice.raise_()
@@ -599,6 +608,47 @@ class MainWindow(QtWidgets.QMainWindow):
             if folder.is_dir() and not folder.is_relative_to(bundled):
                 return folder
         return Path.home()
+
+    def find_fits(self) -> None:
+        """Run the search on the open scene (the Fits dock shows progress and the fits)."""
+        handle = self.session.handle
+        if handle is None or len(handle.parts) < 2:
+            self.show_error("Open a scene with two parts to find where part 2 fits.")
+            return
+        self.dock_fits.show()
+        self.dock_fits.raise_()
+        self.fits_panel.start(handle.scene, self.units.length)
+
+    def _show_fit(self, fit) -> None:
+        """Draw a found fit in the 3D view: part 2's edges there and its free axes."""
+        from app.gui.fits_panel import fit_pose
+
+        handle = self.session.handle
+        if fit is None or handle is None:
+            self.viewport.show_fit(None)
+            return
+        part1 = posemath.pose_to_matrix(handle.part1_world_pose)
+        world = part1 @ posemath.pose_to_matrix(fit_pose(fit))
+        r1, t1 = part1[:3, :3], part1[:3, 3]
+        axes = [(t1, r1 @ d) for d in fit.joint.slides]
+        axes += [(r1 @ p + t1, r1 @ a) for a, p in fit.joint.turns]
+        self.viewport.show_fit(world, axes)
+
+    def _fit_as_seat(self, fit) -> None:
+        """Set up the fit dialog with a found fit: its pose and its free axes."""
+        from app.gui.fits_panel import fit_pose
+        from engine.search.joint import axis_names
+
+        self.fit_dialog_open()
+        if self.fit_dialog is None:
+            return
+        self.fit_dialog.set_assembled(fit_pose(fit))
+        names, _ = axis_names(fit.joint)
+        for name, check in self.fit_dialog.free.items():
+            check.setChecked(name in names)
+        self.fit_dialog.note.setText(f"Fit {fit.rank}: a {fit.joint.kind} joint (confidence "
+                                     f"{fit.joint.confidence:.2f}). Apply and save writes it "
+                                     "into the scene as its seat.")
 
     def fit_dialog_open(self) -> None:
         """The scene's fit (assembled pose, insertion axis, free axes, seat tolerance)."""
@@ -1342,6 +1392,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.save_layout()
         self._tick_timer.stop()
         self.accuracy.shutdown()
+        self.fits_panel.shutdown()
         self.slice_view.previews.shutdown()
         self.overlap.shutdown()
         self.session.close()

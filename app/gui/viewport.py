@@ -32,6 +32,7 @@ from engine import pose as posemath
 
 FIXED_COLOUR = "#b0b4ba"
 MOVING_COLOUR = "#f28e2b"
+FIT_COLOUR = "#2e8b3e"  # a found fit's edges and free axes (green, as SEATED)
 GHOST_COLOUR = "#4e9ad6"
 #: The ghost's line actors, drawn over everything (the overlay layer).
 GHOST_LINES = ("ghost_edges", "ghost_outline")
@@ -237,6 +238,13 @@ class Viewport(QtCore.QObject):
             a.SetVisibility(False)
             self._overlay.AddActor(a)
             self._actors[key] = a
+        for part in parts:
+            if part.moving:  # a found fit: part 2's edges where the fit puts it (show_fit)
+                mesh = pv.PolyData(np.asarray(part.vertices, float), _faces_to_vtk(part.faces))
+                fit = self.plotter.add_mesh(mesh.extract_feature_edges(30), color=FIT_COLOUR,
+                                            line_width=2.0, name="fit_edges", pickable=False)
+                fit.SetVisibility(False)
+                self._actors["fit_edges"] = fit
         axis_line = pv.Line((-0.5, 0.0, 0.0), (0.5, 0.0, 0.0))
         handle = self.plotter.add_mesh(axis_line, color="#111111", line_width=3,
                                        name="axis_handle", pickable=False)
@@ -251,6 +259,31 @@ class Viewport(QtCore.QObject):
         if self.constraint == "insertion" and self.insertion_axis is None:
             self.set_constraint("free")
         self._update_axis_handle()
+
+    def show_fit(self, matrix: np.ndarray | None,
+                 axes: list[tuple[np.ndarray, np.ndarray]] | tuple = ()) -> None:
+        """Part 2's edges at a found fit, and its free axes as lines.
+
+        ``matrix``: (4, 4) world transform (None hides them); ``axes``: (world point, unit
+        direction) per free axis, drawn as long as the scene.
+        """
+        edges = self._actors.get("fit_edges")
+        if edges is None:
+            return
+        self.plotter.remove_actor("fit_axes")
+        if matrix is None:
+            edges.SetVisibility(False)
+        else:
+            _set_matrix(edges, np.asarray(matrix, float))
+            edges.SetVisibility(True)
+            if axes:
+                half = 0.8 * self._size
+                lines = pv.merge([pv.Line(p - half * d, p + half * d) for p, d in
+                                  ((np.asarray(p, float), np.asarray(d, float))
+                                   for p, d in axes)])
+                self.plotter.add_mesh(lines, color=FIT_COLOUR, line_width=3,
+                                      name="fit_axes", pickable=False)
+        self._dirty = True
 
     # ----------------------------------------------------------------- camera
     def view_direction(self, name: str) -> tuple[np.ndarray, np.ndarray]:

@@ -616,3 +616,30 @@ def test_the_fit_is_set_up_in_the_window_and_saved_with_the_scene(make_window, s
     assert text != before and "free_axes" in text and "insertion_axis" in text
     # the scene's other settings stay as they were
     assert s.descriptor.grid == 12 and s.modes == 8
+
+
+def test_find_fits_lists_the_fits_draws_the_chosen_one_and_sets_it_up_as_the_seat(
+        make_window, small_scene, wait_until):
+    # "where does this part go": the search from the window, in the background, its fits
+    # listed with their joints, the chosen one drawn, and one click to make it the seat
+    win = make_window(small_scene)
+    wait_until(lambda: win.guidance_ready, ENGINE_START_MS, "the engine to be ready")
+    panel = win.fits_panel
+    win.find_fits()
+    assert not panel.find.isEnabled() and panel.cancel.isEnabled()
+    wait_until(lambda: panel.fits or "failed" in panel.progress.format(), 300000,
+               lambda: f"the fits ({panel.progress.format()})")
+    assert panel.fits, panel.progress.format()
+    assert panel.find.isEnabled() and not panel.cancel.isEnabled()
+    assert panel.list.count() == len(panel.fits) and panel.list.currentRow() == 0
+    first = panel.fits[0]
+    assert panel.list.item(0).text().startswith(f"1. {first.joint.kind}")
+    assert win.viewport._actors["fit_edges"].GetVisibility()
+    panel.list.setCurrentRow(-1)  # nothing chosen: nothing drawn
+    assert not win.viewport._actors["fit_edges"].GetVisibility()
+    panel.list.setCurrentRow(0)
+    panel.seat_button.click()
+    from app.gui.fits_panel import fit_pose
+
+    np.testing.assert_allclose(win.fit_dialog.assembled(), fit_pose(first), atol=1e-6)
+    assert f"a {first.joint.kind} joint" in win.fit_dialog.note.text()
