@@ -63,6 +63,8 @@ centre of mass) with an arcball, or about the chosen axis through it.</li>
 <tr><td>Ctrl+R</td><td>put the part back at its start pose</td></tr>
 <tr><td>Ctrl+P</td><td>type the pose of the part</td></tr>
 <tr><td>Ctrl+Z, Ctrl+Shift+Z</td><td>undo / redo a change of the part's pose</td></tr>
+<tr><td>Ctrl+Alt+Z, Ctrl+Alt+Shift+Z</td><td>undo / redo a change of a setting (K, sigma,
+penalty, kappa, coupling, effects)</td></tr>
 <tr><td>I, X, Y, Z, F</td><td>drag along the insertion axis, x, y, z; free drag</td></tr>
 <tr><td>1 … 6, 0, 7</td><td>views from +X, −X, +Y, −Y, +Z, −Z; isometric; along the
 insertion axis</td></tr>
@@ -371,6 +373,8 @@ class MainWindow(QtWidgets.QMainWindow):
                                         QtGui.QKeySequence.Undo)
         self.redo_action = self._action(edit, "&Redo pose", self.redo_pose,
                                         QtGui.QKeySequence.Redo)
+        self._action(edit, "Undo &setting", self.undo_setting, "Ctrl+Alt+Z")
+        self._action(edit, "Redo s&etting", self.redo_setting, "Ctrl+Alt+Shift+Z")
         edit.addSeparator()
         self._action(edit, "&Find fits", self.find_fits)
         self._action(edit, "Set up the &fit…", self.fit_dialog_open)
@@ -608,6 +612,16 @@ class MainWindow(QtWidgets.QMainWindow):
             if folder.is_dir() and not folder.is_relative_to(bundled):
                 return folder
         return Path.home()
+
+    def undo_setting(self) -> None:
+        """Back to the parameters before the last change (K, sigma, penalty, kappa, ...)."""
+        if not self.params.undo():
+            self.statusBar().showMessage("no setting to undo", 3000)
+
+    def redo_setting(self) -> None:
+        """The parameters the last undo left."""
+        if not self.params.redo():
+            self.statusBar().showMessage("no setting to redo", 3000)
 
     def find_fits(self) -> None:
         """Run the search on the open scene (the Fits dock shows progress and the fits)."""

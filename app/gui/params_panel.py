@@ -142,6 +142,12 @@ class ParamsPanel(QtWidgets.QWidget):
                                "a cancelled or failed recompute leaves them, and the boxes "
                                "show them again.")
         form.addRow("in use", self.in_use)
+        #: Undo and redo of the settings: the states before each change, and after undos
+        self._undo: list[dict[str, object]] = []
+        self._redo: list[dict[str, object]] = []
+        self._state: dict[str, object] | None = None  # the settings as last applied
+        self._replaying = False  # an undo or redo sends the commands: not a new change
+        self.command.connect(self._record)
         self.sigma.valueChanged.connect(lambda _v: self._send_descriptor_params())
         self.sigma.previewed.connect(lambda v: self.descriptor_preview.emit(
             replace(self.descriptor_params(), sigma=float(v))))
@@ -235,6 +241,77 @@ class ParamsPanel(QtWidgets.QWidget):
         self._gravity_vector = gravity_vector(config.units)
         self.set_effects(config.effects, emit=False)
         self.set_progress(None)
+        self._undo.clear()
+        self._redo.clear()
+        self._state = self.scene_settings()
+
+    # ------------------------------------------------------------------ undo / redo
+    def _record(self, command) -> None:
+        """Keep the settings before a change the user made (K, sigma, penalty, kappa, ...)."""
+        if self._replaying or self._state is None:
+            return
+        now = self.scene_settings()
+        if now != self._state:
+            self._undo.append(self._state)
+            del self._undo[:-100]
+            self._redo.clear()
+            self._state = now
+
+    def can_undo(self) -> bool:
+        """Whether there is a settings change to undo."""
+        return bool(self._undo)
+
+    def can_redo(self) -> bool:
+        """Whether there is an undone settings change to redo."""
+        return bool(self._redo)
+
+    def undo(self) -> bool:
+        """Go back to the settings before the last change (sending what differs)."""
+        if not self._undo or self._state is None:
+            return False
+        self._redo.append(self.scene_settings())
+        self._apply(self._undo.pop())
+        return True
+
+    def redo(self) -> bool:
+        """Apply the settings the last undo left."""
+        if not self._redo:
+            return False
+        self._undo.append(self.scene_settings())
+        self._apply(self._redo.pop())
+        return True
+
+    def _apply(self, state: dict[str, object]) -> None:
+        """Show ``state`` and send the engine the commands for what differs from now."""
+        now = self.scene_settings()
+        self._replaying = True
+        try:
+            if state["modes"] != now["modes"]:
+                k = int(state["modes"])  # type: ignore[call-overload]
+                self.modes.setValueSilently(k)
+                self._modes_changed(k)
+            d, d_now = state["descriptor"], now["descriptor"]
+            if (d.sigma, d.penalty) != (d_now.sigma, d_now.penalty):  # type: ignore[attr-defined]
+                self.sigma.setValueSilently(d.sigma)  # type: ignore[attr-defined]
+                self.penalty.setValueSilently(d.penalty)  # type: ignore[attr-defined]
+                self._send_descriptor_params()
+            if state["effects"] != now["effects"]:
+                self.set_effects(state["effects"])  # type: ignore[arg-type]
+            if state["coupling"] != now["coupling"]:
+                self._coupling = state["coupling"]  # type: ignore[assignment]
+                self.coupling.setValueSilently(self._coupling.frequency_hz)
+                self.command.emit(runtime.SetCoupling(self._coupling))
+            if state["kappa"] != now["kappa"]:
+                kappa = state["kappa"]
+                self.kappa_default.blockSignals(True)
+                self.kappa_default.setChecked(kappa is None)
+                self.kappa_default.blockSignals(False)
+                if kappa is not None:
+                    self.kappa.setValueSilently(float(kappa))  # type: ignore[arg-type]
+                self._kappa_changed()
+        finally:
+            self._replaying = False
+        self._state = self.scene_settings()
 
     def scene_settings(self) -> dict[str, object]:
         """What the panel shows, as the scene writer's keywords (``write_scene``).
@@ -389,6 +466,10 @@ class ParamsPanel(QtWidgets.QWidget):
         self.descriptor_preview.emit(None)
         self.sigma.setValueSilently(self._in_use[0])
         self.penalty.setValueSilently(self._in_use[1])
+        now = self.scene_settings()
+        if self._undo and self._undo[-1] == now:  # the change did not happen: nothing to undo
+            self._undo.pop()
+        self._state = now
         self._show_in_use(self._in_use)
         self.set_progress(None, f"{text}; sigma {self._in_use[0]:.4g} in use")
 
