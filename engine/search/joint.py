@@ -295,8 +295,8 @@ def motion_joint(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarr
     seat's normal the one they share), with ``axes`` added (say the stiffness's principal
     slides). Part 2 is then slid ``reach * length`` each way along each, and turned
     ``angle`` each way about each through the contact's centre; a motion is free when in
-    both directions no sample of part 2 goes deeper into part 1 than it lay at the fit by
-    more than ``stop`` of how far the motion carries the contact. The free slides and turns are
+    both directions no sample of part 2 goes deeper into part 1 than at the fit by more than
+    ``stop`` of how far the motion carries the contact. The free slides and turns are
     reduced to their span (two slides in a plane are one plane, whatever the candidates),
     and the kind follows as in :func:`find_joint`. The confidence is how far the stopped
     motions' depths and the free ones' lie from the threshold (log scale, as there).
@@ -328,7 +328,7 @@ def motion_joint(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarr
         if all(abs(float(extra @ c)) < math.cos(math.radians(PARALLEL_DEGREES)) for c in
                candidates):
             candidates.append(extra / np.linalg.norm(extra))
-    inside0 = np.maximum(0.0, -d0)  # how deep each sample lies in part 1 at the fit
+    depth0 = float(max(0.0, -d0.min()))
     arm = float(np.sqrt(np.mean(np.sum((placed[contact] - centre) ** 2, axis=1))))
     moved, carries = [], []
     for a in candidates:
@@ -345,10 +345,7 @@ def motion_joint(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarr
         carries.append(angle * max(float(np.sqrt(np.mean(np.sum(across ** 2, axis=1)))),
                                    1e-3 * arm, 1e-9))
     d = signed_distance(surfaces.fixed_vertices, surfaces.fixed_faces, np.concatenate(moved))
-    # per sample: how much deeper the motion puts it (a fit found a little off its seat
-    # starts with some samples in part 1; a turn that keeps them there but drives others in
-    # is stopped all the same)
-    depth = (np.maximum(0.0, -d.reshape(len(moved), -1)) - inside0).max(axis=1)
+    depth = np.maximum(0.0, -d.reshape(len(moved), -1).min(axis=1)) - depth0
     k = len(candidates)
     both = np.maximum(depth[0::2], depth[1::2])  # a free motion is free both ways
     ratio = both / (stop * np.array(carries))
