@@ -301,8 +301,9 @@ def motion_joint(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarr
     and the kind follows as in :func:`find_joint`. The confidence is how far the stopped
     motions' depths and the free ones' lie from the threshold (log scale, as there).
 
-    ``stiffness`` and ``rises`` of the result hold zeros and the depths: the six
-    candidates' extra depth over the threshold, slides first.
+    The result's ``stiffness`` holds zeros (the search puts the energy's there) and its
+    ``rises`` the ratios of extra depth to the threshold of the first three candidates'
+    slides, then their turns (over 1: stopped).
     """
     from engine.descriptor.compute import signed_distance
 
