@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
-DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "assets" / "peg_in_hole" / "scene.toml"
+from app.gui.app import DEFAULT_SCENE  # the bundled example (standard library imports only)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
