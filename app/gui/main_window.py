@@ -875,8 +875,10 @@ class MainWindow(QtWidgets.QMainWindow):
             self.tasks.start("correlator")
             self.params.set_progress(0.0, "preparing descriptors %p%", cancellable=False)
             chosen = "; ".join(f"{key} = {value}" for key, value, _ in scene.chosen)
+            placed, self.session.placement = self.session.placement, None
             self.statusBar().showMessage(
-                f"{title}: preparing descriptors (minutes the first time; then cached)"
+                (f"{placed}. " if placed else "")
+                + f"{title}: preparing descriptors (minutes the first time; then cached)"
                 + (f"; chosen from the parts: {chosen}" if chosen else ""))
         # what the scene left open and the engine chose, with why (hover the parameters)
         self.params.setToolTip("\n".join(f"{key} = {value}: chosen, {reason}"

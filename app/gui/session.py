@@ -72,6 +72,10 @@ class Session(QtCore.QObject):
         self.loading: str | None = None
         self._tmp = tempfile.TemporaryDirectory(prefix="skelasm-gui-")
         self._generated = 0
+        #: generated scenes whose second part still needs its start checked (placement)
+        self._to_place: set[Path] = set()
+        #: where the last opened second part was put, and why (the window shows it)
+        self.placement: str | None = None
         #: scenes are opened off the GUI thread; a newer open supersedes an older one
         self._opener = runtime.JobWorker(name="skelasm-open")
         self._loaded.connect(self._on_loaded)
@@ -107,7 +111,7 @@ class Session(QtCore.QObject):
         """Open in the calling thread (command line start-up, tests)."""
         path = Path(path)
         try:
-            handle = runtime.open_scene(self._scene_path_for(path))
+            handle = self._placed(runtime.open_scene(self._scene_path_for(path)))
         except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
             self._on_loaded(None, exc, str(path))
             return
@@ -115,13 +119,41 @@ class Session(QtCore.QObject):
 
     def _open_worker(self, scene_path: Path, original: str, cancelled) -> None:
         try:
-            handle = runtime.open_scene(scene_path)
+            handle = self._placed(runtime.open_scene(scene_path))
         except Exception as exc:  # noqa: BLE001 -- every failure becomes a message
             if not cancelled():
                 self._loaded.emit(None, exc, original)
             return
         if not cancelled():  # a newer open superseded this one: its answer is dropped
             self._loaded.emit(handle, None, original)
+
+    def _placed(self, handle: runtime.SceneHandle) -> runtime.SceneHandle:
+        """A generated pair's second part where its file draws it, or parked clear of part 1.
+
+        Runs where the scene was loaded (a worker): the test samples part 2's surface
+        (:func:`engine.scene.placement.place_second`). A parked part's pose is written back
+        into the generated scene, so Save keeps it.
+        """
+        from dataclasses import replace
+
+        from engine.scene import save_scene
+        from engine.scene.placement import place_second
+
+        path = Path(handle.path)
+        if path not in self._to_place or len(handle.parts) < 2:
+            return handle
+        self._to_place.discard(path)
+        scene = handle.scene
+        pose, self.placement = place_second(handle.parts[0], handle.parts[1],
+                                            scene.parts[0].pose)
+        if np.allclose(pose, scene.parts[1].pose):
+            return handle
+        parts = (scene.parts[0], replace(scene.parts[1], pose=pose), *scene.parts[2:])
+        scene = replace(scene, parts=parts)
+        save_scene(scene, path)
+        start = posemath.relative_pose(scene.parts[0].pose, pose)
+        start.setflags(write=False)
+        return replace(handle, scene=scene, start_pose=start)
 
     def _scene_path_for(self, path: Path) -> Path:
         suffix = path.suffix.lower()
@@ -154,13 +186,10 @@ class Session(QtCore.QObject):
         if self.handle is not None:
             scene = self.handle.scene
             first = scene.parts[0]
-            # start above the fixed part, clear of it
-            v = self.handle.parts[0].vertices
-            height = float(np.ptp(v[:, 2])) if len(v) else 1.0
-            pose = np.array(first.pose, dtype=float)
-            pose[2] += float(v[:, 2].max()) + 0.75 * height
-            moving = PartSpec(name=part_path.stem, file=part_path.resolve(), pose=pose,
-                              fixed=False)
+            # where its file draws it beside the first (the worker parks it where that is
+            # inside the first part: engine.scene.placement)
+            moving = PartSpec(name=part_path.stem, file=part_path.resolve(),
+                              pose=np.array(first.pose, dtype=float), fixed=False)
             if moving.name == first.name:
                 moving = replace(moving, name=f"{moving.name} (moving)")
             config = replace(scene.config, masses=scene.config.masses[:1])
@@ -169,6 +198,7 @@ class Session(QtCore.QObject):
                                                     "correlation.modes"}
             generated = replace(scene, path=out, name=name, parts=(first, moving),
                                 config=config, given=given, chosen=())
+            self._to_place.add(out)
         else:
             generated = Scene(path=out, name=name, units_declared=False,
                               assembled_pose=np.zeros(6), config=SimConfig(),

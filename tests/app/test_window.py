@@ -137,13 +137,31 @@ def test_opening_a_corrupt_file_shows_an_error_and_the_session_goes_on(
 def test_part_file_becomes_the_moving_part(make_window, tmp_path, wait_until):
     import trimesh
 
+    from engine.scene import load_scene
+
     win = make_window(EXAMPLE_SCENE)
-    trimesh.creation.box(extents=(4, 4, 10)).export(tmp_path / "post.stl")
+    # drawn beside the block, as a file of the same assembly draws it: it starts there
+    post = trimesh.creation.box(extents=(4, 4, 10))
+    post.apply_translation((100.0, 0.0, 0.0))
+    post.export(tmp_path / "post.stl")
     win.open_path(tmp_path / "post.stl")
     wait_until(lambda: win.session.handle.parts[1].name == "post", 20000, "the new part")
     assert win.session.handle.parts[0].name == "block"
     assert len(win.session.handle.parts[1].faces) == 12
+    np.testing.assert_allclose(win.session.handle.start_pose, np.zeros(6), atol=1e-12)
+    assert "where its file draws it" in win.statusBar().currentMessage()
     wait_until(lambda: win.latest_frame is not None, 10000, "frames of the new scene")
+    # drawn through the block's body (centred on its own origin): parked above the block
+    trimesh.creation.box(extents=(40, 40, 10)).export(tmp_path / "slab.stl")
+    win.open_path(tmp_path / "slab.stl")
+    wait_until(lambda: win.session.handle.parts[1].name == "slab", 20000, "the slab")
+    handle = win.session.handle
+    assert "starts above it" in win.statusBar().currentMessage()
+    top = handle.parts[0].vertices[:, 2].max()
+    assert handle.start_pose[2] + handle.parts[1].vertices[:, 2].min() > top
+    # the generated scene holds that start, so Save keeps it
+    saved = load_scene(handle.path)
+    np.testing.assert_allclose(saved.parts[1].pose, handle.scene.parts[1].pose)
 
 
 def test_layout_and_recent_files_are_remembered(make_window, settings, qtbot):
