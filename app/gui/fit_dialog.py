@@ -6,7 +6,9 @@ the fit…):
 - the **assembled pose**: part 2 relative to part 1 when seated, as the scene file writes it
   (its file origin's displacement and rotation vector in degrees); typed, or "Current pose"
   (where part 2 is now);
-- the **insertion axis**: typed, or "View direction" (into the screen, part 1's frame);
+- the **insertion axis**: typed, "View direction" (into the screen, part 1's frame), or
+  "Picked face" (the axis of a bore's wall, a shaft's side or a flat face clicked in the 3D
+  view: :func:`engine.scene.face_axis.face_axis`);
 - the **free axes**: ticked, or "Measure" (the joint the parts' motions allow at the assembled
   pose typed, :func:`engine.search.joint.motion_joint`);
 - the **seat tolerance**: a distance (0: 2 % of part 2's size) and an angle.
@@ -39,12 +41,15 @@ class FitDialog(QtWidgets.QDialog):
 
     applied = QtCore.Signal(object)
 
-    def __init__(self, parent=None, *, unit: str, current_pose, view_direction, measure):
+    def __init__(self, parent=None, *, unit: str, current_pose, view_direction, measure,
+                 pick_face=None):
         """The dialog, with the window's callbacks.
 
         ``current_pose()``: part 2's pose now (origin pose, radians); ``view_direction()``:
         a unit vector into the screen in part 1's frame; ``measure(pose)``: the free axes'
-        names at that origin pose (None where the parts do not meet), and a line on it.
+        names at that origin pose (None where the parts do not meet), and a line on it;
+        ``pick_face(done)``: lets the user click a face, then calls ``done(axis, line)`` (the
+        axis in part 1's frame, or None, and a line on what was found).
         """
         super().__init__(parent)
         self.setWindowTitle("Set up the fit")
@@ -75,6 +80,14 @@ class FitDialog(QtWidgets.QDialog):
         view.setToolTip("Into the screen, as the view looks now (part 1's frame)")
         view.clicked.connect(lambda: self.set_axis(self._view()))
         row.addWidget(view)
+        self._pick = pick_face
+        picked = QtWidgets.QPushButton("Picked face")
+        picked.setObjectName("fit_pick_face")
+        picked.setToolTip("Then click a bore's wall, a shaft's side or a flat face in the 3D "
+                          "view: its axis, pointing the way part 2 goes to it")
+        picked.setEnabled(pick_face is not None)
+        picked.clicked.connect(self._pick_face)
+        row.addWidget(picked)
         form.addRow("insertion axis", row)
         self.free = {}
         row = QtWidgets.QHBoxLayout()
@@ -165,6 +178,15 @@ class FitDialog(QtWidgets.QDialog):
             free_axes=tuple(name for name, check in self.free.items() if check.isChecked()),
             seat_distance=self.distance.value() or None,
             seat_degrees=float(self.degrees.value()))
+
+    def _pick_face(self) -> None:
+        self.note.setText("Click a bore's wall, a shaft's side or a flat face in the 3D view.")
+        self._pick(self._face_picked)
+
+    def _face_picked(self, axis, line: str) -> None:
+        if axis is not None:
+            self.set_axis(axis)
+        self.note.setText(line)
 
     def _measured(self) -> None:
         names, line = self._measure(self.assembled())

@@ -675,7 +675,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.fit_dialog is None:
             self.fit_dialog = FitDialog(
                 self, unit=self.units.length, current_pose=self._current_part_pose,
-                view_direction=self._view_direction_in_part1, measure=self._measure_free_axes)
+                view_direction=self._view_direction_in_part1, measure=self._measure_free_axes,
+                pick_face=self._pick_face_axis)
             self.fit_dialog.applied.connect(self.apply_fit)
         self.fit_dialog.set_scene(handle.scene)
         self.fit_dialog.show()
@@ -691,6 +692,45 @@ class MainWindow(QtWidgets.QMainWindow):
         d = np.asarray(self.viewport.plotter.camera.direction, float)
         part1 = posemath.pose_to_matrix(self.session.handle.part1_world_pose)
         return part1[:3, :3].T @ (d / np.linalg.norm(d))
+
+    def _pick_face_axis(self, done) -> None:
+        """The next click in the 3D view picks a face; ``done(axis, line)`` with its axis."""
+        self.statusBar().showMessage("Click a bore's wall, a shaft's side or a flat face")
+        self.viewport.pick_next_face(lambda picked: done(*self._face_axis_of(picked)))
+
+    def _face_axis_of(self, picked):
+        """(axis in part 1's frame or None, line) for a ``viewport.pick_face`` result.
+
+        The axis points the way part 2 travels to the face: from part 2's centre to a face
+        of part 1, from a face of part 2 to part 1's centre.
+        """
+        from engine.scene.face_axis import FaceAxisError, face_axis
+
+        handle = self.session.handle
+        if picked is None or handle is None or len(handle.parts) < 2:
+            return None, "Nothing picked: click on a part's face."
+        key, triangle = picked
+        moving = key == "moving"
+        part = handle.parts[1] if moving else handle.parts[0]
+        m = posemath.pose_to_matrix(self._current_part_pose())  # part 2 in part 1's frame
+        try:
+            found = face_axis(part.vertices, part.faces, triangle)
+        except FaceAxisError as exc:
+            return None, f"{part.name}: {exc}"
+        axis, point = found.direction, found.point
+        if moving:
+            axis, point = m[:3, :3] @ axis, m[:3, :3] @ point + m[:3, 3]
+        other = handle.parts[0] if moving else handle.parts[1]
+        centre = other.vertices.mean(axis=0)
+        if not moving:
+            centre = m[:3, :3] @ centre + m[:3, 3]
+        if (float((centre - point) @ axis) > 0) != moving:
+            axis = -axis
+        what = (f"a {found.kind}, radius {quantities.number(found.radius)} {self.units.length}"
+                if found.radius else "a flat face")
+        self.statusBar().showMessage(f"{part.name}: {what}", 8000)
+        return axis, (f"The axis of {part.name}'s picked face ({what}, {len(found.faces)} "
+                      "triangles), the way part 2 goes to it.")
 
     def _measure_free_axes(self, pose: np.ndarray):
         """The free axes the parts' motions allow at ``pose``, and a line on what was found."""

@@ -134,6 +134,7 @@ class Viewport(QtCore.QObject):
         self.frames_rendered = 0
         self.arrow_scale = 1.0
         self._drag = None  # dict while a drag is in progress
+        self._face_pick = None  # callback while the next click picks a face
         self._picker = vtk.vtkPropPicker()
         # force and torque arrows live in an overlay layer sharing the camera, so they stay
         # visible where they start: inside the part
@@ -598,6 +599,42 @@ class Viewport(QtCore.QObject):
         actor = self._picker.GetViewProp()
         return actor is self._actors["moving"] or actor is self._actors["ghost"]
 
+    def pick_face(self, pos: QtCore.QPointF) -> tuple[str, int] | None:
+        """(actor name, triangle index) of the shown part under ``pos``, or None.
+
+        The names are ``"moving"`` and ``"fixed_<part name>"``; the index is the part's own
+        triangle (the meshes keep the parts' face order).
+        """
+        keys = [k for k, a in self._actors.items()
+                if (k == "moving" or k.startswith("fixed_")) and a.GetVisibility()]
+        picker = vtk.vtkCellPicker()
+        picker.SetTolerance(0.0005)
+        picker.PickFromListOn()
+        pickable = {k: self._actors[k].GetPickable() for k in keys}
+        for k in keys:
+            self._actors[k].PickableOn()
+            picker.AddPickList(self._actors[k])
+        try:
+            x, y = self._display_xy(pos)
+            if not picker.Pick(x, y, 0.0, self.plotter.renderer):
+                return None
+            actor, cell = picker.GetActor(), int(picker.GetCellId())
+        finally:
+            for k, was in pickable.items():
+                self._actors[k].SetPickable(was)
+        for k in keys:
+            if self._actors[k] is actor and cell >= 0:
+                return k, cell
+        return None
+
+    def pick_next_face(self, callback) -> None:
+        """Let the next left click pick a face (:meth:`pick_face`): ``callback(result)``.
+
+        That click neither drags nor turns the camera; a click on nothing gives None.
+        """
+        self._face_pick = callback
+        self.widget.setCursor(QtCore.Qt.CrossCursor)
+
     # ----------------------------------------------------------------- dragging
     def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt API)
         """Drag the proxy with the left mouse button when the press hits the moving part.
@@ -608,6 +645,11 @@ class Viewport(QtCore.QObject):
         """
         et = event.type()
         if et == QtCore.QEvent.MouseButtonPress and event.button() == QtCore.Qt.LeftButton:
+            if self._face_pick is not None:
+                callback, self._face_pick = self._face_pick, None
+                self.widget.unsetCursor()
+                callback(self.pick_face(event.position()))
+                return True
             if self.pick_moving(event.position()):
                 self._begin_drag(event.position(), event.modifiers())
                 return True

@@ -618,6 +618,36 @@ def test_the_fit_is_set_up_in_the_window_and_saved_with_the_scene(make_window, s
     assert s.descriptor.grid == 12 and s.modes == 8
 
 
+def test_the_insertion_axis_comes_from_a_face_picked_in_the_view(make_window, small_scene,
+                                                                   wait_until):
+    # "the axis of a picked face": Picked face, then a click on the plate's top face beside
+    # the block gives its normal, pointed the way the block goes to it (down)
+    win = make_window(small_scene)
+    wait_until(lambda: win.session.handle is not None, 20000, "the scene")
+    win.fit_dialog_open()
+    dialog = win.fit_dialog
+    dialog.set_axis([1.0, 0.0, 0.0])
+    dialog.findChild(QtWidgets.QPushButton, "fit_pick_face").click()
+    assert "Click" in dialog.note.text()
+    vp = win.viewport
+    vp.render_if_dirty(force=True)
+    # a point of the plate's top face the block does not hide from the isometric camera
+    x, y, _ = vp._world_to_display(np.array([8.0, 8.0, 0.0]))
+    dpr = vp.plotter.devicePixelRatioF()
+    at = QtCore.QPoint(int(round(x / dpr)), int(round(vp.plotter.height() - 1 - y / dpr)))
+    left = QtCore.Qt.LeftButton
+    pose = np.array(vp.proxy_pose)
+    _mouse(vp.widget, QtCore.QEvent.MouseButtonPress, at, left, button=left)
+    _mouse(vp.widget, QtCore.QEvent.MouseButtonRelease, at, QtCore.Qt.NoButton, button=left)
+    axis = np.array([box.value() for box in dialog.axis_fields])
+    np.testing.assert_allclose(axis, [0.0, 0.0, -1.0], atol=1e-4)
+    assert "a flat face" in dialog.note.text() and "plate" in dialog.note.text()
+    np.testing.assert_array_equal(vp.proxy_pose, pose)  # the click dragged nothing
+    # the next click is a drag's again; a pick on nothing says so
+    assert vp._face_pick is None
+    assert win._face_axis_of(None)[0] is None
+
+
 def test_find_fits_lists_the_fits_draws_the_chosen_one_and_sets_it_up_as_the_seat(
         make_window, small_scene, wait_until):
     # "where does this part go": the search from the window, in the background, its fits

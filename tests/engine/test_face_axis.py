@@ -1,0 +1,64 @@
+"""The axis of a picked face: bores, shafts and flat faces, found from the triangles alone."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine.pose import rotation_matrix
+from engine.scene.face_axis import FaceAxisError, face_axis
+
+
+def _turned(mesh: trimesh.Trimesh, rotvec, shift) -> tuple[np.ndarray, np.ndarray]:
+    rot = rotation_matrix(np.asarray(rotvec, float))
+    return mesh.vertices @ rot.T + np.asarray(shift, float), np.asarray(mesh.faces)
+
+
+def _nearest_face(vertices, faces, point, normal):
+    """The triangle nearest ``point`` whose normal is closest to ``normal``."""
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    d = np.linalg.norm(mesh.triangles_center - point, axis=1)
+    d -= 1e-3 * d.max() * (mesh.face_normals @ normal)
+    return int(np.argmin(d))
+
+
+@pytest.mark.parametrize("sections", [12, 64])
+def test_a_bore_in_a_turned_plate_gives_its_axis_radius_and_kind(sections):
+    plate = trimesh.creation.box(extents=(40.0, 30.0, 12.0))
+    bore = trimesh.creation.cylinder(radius=5.0, height=20.0, sections=sections)
+    bore.apply_translation((6.0, -4.0, 0.0))
+    rotvec, shift = (0.4, -0.3, 1.1), (100.0, -20.0, 7.0)
+    vertices, faces = _turned(plate.difference(bore), rotvec, shift)
+    rot = rotation_matrix(np.asarray(rotvec))
+    axis, centre = rot @ np.array([0, 0, 1.0]), rot @ np.array([6.0, -4.0, 0]) + shift
+    # a point on the bore's wall (normal pointing at the axis)
+    wall = centre + rot @ np.array([5.0, 0, 0])
+    picked = _nearest_face(vertices, faces, wall, -(rot @ np.array([1.0, 0, 0])))
+    found = face_axis(vertices, faces, picked, towards=centre + 50.0 * axis)
+    assert found.kind == "hole"
+    np.testing.assert_allclose(found.direction, -axis, atol=1e-6)  # from above, into it
+    off = (found.point - centre) - ((found.point - centre) @ axis) * axis
+    assert np.linalg.norm(off) < 1e-6
+    # an inscribed polygon's facets lie at r cos(pi / n) from the axis
+    assert found.radius == pytest.approx(5.0 * np.cos(np.pi / sections), rel=1e-3)
+    assert len(found.faces) >= sections  # the whole wall, not the plate's flat faces
+
+
+def test_a_shaft_points_outwards_and_a_flat_face_gives_its_normal():
+    shaft = trimesh.creation.cylinder(radius=3.0, height=30.0, sections=32)
+    vertices, faces = _turned(shaft, (0.0, 1.2, 0.0), (0.0, 0.0, 0.0))
+    axis = rotation_matrix(np.array([0.0, 1.2, 0.0])) @ np.array([0, 0, 1.0])
+    side = _nearest_face(vertices, faces, 3.0 * np.array([0, 1.0, 0]), np.array([0, 1.0, 0]))
+    found = face_axis(vertices, faces, side)
+    assert found.kind == "shaft" and found.radius == pytest.approx(3.0, rel=0.01)
+    assert abs(found.direction @ axis) > 1 - 1e-9
+    end = _nearest_face(vertices, faces, 15.0 * axis, axis)
+    flat = face_axis(vertices, faces, end)
+    assert flat.kind == "flat" and flat.radius == 0.0
+    np.testing.assert_allclose(flat.direction, axis, atol=1e-9)  # outward
+    assert abs((flat.point - 15.0 * axis) @ axis) < 1e-9
+
+
+def test_a_sphere_has_no_axis():
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=5.0)
+    with pytest.raises(FaceAxisError, match="neither round nor flat"):
+        face_axis(ball.vertices, ball.faces, 0)
