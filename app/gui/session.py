@@ -177,7 +177,7 @@ class Session(QtCore.QObject):
         """
         from dataclasses import replace
 
-        from engine.params import SimConfig
+        from engine.params import SeatSpec, SimConfig
         from engine.scene import PartSpec, Scene, save_scene
 
         self._generated += 1
@@ -196,8 +196,12 @@ class Session(QtCore.QObject):
             # a new pair: its grid and K are chosen from the two parts (engine.sim.auto)
             given = frozenset(scene.given or ()) - {"descriptor.grid", "descriptor.spacing",
                                                     "correlation.modes"}
+            # a new pair: the old one's seat, axis and free axes say nothing of it; its seat
+            # is where the files draw the two parts until the user sets the fit up
             generated = replace(scene, path=out, name=name, parts=(first, moving),
-                                config=config, given=given, chosen=())
+                                config=config, given=given, chosen=(),
+                                assembled_pose=np.zeros(6), insertion_axis=None,
+                                seat=SeatSpec())
             self._to_place.add(out)
         else:
             generated = Scene(path=out, name=name, units_declared=False,

@@ -70,6 +70,8 @@ def place_second(fixed: Part, moving: Part, first_pose: np.ndarray
     if share > INSIDE_SHARE:
         return parked_pose(fixed, moving, first_pose), (
             f"{moving.name}: its file draws it inside {fixed.name} ({share:.0%} of its "
-            f"surface), so it starts above it; Edit > Set up the fit sets its seat")
+            f"surface), so it starts above it; Edit > Set up the fit or Find fits sets its "
+            "seat")
     return first_pose.copy(), (f"{moving.name}: placed where its file draws it beside "
-                               f"{fixed.name}")
+                               f"{fixed.name}, its seat there until Edit > Set up the fit or "
+                               "Find fits sets another")

@@ -150,6 +150,10 @@ def test_part_file_becomes_the_moving_part(make_window, tmp_path, wait_until):
     assert len(win.session.handle.parts[1].faces) == 12
     np.testing.assert_allclose(win.session.handle.start_pose, np.zeros(6), atol=1e-12)
     assert "where its file draws it" in win.statusBar().currentMessage()
+    # the peg's seat, axis and free axes are not the new pair's: its seat is as drawn
+    scene = win.session.handle.scene
+    np.testing.assert_array_equal(scene.assembled_pose, np.zeros(6))
+    assert scene.insertion_axis is None and scene.seat.free_axes is None
     wait_until(lambda: win.latest_frame is not None, 10000, "frames of the new scene")
     # drawn through the block's body (centred on its own origin): parked above the block
     trimesh.creation.box(extents=(40, 40, 10)).export(tmp_path / "slab.stl")
