@@ -111,7 +111,7 @@ def face_axis(vertices: np.ndarray, faces: np.ndarray, picked: int,
     flat = _grow(neighbours, picked, normals @ seed > np.cos(np.radians(FLAT_DEGREES)))
     best: FaceAxis | None = None
     proposed = False
-    for j in neighbours[picked]:
+    for j in neighbours.indices[neighbours.indptr[picked]:neighbours.indptr[picked + 1]]:
         axis = np.cross(seed, normals[j])
         if np.linalg.norm(axis) < np.sin(np.radians(FLAT_DEGREES)):
             continue  # coplanar: no axis from this pair
@@ -139,31 +139,27 @@ def face_axis(vertices: np.ndarray, faces: np.ndarray, picked: int,
     return _oriented(FaceAxis("flat", seed.copy(), point, 0.0, flat), towards)
 
 
-def _smooth_neighbours(mesh) -> list[list[int]]:
-    """Per triangle, the triangles sharing a vertex with it and turned < SMOOTH_DEGREES.
+def _smooth_neighbours(mesh):
+    """(n, n) sparse graph: triangles sharing a vertex and turned < SMOOTH_DEGREES.
 
     A shared vertex, not a shared edge: an exported mesh's T-junctions (a vertex in the
     middle of a neighbour's edge) leave facets of one wall without a common edge, but never
     without a common vertex.
     """
-    normals = mesh.face_normals
+    from scipy import sparse
+
     faces = np.asarray(mesh.faces)
-    order = np.argsort(faces.ravel(), kind="stable")
-    vertex = faces.ravel()[order]
-    owner = order // 3
-    starts = np.flatnonzero(np.r_[True, vertex[1:] != vertex[:-1]])
-    ends = np.r_[starts[1:], len(vertex)]
-    cos = np.cos(np.radians(SMOOTH_DEGREES))
-    neighbours: list[set[int]] = [set() for _ in range(len(faces))]
-    for lo, hi in zip(starts, ends, strict=True):
-        around = owner[lo:hi]
-        if len(around) < 2:
-            continue
-        smooth = normals[around] @ normals[around].T > cos
-        for i, j in zip(*np.nonzero(np.triu(smooth, 1)), strict=True):
-            neighbours[around[i]].add(int(around[j]))
-            neighbours[around[j]].add(int(around[i]))
-    return [sorted(n) for n in neighbours]
+    n = len(faces)
+    incidence = sparse.csr_matrix(
+        (np.ones(faces.size), (np.repeat(np.arange(n), 3), faces.ravel())),
+        shape=(n, len(mesh.vertices)))
+    shared = (incidence @ incidence.T).tocoo()
+    normals = mesh.face_normals
+    keep = (shared.row != shared.col) & (np.einsum(
+        "ij,ij->i", normals[shared.row], normals[shared.col]) > np.cos(
+        np.radians(SMOOTH_DEGREES)))
+    return sparse.csr_matrix((np.ones(int(keep.sum()), np.int8),
+                              (shared.row[keep], shared.col[keep])), shape=(n, n))
 
 
 def _ruled(region: np.ndarray, off: np.ndarray, areas: np.ndarray) -> bool:
@@ -179,17 +175,15 @@ def _ruled(region: np.ndarray, off: np.ndarray, areas: np.ndarray) -> bool:
     return bool(areas[region][exact].sum() >= 0.5 * areas[region].sum())
 
 
-def _grow(neighbours: list[list[int]], start: int, allowed: np.ndarray) -> np.ndarray:
+def _grow(graph, start: int, allowed: np.ndarray) -> np.ndarray:
     """Triangles reached from ``start`` through smooth neighbours that are ``allowed``."""
-    seen = np.zeros(len(neighbours), bool)
-    seen[start] = True
-    stack = [int(start)]
-    while stack:
-        for n in neighbours[stack.pop()]:
-            if allowed[n] and not seen[n]:
-                seen[n] = True
-                stack.append(n)
-    return np.flatnonzero(seen)
+    from scipy.sparse.csgraph import connected_components
+
+    allowed = allowed.copy()
+    allowed[start] = True
+    index = np.flatnonzero(allowed)
+    _, labels = connected_components(graph[index][:, index], directed=False)
+    return index[labels == labels[int(np.searchsorted(index, start))]]
 
 
 def _spread_degrees(normals: np.ndarray) -> float:
