@@ -1195,6 +1195,9 @@ class MainWindow(QtWidgets.QMainWindow):
                 # the coarse first field's rest can lie a cell off the seat (the peg in hole
                 # rests 1.1 degrees tilted there, 0.8 on its own grid)
                 detail += "; judged on a coarse first field until the scene's descriptors are ready"
+            if Path(handle.path) in self.session.drawn_seats:
+                detail += ("; the seat is where the two files draw the parts until Edit > Set "
+                           "up the fit or Find fits sets it")
             scene_k = handle.scene.modes
             if scene_k is not None and f.modes > 0 and f.modes != scene_k:
                 # the judgement takes the pose alone; it is the part that rests elsewhere on

@@ -76,6 +76,8 @@ class Session(QtCore.QObject):
         self._to_place: set[Path] = set()
         #: where the last opened second part was put, and why (the window shows it)
         self.placement: str | None = None
+        #: generated pairs whose seat is where the files draw the parts (none set up yet)
+        self.drawn_seats: set[Path] = set()
         #: scenes are opened off the GUI thread; a newer open supersedes an older one
         self._opener = runtime.JobWorker(name="skelasm-open")
         self._loaded.connect(self._on_loaded)
@@ -203,6 +205,7 @@ class Session(QtCore.QObject):
                                 assembled_pose=np.zeros(6), insertion_axis=None,
                                 seat=SeatSpec())
             self._to_place.add(out)
+            self.drawn_seats.add(out)
         else:
             generated = Scene(path=out, name=name, units_declared=False,
                               assembled_pose=np.zeros(6), config=SimConfig(),

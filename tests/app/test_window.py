@@ -155,6 +155,8 @@ def test_part_file_becomes_the_moving_part(make_window, tmp_path, wait_until):
     np.testing.assert_array_equal(scene.assembled_pose, np.zeros(6))
     assert scene.insertion_axis is None and scene.seat.free_axes is None
     wait_until(lambda: win.latest_frame is not None, 10000, "frames of the new scene")
+    wait_until(lambda: "where the two files draw" in win.seat_detail.text(), 10000,
+               "the seat readout to say the seat is the drawn placement")
     # drawn through the block's body (centred on its own origin): parked above the block
     trimesh.creation.box(extents=(40, 40, 10)).export(tmp_path / "slab.stl")
     win.open_path(tmp_path / "slab.stl")
