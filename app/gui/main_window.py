@@ -711,21 +711,17 @@ class MainWindow(QtWidgets.QMainWindow):
             return None, "Nothing picked: click on a part's face."
         key, triangle = picked
         moving = key == "moving"
-        part = handle.parts[1] if moving else handle.parts[0]
+        part, other = handle.parts[1::-1] if moving else handle.parts[:2]
         m = posemath.pose_to_matrix(self._current_part_pose())  # part 2 in part 1's frame
+        # the other part's centre in the picked part's frame: the axis points from it
+        centre = other.vertices.mean(axis=0)
+        centre = m[:3, :3].T @ (centre - m[:3, 3]) if moving else m[:3, :3] @ centre + m[:3, 3]
         try:
-            found = face_axis(part.vertices, part.faces, triangle)
+            found = face_axis(part.vertices, part.faces, triangle, towards=centre)
         except FaceAxisError as exc:
             return None, f"{part.name}: {exc}"
-        axis, point = found.direction, found.point
-        if moving:
-            axis, point = m[:3, :3] @ axis, m[:3, :3] @ point + m[:3, 3]
-        other = handle.parts[0] if moving else handle.parts[1]
-        centre = other.vertices.mean(axis=0)
-        if not moving:
-            centre = m[:3, :3] @ centre + m[:3, 3]
-        if (float((centre - point) @ axis) > 0) != moving:
-            axis = -axis
+        # part 2 travels towards a face of part 1, and from a face of its own towards part 1
+        axis = -(m[:3, :3] @ found.direction) if moving else found.direction
         what = (f"a {found.kind}, radius {quantities.number(found.radius)} {self.units.length}"
                 if found.radius else "a flat face")
         self.statusBar().showMessage(f"{part.name}: {what}", 8000)
