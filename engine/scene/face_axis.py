@@ -31,6 +31,10 @@ RULED_DEGREES = 2.5
 #: The largest root-mean-square distance of a round face's facets from its cylinder, in
 #: radii (an inscribed polygon's facet centres lie on one: r cos(pi / n)).
 CYLINDER_MISFIT = 0.05
+#: A round face's picked facet, with those coplanar with it, holds less than this share of
+#: it (an 8-sided bore: an eighth). A flat end picked beside a fillet makes a region, across
+#: an axis along the end, of the end and two strips of the side that one circle touches.
+SEED_PLANE_SHARE = 0.25
 #: A flat face's triangles: normals within this of the picked one (a CAD face's facets agree
 #: exactly; a fine sphere's neighbours turn by a degree or more).
 FLAT_DEGREES = 0.5
@@ -122,6 +126,7 @@ def face_axis(vertices: np.ndarray, faces: np.ndarray, picked: int,
         region = _grow(neighbours, picked, np.abs(normals @ axis) < across)
         if (_spread_degrees(normals[region]) < ROUND_SPAN_DEGREES
                 or _largest_plane(region, normals, areas) >= 0.5 * areas[region].sum()
+                or areas[flat].sum() >= SEED_PLANE_SHARE * areas[region].sum()
                 or not _ruled(region, np.abs(normals @ axis), areas)):
             continue
         found = _round(mesh, region, _scatter(normals[region], areas[region])[1][:, 0])

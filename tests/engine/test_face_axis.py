@@ -108,3 +108,18 @@ def test_no_triangle_of_a_sphere_is_given_an_axis(subdivisions):
     for picked in range(0, len(ball.faces), max(1, len(ball.faces) // 12)):
         with pytest.raises(FaceAxisError):
             face_axis(ball.vertices, ball.faces, picked)
+
+
+def test_the_bundled_pegs_flat_end_beside_its_edge_round_is_flat():
+    # a CAD peg whose end meets its side through a rounded edge: picking the end gives the
+    # end's normal, not a "cylinder" touching the end and two strips of the side
+    from app.gui.app import DEFAULT_SCENE
+    from engine.loading import load_part
+
+    peg = load_part(DEFAULT_SCENE.parent / "peg.step")
+    normals = trimesh.Trimesh(peg.vertices, peg.faces, process=False).face_normals
+    ends = np.flatnonzero(np.abs(normals[:, 2]) > 1 - 1e-9)
+    for picked in ends[:: max(1, len(ends) // 4)]:
+        found = face_axis(peg.vertices, peg.faces, int(picked))
+        assert found.kind == "flat", (picked, found.kind, found.radius)
+        assert abs(found.direction[2]) > 1 - 1e-9
