@@ -109,6 +109,11 @@ class BodyState:
         """(3, 3) float64 rotation matrix (cached, updated by :func:`step`)."""
         return self._R
 
+    def orient(self, quat: np.ndarray) -> None:
+        """Set the orientation to the unit quaternion ``quat`` (4,) (the position kept)."""
+        self.quat = np.asarray(quat, np.float64).reshape(4)
+        self._R = quaternion_to_matrix(self.quat)
+
     def origin(self, body: RigidBody) -> np.ndarray:
         """(3,) position of the part's origin."""
         return self.com - self._R @ body.centre

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from engine.params import HapticLimits, Physics
-from engine.sim.body import rotvec_between
+from engine.sim.body import BodyState, RigidBody, cross3, quaternion_step, rotvec_between
 
 
 def coupling_wrench(
@@ -139,6 +139,39 @@ def near_fit(gains: Physics, near: Any, rotation: np.ndarray, origin: np.ndarray
     from dataclasses import replace
 
     return replace(gains, rot_play=gains.rot_play * max(closeness, 0.0))
+
+
+def wrist_stop(body: RigidBody, state: BodyState, hold: np.ndarray, proxy_quat: np.ndarray,
+               stop: float) -> bool:
+    """Turn the part back to ``stop`` (rad) from the proxy if it is further; True if it was.
+
+    The hand's wrist has a range: however hard the field pulls, the part held in it turns
+    no further than ``stop`` from how the hand holds it (the proxy ``proxy_quat``, (4,)).
+    The part is turned about the hold point ``hold`` (part's own frame, (3,)) along the
+    shortest way back onto the range's edge, and the part of its angular velocity that
+    turns it outward is taken away (an inelastic stop; the hold point keeps its velocity).
+    The stiff spring past the play (:func:`coupling_wrench`) is as stiff as an explicit
+    step allows, which still let a fit's torque at a hole's mouth overshoot the bore's axis
+    by up to 0.85 degree past the play (seed 70919); a stop has no such limit.
+    ``state`` is changed in place.
+    """
+    r = rotvec_between(state.quat, proxy_quat)  # proxy -> part
+    angle = math.sqrt(float(r @ r))
+    if not angle > stop:
+        return False
+    lever = state.rotation @ (np.asarray(hold, np.float64) - body.centre)  # com -> hold
+    at = state.com + lever
+    hold_velocity = state.velocity + cross3(state.omega, lever)
+    # back along r by (angle - stop): a turn of -(angle - stop) r / angle on the part
+    state.orient(quaternion_step(state.quat, r * (-(angle - stop) / angle), 1.0))
+    outward = r / angle
+    rate = float(state.omega @ outward)
+    if rate > 0.0:
+        state.omega = state.omega - rate * outward
+    lever = state.rotation @ (np.asarray(hold, np.float64) - body.centre)
+    state.com = at - lever
+    state.velocity = hold_velocity - cross3(state.omega, lever)
+    return True
 
 
 def coupling_energy(

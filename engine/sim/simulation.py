@@ -26,6 +26,7 @@ from engine.sim.coupling import (
     for_step,
     haptic_reaction,
     near_fit,
+    wrist_stop,
 )
 from engine.sim.fields import ZERO_EVALUATION, GeometricField, field_correlator
 
@@ -36,6 +37,10 @@ from engine.sim.guard import check_motion, check_proxy_pose
 #: Take the energy the field releases out of the part's motion each step (damping on):
 #: a part drawn into a seat is led, not flung. False keeps it as speed (for comparisons).
 SHED_RELEASE = True
+#: The wrist's stop lies this fraction of the hand's play past it, so a part held at the stop
+#: is past the play for the coupling's choice of spring and damping whatever the round-off
+#: (exactly at the play, the choice flipped from step to step with the last bit).
+STOP_PAST_PLAY = 1e-6
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 
@@ -145,6 +150,17 @@ class Simulation:
         self._tmask = None if tmask.all() else tmask
         self._rmask = None if rmask.all() else rmask
         self.set_physics(self.physics if physics is None else physics)
+
+    @property
+    def _wrist(self) -> bool:
+        """Whether the hand's wrist stops the part at its play from the proxy.
+
+        Where a hand is modelled (a stiffer spring past its play), the part is coupled, the
+        effects dissipate (the stop is inelastic) and every rotation is free.
+        """
+        p = self.physics
+        return (self.coupled and self.effects.damping and self._rmask is None
+                and p.k_rot_hard > p.k_rot and p.rot_play < math.pi)
 
     def set_field(self, field: GeometricField) -> None:
         """Swap in a new geometric field (scaled by the current kappa)."""
@@ -331,6 +347,9 @@ class Simulation:
         kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
         check_motion(self)  # before the drift takes a sine of a diverged angle
         drift(body, state, dt, translation_mask=tmask, rotation_mask=rmask)
+        if self._wrist:
+            wrist_stop(body, state, self.hold, self._proxy_q,
+                       self.physics.rot_play * (1.0 + STOP_PAST_PLAY))
         before = self.sample.energy
         sample = self.evaluate_field()
         self._take_back(sample.switched)
