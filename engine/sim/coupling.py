@@ -19,7 +19,9 @@ Near a fit the soft spring lets the fit's torque turn the part into line within 
 play; beyond it the hand holds the part, so a torque at a hole's mouth cannot throw it over
 (``engine.sim.build.resolve_physics`` chooses the three). The play is the hand's only near
 the fit: away from it (:func:`near_fit`, the fine level's closeness to the seat) it
-closes, and the stiff spring holds the part's orientation from the first degree.
+closes, and the stiff spring holds the part's orientation from the first degree. However
+hard a fit pulls, the part turns no further than the play from the proxy: the wrist's stop
+(:func:`wrist_stop`, applied by the simulation after each drift).
 
 (damping against the world: robust to jerky mouse input, which has no clean velocity).
 Holding the part at its centre of mass, not at its file's origin, keeps the lever of the
