@@ -45,6 +45,19 @@ _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 
 
+def _wrist(sim: Simulation) -> None:
+    """The hand's wrist stops the part at its play from the proxy (``wrist_stop``).
+
+    Where a hand is modelled (a stiffer spring past its play), the part is coupled, the
+    effects dissipate (the stop is inelastic) and every rotation is free.
+    """
+    p = sim.physics
+    if (sim.coupled and sim.effects.damping and sim._rmask is None
+            and p.k_rot_hard > p.k_rot and p.rot_play < math.pi):
+        wrist_stop(sim.body, sim.state, sim.hold, sim._proxy_q,
+                   p.rot_play * (1.0 + STOP_PAST_PLAY))
+
+
 class HoldRule(Protocol):
     """Where the coupling holds the part for a pose (``engine.sim.build.FitHold``)."""
 
@@ -140,10 +153,7 @@ class Simulation:
         self._sample_fresh = False  # kappa may have changed
 
     def set_effects(self, effects: Effects, physics: Physics | None = None) -> None:
-        """New effects (free axes, damping, gravity) and the physics resolved for them.
-
-        The time step is kept.
-        """
+        """New effects (free axes, damping, gravity) and their physics; the step is kept."""
         self.effects = effects
         tmask = effects.translation_mask
         rmask = effects.rotation_mask
@@ -151,16 +161,6 @@ class Simulation:
         self._rmask = None if rmask.all() else rmask
         self.set_physics(self.physics if physics is None else physics)
 
-    @property
-    def _wrist(self) -> bool:
-        """Whether the hand's wrist stops the part at its play from the proxy.
-
-        Where a hand is modelled (a stiffer spring past its play), the part is coupled, the
-        effects dissipate (the stop is inelastic) and every rotation is free.
-        """
-        p = self.physics
-        return (self.coupled and self.effects.damping and self._rmask is None
-                and p.k_rot_hard > p.k_rot and p.rot_play < math.pi)
 
     def set_field(self, field: GeometricField) -> None:
         """Swap in a new geometric field (scaled by the current kappa)."""
@@ -332,8 +332,8 @@ class Simulation:
         Half a kick with the forces at the current pose (the field sample from the end of the last
         step, the coupling to the proxy as it is now), a drift, the field at the new pose, half a
         kick with the new forces. One field evaluation per step; second order, so a free part
-        keeps its energy far better than with symplectic Euler at the same step. The sample is
-        also in :attr:`sample`. Damped, the field's release is shed (:data:`SHED_RELEASE`).
+        keeps its energy far better than with symplectic Euler at the same step (the sample is
+        also in :attr:`sample`). Damped: the field's release is shed, the wrist stops the part.
         """
         state, body, dt = self.state, self.body, self._dt
         if not self._sample_fresh:
@@ -347,9 +347,7 @@ class Simulation:
         kick(body, state, force, torque, 0.5 * dt, translation_mask=tmask, rotation_mask=rmask)
         check_motion(self)  # before the drift takes a sine of a diverged angle
         drift(body, state, dt, translation_mask=tmask, rotation_mask=rmask)
-        if self._wrist:
-            wrist_stop(body, state, self.hold, self._proxy_q,
-                       self.physics.rot_play * (1.0 + STOP_PAST_PLAY))
+        _wrist(self)
         before = self.sample.energy
         sample = self.evaluate_field()
         self._take_back(sample.switched)
