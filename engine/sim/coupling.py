@@ -161,7 +161,8 @@ def wrist_stop(body: RigidBody, state: BodyState, hold: np.ndarray, proxy_quat: 
     angle = math.sqrt(float(r @ r))
     if not angle > stop:
         return False
-    lever = state.rotation @ (np.asarray(hold, np.float64) - body.centre)  # com -> hold
+    arm = np.asarray(hold, np.float64) - body.centre  # com -> hold, the part's own frame
+    lever = state.rotation @ arm
     at = state.com + lever
     hold_velocity = state.velocity + cross3(state.omega, lever)
     # back along r by (angle - stop): a turn of -(angle - stop) r / angle on the part
@@ -170,7 +171,7 @@ def wrist_stop(body: RigidBody, state: BodyState, hold: np.ndarray, proxy_quat: 
     rate = float(state.omega @ outward)
     if rate > 0.0:
         state.omega = state.omega - rate * outward
-    lever = state.rotation @ (np.asarray(hold, np.float64) - body.centre)
+    lever = state.rotation @ arm
     state.com = at - lever
     state.velocity = hold_velocity - cross3(state.omega, lever)
     return True

@@ -49,10 +49,11 @@ def _wrist(sim: Simulation) -> None:
     """The hand's wrist stops the part at its play from the proxy (``wrist_stop``).
 
     Where a hand is modelled (a stiffer spring past its play), the part is coupled, the
-    effects dissipate (the stop is inelastic) and every rotation is free.
+    effects dissipate (the stop is inelastic) and every axis is free (turning about the hold
+    point moves the origin).
     """
     p = sim.physics
-    if (sim.coupled and sim.effects.damping and sim._rmask is None
+    if (sim.coupled and sim.effects.damping and sim._rmask is None and sim._tmask is None
             and p.k_rot_hard > p.k_rot and p.rot_play < math.pi):
         wrist_stop(sim.body, sim.state, sim.hold, sim._proxy_q,
                    p.rot_play * (1.0 + STOP_PAST_PLAY))
@@ -160,7 +161,6 @@ class Simulation:
         self._tmask = None if tmask.all() else tmask
         self._rmask = None if rmask.all() else rmask
         self.set_physics(self.physics if physics is None else physics)
-
 
     def set_field(self, field: GeometricField) -> None:
         """Swap in a new geometric field (scaled by the current kappa)."""
