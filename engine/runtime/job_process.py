@@ -95,8 +95,11 @@ POLL = 0.02
 TABLES_KEPT = 4
 #: Free bytes ``/dev/shm`` must have to hold the transfer files.
 SHM_FREE = 2 << 30
-#: Seconds :meth:`JobProcess.close` waits for the child before killing it.
-CLOSE_WAIT = 2.0
+#: Seconds :meth:`JobProcess.close` waits for the child before killing it. Its work is
+#: disposable once closed (nothing waits for a reply, the folder goes); a child still
+#: importing its modules reads "stop" only when they are in, a second or more after it
+#: was started, and an engine that waited for that ended as late (a Ctrl+C'd parent).
+CLOSE_WAIT = 0.2
 
 
 #: The child's niceness: below the loop's process, so that a transform never keeps the loop

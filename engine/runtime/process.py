@@ -14,11 +14,16 @@ No queue or lock of ``multiprocessing`` is used (no semaphores to leak). The chi
 its parent, however the parent ends (:class:`ParentGuard`): a parent-death signal on Linux,
 end-of-file on the command pipe, and a watchdog comparing ``os.getppid()``; it then drops
 real-time scheduling at once, stops the loop, and unlinks the shared memory itself. It
-ignores Ctrl+C (SIGINT reaches the whole foreground process group): its parent decides.
+ignores Ctrl+C (SIGINT reaches the whole foreground process group): its parent decides. A
+parent that exits normally (Ctrl+C included) stops its engines first thing at exit
+(:meth:`ProcessEngine.stop`, registered with ``atexit``), so their real-time loops no longer
+spin while the interpreter winds down, instead of being terminated last by
+``multiprocessing``'s own exit handler.
 """
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import multiprocessing as mp
 import os
@@ -69,6 +74,8 @@ EVENT_POLL = 0.05
 WATCH_PERIOD = 0.2
 #: Seconds the child gives its loop to end after losing its parent before it exits anyway.
 ORPHAN_GRACE = 2.0
+#: Seconds a parent at exit gives its engine to stop before terminating it.
+EXIT_GRACE = 1.0
 
 
 @dataclass(frozen=True)
@@ -200,6 +207,10 @@ class ProcessEngine:
                               previous if previous is not None else signal.default_int_handler)
         for end in self._child_ends:
             end.close()  # the child has its own copies; EOF then means it is gone
+        atexit.register(self._stop_at_exit)
+
+    def _stop_at_exit(self) -> None:
+        self.stop(timeout=EXIT_GRACE)
 
     def is_alive(self) -> bool:
         """True while the child runs."""
@@ -279,6 +290,7 @@ class ProcessEngine:
         """
         if self._closed:
             return
+        atexit.unregister(self._stop_at_exit)
         self.send(_STOP)
         end = time.monotonic() + timeout
         while self._proc.is_alive() and time.monotonic() < end:
