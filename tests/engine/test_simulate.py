@@ -195,8 +195,14 @@ def test_guided_pair_seats(name):
     assert r["angle_deg"] <= 1.0, r
 
 
+#: The pairs whose collision-only baseline is run here: all but the bracket, whose baseline
+#: alone took three minutes of a CI run, four times the other three baselines together; its
+#: guided run stays.
+BASELINE_PAIRS = ("peg_in_hole", "boss_pins", "dovetail")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SEATING_PAIRS)
+@pytest.mark.parametrize("name", BASELINE_PAIRS)
 def test_collision_only_pair_is_measured(name):
     # the baseline is measured, not required to seat: guidance must do at least as well
     guided = cached_run(name, "skeletal")
