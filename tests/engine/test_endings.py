@@ -73,7 +73,9 @@ def test_sigterm_and_sighup_keep_the_log_whole_and_leave_no_partial(scene, signu
     child = subprocess.Popen(
         [sys.executable, "-m", "app.cli", "simulate", str(scene), "--guidance", "none",
          "--realtime", "--seconds", "120", "--log", str(log)],
-        cwd=scene.parent, env=env, stderr=subprocess.PIPE, text=True)
+        cwd=scene.parent, env=env, stderr=subprocess.PIPE, text=True,
+        # as from a terminal: a run started under nohup (SIGHUP ignored) rightly goes on
+        preexec_fn=lambda: signal.signal(signum, signal.SIG_DFL))
     deadline = time.monotonic() + 120  # a hang guard, not a timing
     found: list[Path] = []
     try:

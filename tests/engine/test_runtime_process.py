@@ -23,7 +23,10 @@ SCENE = ROOT / "assets" / "peg_in_hole" / "scene.toml"
 # a parent that starts a process engine (no guidance: nothing to prepare), says the
 # engine's pid and shared-memory name, and waits to be killed
 PARENT = textwrap.dedent(f"""
-    import time
+    import signal, time
+    # Ctrl+C raises KeyboardInterrupt, as in a terminal's foreground; a script started in
+    # the background of a shell (as CI may be) inherits SIGINT ignored and rightly ignores it
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     from dataclasses import replace
     from engine import runtime as rt
 
