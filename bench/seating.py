@@ -2,8 +2,9 @@
 
 For each pair of the real-fit suite (``assets/real/*/scene.toml``): the proxy is aimed 3 %
 of the moving part's width sideways and tilted 3 degrees, then pushed along the insertion
-axis to the assembled depth in 2 s and held (5 simulated seconds in all by default), the
-simulation stepped headless at the scene's rate. The final pose is compared with the
+axis to the assembled depth in 2 s and held (5 simulated seconds in all by default, ended
+early once the part is at rest: :class:`RestWatch`), the simulation stepped headless at
+the scene's rate. The final pose is compared with the
 assembled pose in the axes the fit constrains (:data:`FITS`: a through hole leaves the
 translation along its axis free, a round fit the rotation about it): the position error in
 % of the moving part's width along the aim's direction, and the tilt in degrees. Guided
@@ -29,6 +30,7 @@ import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,6 +45,17 @@ SEAT_DEGREES = 0.5
 OFFSET_FRACTION, TILT_DEGREES = 0.03, 3.0
 #: The push to the assembled depth takes this long (s); the rest of the run holds it there.
 PUSH_SECONDS = 2.0
+#: A run ends once the part is at rest after the push (:class:`RestWatch`): its mean pose
+#: over the last :data:`REST_WINDOW` tenths of a second, against the mean over the tenths
+#: before them, drifts so slowly that at that rate it would move less than
+#: :data:`REST_FRACTION` of the seat's tolerances in the run's time left ...
+REST_FRACTION = 0.05
+REST_WINDOW = 3
+#: ... while it trembles about that mean by less than the tolerances themselves (some seated
+#: parts tremble by a few tenths of a degree from step to step, docs/fine_level.md) ...
+REST_TREMBLE = 1.0
+#: ... for this many tenths in a row.
+REST_CHUNKS = 3
 
 _AXES = ("tx", "ty", "tz", "rx", "ry", "rz")
 
@@ -323,11 +336,13 @@ def misaimed_push(start: np.ndarray, target: np.ndarray, axis: np.ndarray,
 
 def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds: float = 5.0,
                 modes: int | None = None, backend: str = "auto",
-                progress=None) -> SeatingResult:
+                progress=None, until_rest: bool = True) -> SeatingResult:
     """Run the misaim protocol on one pair (see the module docstring).
 
     ``pair`` is a folder of assets/real or a :class:`SeatingCase`. ``progress(fraction)`` is
-    called as the simulation advances.
+    called as the simulation advances. ``until_rest``: end the run once the part is at rest
+    after the push (:class:`RestWatch`; ``seconds`` of the result says when), else run all
+    of ``seconds``.
     """
     from engine.devices import TrajectoryDevice
     from engine.pose import pose_to_matrix, relative_pose
@@ -360,15 +375,20 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
     # every step's frame stays in the ring until read: the part-to-proxy angle at each step
     loop = EngineLoop(sim, model=model, device=device, realtime=False, frame_queue=chunk + 16)
     done, worst = 0, 0.0
+    rest = RestWatch(max(SEAT_FRACTION * width, case.radial_play),
+                     max(SEAT_DEGREES, case.angular_play_deg), sim.dt, case.centre)
     t0, cpu0 = time.perf_counter(), time.process_time()
     setup = t0 - t_setup
     while done < total:
         done += loop.run(max_steps=min(chunk, total - done))
         frames = loop.poll_frames()
         if frames:
-            angles = proxy_angles(np.array([f.part_pose for f in frames]),
-                                  np.array([f.proxy_pose for f in frames]))
+            poses = np.array([f.part_pose for f in frames])
+            angles = proxy_angles(poses, np.array([f.proxy_pose for f in frames]))
             worst = max(worst, float(angles.max()))
+            if (rest.add(poses, (total - done) * sim.dt) and until_rest
+                    and done * sim.dt >= PUSH_SECONDS):
+                break
         loop.poll_events()
         if progress is not None:
             progress(done / total)
@@ -397,6 +417,67 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
                          setup_seconds=setup, cpu_seconds=cpu)
 
 
+class RestWatch:
+    """Says when a run's part is at rest: it may end there with the same result.
+
+    Fed the poses of each stretch of steps of ``dt`` (s), it keeps each stretch's mean
+    position of the fit's centre (``centre`` in the part's frame; None: its origin) and mean
+    orientation. At rest after :data:`REST_CHUNKS` stretches in a row in which the mean of
+    the last :data:`REST_WINDOW` stretches has drifted from the mean of the ones before so
+    little that at that rate, for the time left, it would move by less than
+    :data:`REST_FRACTION` of the seat's tolerances ``length`` and ``degrees``, and the part
+    trembled about its stretch's mean by less than :data:`REST_TREMBLE` of them. A part
+    coming to rest slows down, so its mean pose at the end lies within that fraction of the
+    tolerances of the one where the run stops; a trembling part's pose at any one step is a
+    draw from its tremble, at the stop as at the end. A part still creeping (pressed along a
+    free axis, sliding off a ledge) keeps the run going.
+    """
+
+    def __init__(self, length: float, degrees: float, dt: float, centre=None):
+        self.length, self.degrees, self.dt = float(length), float(degrees), float(dt)
+        self.centre = None if centre is None else np.asarray(centre, float)
+        self._means: list[tuple[np.ndarray, Any, int]] = []  # (point, turn, steps) per stretch
+        self.still = 0
+        #: The last stretch's drift and tremble, position then tilt, each in what it may be.
+        self.measures = (math.inf,) * 4
+
+    def add(self, poses: np.ndarray, left: float) -> bool:
+        """True once at rest: ``poses`` (n, 6) of one stretch of the run, ``left`` (s) to run."""
+        from scipy.spatial.transform import Rotation
+
+        poses = np.asarray(poses, float).reshape(-1, 6)
+        turns = Rotation.from_rotvec(poses[:, 3:])
+        points = poses[:, :3] if self.centre is None else poses[:, :3] + turns.apply(self.centre)
+        point, turn = points.mean(axis=0), turns.mean()
+        tremble = float(np.max(np.linalg.norm(points - point, axis=1)))
+        tremble_deg = float(np.degrees(np.max((turns * turn.inv()).magnitude())))
+        self._means = (self._means + [(point, turn, len(poses))])[-2 * REST_WINDOW:]
+        if len(self._means) < 2 * REST_WINDOW:
+            return False
+        late, early = self._means[REST_WINDOW:], self._means[:REST_WINDOW]
+        span = sum(m[2] for m in late) * self.dt  # the windows' means lie this far apart
+        drift = float(np.linalg.norm(_mean_point(late) - _mean_point(early)))
+        drift_deg = float(np.degrees((_mean_turn(late) * _mean_turn(early).inv()).magnitude()))
+        scale = left / span  # at that rate, for the time left
+        length, degrees = self.length, self.degrees
+        self.measures = (drift * scale / (REST_FRACTION * length),
+                         tremble / (REST_TREMBLE * length),
+                         drift_deg * scale / (REST_FRACTION * degrees),
+                         tremble_deg / (REST_TREMBLE * degrees))
+        self.still = self.still + 1 if max(self.measures) <= 1.0 else 0
+        return self.still >= REST_CHUNKS
+
+
+def _mean_point(means: list) -> np.ndarray:
+    return np.mean([m[0] for m in means], axis=0)
+
+
+def _mean_turn(means: list) -> Any:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.concatenate([m[1] for m in means]).mean()
+
+
 # ---------------------------------------------------------------------------- command
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``skelasm bench seating``."""
@@ -410,6 +491,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default="both", help="guided, collision-only, or both (default)")
     parser.add_argument("--seconds", type=float, default=5.0,
                         help="simulated seconds per run (the push takes the first 2)")
+    parser.add_argument("--full", action="store_true",
+                        help="run all the seconds, also after the part has come to rest "
+                        "(by default a run ends there: its mean pose would move by less "
+                        "than 5 %% of the seat's tolerances)")
     parser.add_argument("--modes", type=int, default=None,
                         help="modes per axis K (default: each scene's)")
     parser.add_argument("--backend", default="auto", choices=choices("per_pose"),
@@ -482,12 +567,13 @@ def run(args: argparse.Namespace) -> int:
     for i, (name, guidance) in enumerate(jobs):
         bar.begin(i, f"{name} ({guidance})")
         r = seating_run(name, guidance, seconds=args.seconds, modes=args.modes,
-                        backend=args.backend, progress=bar)
+                        backend=args.backend, progress=bar, until_rest=not args.full)
         results.append(r)
         bar.end()
         print(f"{name} ({guidance}): position {r.position_percent:.2f} % of the width, tilt "
               f"{r.tilt_deg:.2f} deg, {'seated' if r.seated else 'not seated'} "
-              f"({r.wall_seconds:.0f} s)", file=sys.stderr, flush=True)
+              f"({r.wall_seconds:.0f} s{_rested(r, args.seconds)})", file=sys.stderr,
+              flush=True)
     print(table(results))
     _plot(results, args.output)
     print(f"\nplot: {args.output}")
@@ -555,16 +641,23 @@ def _plot(results: list[SeatingResult], path: str) -> None:
 
 # ---------------------------------------------------------------------------- generated
 def _job(case: SeatingCase, guidance: str, seconds: float, modes: int | None,
-         backend: str) -> SeatingResult:
+         backend: str, until_rest: bool) -> SeatingResult:
     """One run in a pool's process (no progress across processes)."""
-    return seating_run(case, guidance, seconds=seconds, modes=modes, backend=backend)
+    return seating_run(case, guidance, seconds=seconds, modes=modes, backend=backend,
+                       until_rest=until_rest)
 
 
-def _say(r: SeatingResult) -> None:
+def _rested(r: SeatingResult, seconds: float) -> str:
+    """", at rest at 3.1 s" where the run ended before ``seconds``, else ""."""
+    return f", at rest at {r.seconds:.1f} s" if r.seconds < seconds - 1e-9 else ""
+
+
+def _say(r: SeatingResult, seconds: float) -> None:
     print(f"{r.pair} ({r.guidance}): position {r.position_percent:.2f} % of the width, tilt "
           f"{r.tilt_deg:.2f} deg, {'seated' if r.seated else 'not seated'}, max turn from "
           f"the proxy {r.max_proxy_angle_deg:.2f} deg{' (tipped)' if r.tipped else ''} "
-          f"({r.setup_seconds:.0f} + {r.wall_seconds:.0f} s, push {r.cpu_seconds:.0f} CPU s)",
+          f"({r.setup_seconds:.0f} + {r.wall_seconds:.0f} s, push {r.cpu_seconds:.0f} CPU s"
+          f"{_rested(r, seconds)})",
           file=sys.stderr, flush=True)
 
 
@@ -618,9 +711,10 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
         for i, (case, guidance) in enumerate(jobs):
             bar.begin(i, f"{case.name} ({guidance})")
             results.append(seating_run(case, guidance, seconds=args.seconds, modes=args.modes,
-                                       backend=args.backend, progress=bar))
+                                       backend=args.backend, progress=bar,
+                                       until_rest=not args.full))
             bar.end()
-            _say(results[-1])
+            _say(results[-1], args.seconds)
         return results
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -628,13 +722,13 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
     # fresh interpreters: a fork would copy this process's numba and OpenCL threads' state
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn) as pool:
-        futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend): (c, g)
-                   for c, g in jobs}
+        futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend,
+                               not args.full): (c, g) for c, g in jobs}
         bar.begin(0, f"{args.workers} runs at a time")
         for future in as_completed(futures):
             results.append(future.result())
             bar.end()
-            _say(results[-1])
+            _say(results[-1], args.seconds)
             bar.finished(len(results), f"{args.workers} runs at a time")
     bar.end()
     order = {(c.name, g): i for i, (c, g) in enumerate(jobs)}

@@ -12,7 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.seating import FITS, SEAT_DEGREES, SEAT_FRACTION, pair_names, seating_run
+from bench.seating import (
+    FITS,
+    PUSH_SECONDS,
+    SEAT_DEGREES,
+    SEAT_FRACTION,
+    pair_names,
+    seating_run,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "assets" / "real"
@@ -160,7 +167,7 @@ def cached_run(name, guidance):
         # shown with -s: the figures of docs/real_pairs.md
         print(f"\nSEATING {name} {guidance}: position {r.position_percent:.2f} % of "
               f"{r.width:.2f} (lateral {r.lateral_error:.3f}, axial {r.axial_error:+.3f}), "
-              f"tilt {r.tilt_deg:.2f} deg, K {r.modes}")
+              f"tilt {r.tilt_deg:.2f} deg, K {r.modes}, ended at {r.seconds:.1f} s")
     return _RUNS[name, guidance]
 
 
@@ -182,7 +189,7 @@ def _seating_params():
 @pytest.mark.parametrize("name", _seating_params())
 def test_guided_pair_seats(name):
     r = cached_run(name, "skeletal")
-    assert r.seconds == pytest.approx(5.0)
+    assert PUSH_SECONDS <= r.seconds <= 5.0 + 1e-9  # the push, and on to rest at most
     assert r.position_error <= SEAT_FRACTION * r.width, r
     assert r.tilt_deg <= SEAT_DEGREES, r
 
