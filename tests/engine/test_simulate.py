@@ -149,7 +149,8 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
     traj = TrajectoryDevice(np.array([[0.0, *start], [push_s, *end]]))
     h = sim.field.correlator.spacing if hasattr(sim.field, "correlator") else float("nan")
     # a tenth of a second at a time, ended once the part is at rest after the push (the
-    # benchmark's rule, at this test's tolerances): its errors then stay within 5 % of them
+    # benchmark's rule, at this test's tolerances: its mean pose would move less than 5 %
+    # of them in the time left, and it trembles by less than them)
     chunk = max(1, int(round(0.1 / sim.dt)))
     loop = EngineLoop(sim, model=model, device=traj, realtime=False, frame_queue=chunk + 16)
     total, done = int((push_s + hold_s) / sim.dt), 0
