@@ -139,8 +139,15 @@ class SeatingResult:
 
     @property
     def tipped(self) -> bool:
-        """The part turned further from the proxy than the fit's play plus the misaim."""
-        return self.max_proxy_angle_deg > self.tip_limit_deg
+        """The part turned further from the proxy than the fit's play plus the misaim.
+
+        Further than the simulation's wrist allows at that limit, which stops a part a
+        millionth of its play past it (``engine.sim.simulation.STOP_PAST_PLAY``): a real
+        pair (no play) held at the stop turned 3.000003 degrees, not past the misaim.
+        """
+        from engine.sim.simulation import STOP_PAST_PLAY
+
+        return self.max_proxy_angle_deg > self.tip_limit_deg * (1.0 + 2 * STOP_PAST_PLAY)
 
 
 @dataclass(frozen=True)

@@ -525,3 +525,24 @@ def test_the_tables_give_each_push_s_cpu_seconds():
     assert rows["**all**"].rstrip().endswith("| 31 / 47 |")
     assert [line.rstrip().endswith(f"| {c} |") for line, c in
             zip(generated_table(runs).splitlines()[2:], (31, 47, 12), strict=True)] == [True] * 3
+
+
+def test_a_part_held_at_the_wrists_stop_has_not_tipped():
+    """The wrist stops a part a millionth of its play past it: a real pair (no play, limit
+    the misaim's 3 degrees) held there is not tipped; a hundredth of a degree more is.
+    """
+    import math
+
+    from bench.seating import TILT_DEGREES, SeatingResult
+    from engine.sim.simulation import STOP_PAST_PLAY
+
+    def turned(degrees):
+        return SeatingResult(pair="p", guidance="skeletal", width=10.0, position_error=0.1,
+                             lateral_error=0.1, axial_error=0.0, tilt_deg=0.1,
+                             final_pose=(0.0,) * 6, modes=25, seconds=5.0, wall_seconds=1.0,
+                             max_proxy_angle_deg=degrees, tip_limit_deg=TILT_DEGREES)
+
+    at_stop = math.degrees(math.radians(3.0) * (1.0 + STOP_PAST_PLAY))
+    assert at_stop > TILT_DEGREES  # the stop itself lies past the limit ...
+    assert not turned(at_stop).tipped  # ... and is not a tip
+    assert turned(TILT_DEGREES + 0.01).tipped
