@@ -381,24 +381,20 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
     chunk = max(1, int(round(0.1 / sim.dt)))
     # every step's frame stays in the ring until read: the part-to-proxy angle at each step
     loop = EngineLoop(sim, model=model, device=device, realtime=False, frame_queue=chunk + 16)
-    done, worst = 0, 0.0
+    worst = 0.0
     rest = RestWatch(max(SEAT_FRACTION * width, case.radial_play),
                      max(SEAT_DEGREES, case.angular_play_deg), sim.dt, case.centre)
+
+    def turns(frames) -> None:
+        nonlocal worst
+        angles = proxy_angles(np.array([f.part_pose for f in frames]),
+                              np.array([f.proxy_pose for f in frames]))
+        worst = max(worst, float(angles.max()))
+
     t0, cpu0 = time.perf_counter(), time.process_time()
     setup = t0 - t_setup
-    while done < total:
-        done += loop.run(max_steps=min(chunk, total - done))
-        frames = loop.poll_frames()
-        if frames:
-            poses = np.array([f.part_pose for f in frames])
-            angles = proxy_angles(poses, np.array([f.proxy_pose for f in frames]))
-            worst = max(worst, float(angles.max()))
-            if (rest.add(poses, (total - done) * sim.dt) and until_rest
-                    and done * sim.dt >= PUSH_SECONDS):
-                break
-        loop.poll_events()
-        if progress is not None:
-            progress(done / total)
+    done = push_until_rest(loop, total, PUSH_SECONDS, rest if until_rest else None,
+                           each=turns, progress=progress)
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     final = np.asarray(sim.part_pose(), float)
     if case.centre is None:  # at part 2's origin, in the seat's frame (constrained_errors)
@@ -422,6 +418,34 @@ def seating_run(pair: str | SeatingCase, guidance: str = "skeletal", *, seconds:
                          max_proxy_angle_deg=worst,
                          tip_limit_deg=case.angular_play_deg + TILT_DEGREES,
                          setup_seconds=setup, cpu_seconds=cpu)
+
+
+def push_until_rest(loop: Any, total: int, push_seconds: float, rest: RestWatch | None, *,
+                    each=None, progress=None) -> int:
+    """Step ``loop`` (an unpaced ``EngineLoop``) a tenth of a second at a time; steps run.
+
+    Up to ``total`` steps, or until ``rest`` says the part is at rest after the first
+    ``push_seconds`` (None: all of them). The loop's frame queue must hold a tenth of a
+    second of frames. ``each(frames)`` sees every stretch's frames; ``progress(fraction)``
+    is called after each.
+    """
+    dt = loop.sim.dt
+    chunk = max(1, int(round(0.1 / dt)))
+    done = 0
+    while done < total:
+        done += loop.run(max_steps=min(chunk, total - done))
+        frames = loop.poll_frames()
+        if frames:
+            if each is not None:
+                each(frames)
+            if (rest is not None and rest.add(np.array([f.part_pose for f in frames]),
+                                              (total - done) * dt)
+                    and done * dt >= push_seconds):
+                break
+        loop.poll_events()
+        if progress is not None:
+            progress(done / total)
+    return done
 
 
 class RestWatch:

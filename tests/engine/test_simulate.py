@@ -116,7 +116,7 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
     """
     from dataclasses import replace
 
-    from bench.seating import RestWatch
+    from bench.seating import RestWatch, push_until_rest
     from engine.devices import TrajectoryDevice
     from engine.pose import relative_pose
     from engine.runtime import EngineLoop, open_scene
@@ -151,16 +151,10 @@ def seating_run(name, guidance="skeletal", *, offset_frac=0.03, tilt_deg=3.0, pu
     # a tenth of a second at a time, ended once the part is at rest after the push (the
     # benchmark's rule, at this test's tolerances: its mean pose would move less than 5 %
     # of them in the time left, and it trembles by less than them)
-    chunk = max(1, int(round(0.1 / sim.dt)))
-    loop = EngineLoop(sim, model=model, device=traj, realtime=False, frame_queue=chunk + 16)
-    total, done = int((push_s + hold_s) / sim.dt), 0
-    rest = RestWatch(0.5 * h, 1.0, sim.dt)
-    while done < total:
-        done += loop.run(max_steps=min(chunk, total - done))
-        poses = np.array([f.part_pose for f in loop.poll_frames()])
-        if (len(poses) and rest.add(poses, (total - done) * sim.dt)
-                and done * sim.dt >= push_s):
-            break
+    loop = EngineLoop(sim, model=model, device=traj, realtime=False,
+                      frame_queue=int(round(0.1 / sim.dt)) + 16)
+    done = push_until_rest(loop, int((push_s + hold_s) / sim.dt), push_s,
+                           RestWatch(0.5 * h, 1.0, sim.dt))
     err = relative_pose(target, sim.part_pose())
     return {
         "pair": name,
