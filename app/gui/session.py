@@ -81,6 +81,8 @@ class Session(QtCore.QObject):
         #: scenes are opened off the GUI thread; a newer open supersedes an older one
         self._opener = runtime.JobWorker(name="skelasm-open")
         self._loaded.connect(self._on_loaded)
+        #: set by close(): a load that finishes afterwards starts no engine
+        self._closed = False
 
     @property
     def engine_name(self) -> str:
@@ -215,6 +217,8 @@ class Session(QtCore.QObject):
 
     def _on_loaded(self, handle, error, path: str) -> None:
         self.loading = None
+        if self._closed:  # a load queued before close(): its engine would never be stopped
+            return
         if error is not None:
             self.open_failed.emit(path, _message(error))
             return
@@ -281,6 +285,7 @@ class Session(QtCore.QObject):
 
     def close(self) -> None:
         """Stop the engine, wait for its background workers and remove the temporary files."""
+        self._closed = True
         self._opener.shutdown(timeout=0.0)  # a scene still loading is dropped
         if self.engine is not None:
             self.engine.stop()
