@@ -138,9 +138,7 @@ def near_fit(gains: Physics, near: Any, rotation: np.ndarray, origin: np.ndarray
     closeness = near.closeness(rotation, origin)
     if closeness >= 1.0:
         return gains
-    from dataclasses import replace
-
-    return replace(gains, rot_play=gains.rot_play * max(closeness, 0.0))
+    return gains.with_play(gains.rot_play * max(closeness, 0.0))
 
 
 def wrist_stop(body: RigidBody, state: BodyState, hold: np.ndarray, proxy_quat: np.ndarray,

@@ -662,3 +662,21 @@ def test_away_from_the_fit_the_hand_holds_the_orientation_and_in_it_the_play_ope
     assert 2.9 < angles[1.0] < 3.2  # at the play, as without a fit
     assert 1.4 < angles[0.5] < 1.7
     assert angles[0.0] < 0.2  # the stiff spring from the first degree
+
+
+def test_narrowing_the_play_changes_nothing_else():
+    gains = Physics(k_lin=10.0, c_lin=1.0, k_rot=2.0, c_rot=0.1, mass=3.0,
+                    inertia=np.diag([1.0, 2.0, 3.0]), centre=np.array([0.5, 0.0, 1.0]),
+                    k_rot_hard=40.0, c_rot_hard=0.7, rot_play=0.2)
+    narrowed = gains.with_play(0.05)
+    assert narrowed.rot_play == 0.05 and gains.rot_play == 0.2
+    for name in ("k_lin", "c_lin", "k_rot", "c_rot", "mass", "length", "kappa", "k_rot_hard",
+                 "c_rot_hard", "body_c_lin", "body_c_rot"):
+        assert getattr(narrowed, name) == getattr(gains, name), name
+    for name in ("inertia", "centre", "gravity"):
+        np.testing.assert_array_equal(getattr(narrowed, name), getattr(gains, name))
+        assert not getattr(narrowed, name).flags.writeable
+    # never wider than the hand's play, never negative
+    assert gains.with_play(1.0).rot_play == 0.2 and gains.with_play(-0.1).rot_play == 0.0
+    with pytest.raises(AttributeError):
+        narrowed.rot_play = 0.1  # still frozen
