@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-modes", type=int, default=16, help="scan modes (default 16)")
     parser.add_argument("--top", type=int, default=5, help="fits kept (default 5)")
     parser.add_argument("--workers", type=int, help="a local Dask cluster of N processes")
+    parser.add_argument("--backend", nargs="+", choices=("numpy", "opencl", "auto"),
+                        default=["auto"], help="where the scan runs; several: each in turn, "
+                        "in one run (default auto: OpenCL on a GPU, else numpy)")
     parser.add_argument("-o", "--output", default="search_bench.json",
                         help="JSON of every row (default search_bench.json)")
 
@@ -155,8 +158,8 @@ def run(args: argparse.Namespace) -> int:
 
         work = DaskWork.connect(workers=args.workers)
     rows = []
-    print(f"{'scene':34} {'deg':>4} {'rot':>6} {'scan s':>7} {'ms/rot':>6} {'total s':>7} "
-          f"{'rank':>4} {'geom %':>6} {'centre %':>8} {'axes deg':>8} {'joint':>11} "
+    print(f"{'scene':34} {'deg':>4} {'rot':>6} {'scan on':>7} {'scan s':>7} {'ms/rot':>6} "
+          f"{'total s':>7} {'rank':>4} {'geom %':>6} {'centre %':>8} {'axes deg':>8} {'joint':>11} "
           f"{'at seat':>11} {'expected':>11}")
     try:
         for path in scenes:
@@ -164,9 +167,10 @@ def run(args: argparse.Namespace) -> int:
             part = load_scene_parts(scene)[1]
             points = surface_points(part.vertices, part.faces, 256, seed=0)
             dense = surface_points(part.vertices, part.faces, 8192, seed=1)
-            for angle in args.angle:
+            for angle, backend in [(a, b) for a in args.angle for b in args.backend]:
                 settings = SearchSettings(level=level_for(angle=angle),
-                                          scan_modes=args.scan_modes, top=args.top)
+                                          scan_modes=args.scan_modes, top=args.top,
+                                          backend=backend)
                 start = time.perf_counter()
                 result = search_scene(scene, settings, work=work)
                 wall = time.perf_counter() - start
@@ -189,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
                 row = {"scene": str(path.relative_to(ROOT) if path.is_relative_to(ROOT)
                                     else path),
                        "angle": settings.angle, "rotations": settings.rotations,
+                       "scan_backend": result.scan_backend,
                        "scan_seconds": result.scan_seconds, "seconds": result.seconds,
                        "seconds_with_preparation": wall,
                        "ms_per_rotation": 1000 * result.seconds_per_rotation,
@@ -200,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
                        "expected": expected}
                 rows.append(row)
                 print(f"{path.parent.name:34} {settings.angle:4g} {settings.rotations:6d} "
+                      f"{result.scan_backend:>7} "
                       f"{result.scan_seconds:7.1f} {row['ms_per_rotation']:6.1f} "
                       f"{result.seconds:7.1f} {rank or '-':>4} "
                       f"{row.get('geometry_percent', float('nan')):6.2f} "

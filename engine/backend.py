@@ -82,6 +82,10 @@ CAPABILITIES: dict[str, Capability] = {
                            gpu_only=frozenset({"opencl"})),
     # the transforms run through scipy.fft on the CPU (the numpy stack)
     "fft": Capability("fft", ("numpy",)),
+    # the search's scan, a block of rotations' landscapes reduced to their minima
+    # (engine.search.opencl_scan); on PoCL the OpenCL scan takes every core, where the
+    # numpy one takes one per block (a Dask worker's thread), so "auto" takes it on a GPU
+    "scan": Capability("scan", ("opencl", "numpy"), gpu_only=frozenset({"opencl"})),
 }
 
 
@@ -171,7 +175,7 @@ def resolve(
 
     Parameters
     ----------
-    capability : {"descriptor", "per_pose", "fft"}
+    capability : {"descriptor", "per_pose", "fft", "scan"}
     name : str, Backend or None
         A name of :func:`choices`, "auto", or a created backend. None: ``SKELASM_BACKEND``
         (its reference where the capability has no such backend), else "auto".

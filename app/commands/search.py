@@ -39,6 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="run the scan on a local Dask cluster of N processes")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run the scan on the Dask scheduler at ADDRESS (tcp://host:8786)")
+    parser.add_argument("--backend", choices=("numpy", "opencl", "auto"),
+                        help="where the scan's landscapes are computed (default auto: "
+                        "OpenCL on a GPU, else numpy)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("-o", "--output", help="write the result as JSON to this file")
     parser.add_argument("--force", action="store_true", help="replace an existing --output")
@@ -94,6 +97,7 @@ def result_json(result, scene, scale, where: str) -> dict:
         "rotations": s.rotations, "angle_degrees": s.angle, "level": s.level,
         "scan_modes": s.scan_modes, "modes": result.modes, "lattice": result.lattice,
         "lattice_step": result.step, "seed": s.seed, "run_on": where,
+        "scan_backend": result.scan_backend,
         "candidates": result.candidates, "clusters": result.clusters,
         "scan_seconds": round(result.scan_seconds, 3),
         "seconds_per_rotation": round(result.seconds_per_rotation, 6),
@@ -141,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
     settings = replace(base, level=level, top=top, clusters=max(base.clusters, top),
                        scan_modes=base.scan_modes if args.scan_modes is None
                        else args.scan_modes,
-                       seed=base.seed if args.seed is None else args.seed)
+                       seed=base.seed if args.seed is None else args.seed,
+                       backend=base.backend if args.backend is None else args.backend)
     work = None
     where = "in-process"
     if args.workers is not None or args.scheduler is not None:
@@ -167,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(out))
         return 0
     print(f"scan       {settings.rotations} rotations ({settings.angle:g} degrees) x "
-          f"{result.lattice}^3 translations at K = {settings.scan_modes}, {where}: "
+          f"{result.lattice}^3 translations at K = {settings.scan_modes}, {where}, "
+          f"{result.scan_backend}: "
           f"{result.scan_seconds:.1f} s ({1000 * result.seconds_per_rotation:.1f} ms a rotation)")
     print(f"refined    {min(result.clusters, settings.clusters)} of {result.clusters} clusters "
           f"at K = {result.modes}; search {result.seconds:.1f} s")

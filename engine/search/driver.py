@@ -97,6 +97,8 @@ class SearchResult:
         Candidates kept from the scan; clusters they formed.
     scan_seconds, seconds : float
         The scan's time and the whole search's.
+    scan_backend : str
+        Where the scan ran: "numpy" or "opencl" (:func:`scan_backend`).
     """
 
     fits: tuple[Fit, ...]
@@ -108,6 +110,7 @@ class SearchResult:
     clusters: int
     scan_seconds: float
     seconds: float
+    scan_backend: str = "numpy"
 
     @property
     def seconds_per_rotation(self) -> float:
@@ -172,7 +175,7 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
     report(0.0)
     lattice = s.scan_lattice()
     scan_spectra = correlator.spectra if scan is None else scan
-    found = _scan(scan_spectra, grid, s, lattice, work,
+    found, backend = _scan(scan_spectra, grid, s, lattice, work,
                   lambda f: report(SCAN_SHARE * f), cancel)
     scan_seconds = time.perf_counter() - start
     kept = found.best(s.keep)
@@ -205,7 +208,7 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         fits=tuple(out), settings=s, modes=fine.modes, lattice=lattice,
         step=fine.size * fine.spacing / lattice, candidates=len(kept),
         clusters=len(groups.leaders), scan_seconds=scan_seconds,
-        seconds=time.perf_counter() - start)
+        seconds=time.perf_counter() - start, scan_backend=backend)
 
 
 def _even_above(value: int) -> int:
@@ -244,15 +247,37 @@ def _merge(fits: list[tuple[float, np.ndarray, np.ndarray, float, int, float]],
     return merged
 
 
+def scan_backend(spectra: Spectra, s: SearchSettings, lattice: int) -> str:
+    """The backend the scan's blocks run on: ``s.backend``, "auto" resolved here.
+
+    "auto" takes OpenCL on a GPU where the scan's kernels build and these settings suit
+    them (:func:`engine.search.opencl_scan.supports`), else numpy. A named "opencl" that
+    cannot scan these spectra raises ValueError with the reason.
+    """
+    from engine.backend import resolve
+    from engine.search.opencl_scan import builds, supports
+
+    problem = supports(spectra, s.scan_modes, lattice, s.per_rotation)
+    if s.backend == "opencl" and problem is not None:
+        raise ValueError(f"search on opencl: {problem}")
+    chosen = resolve("scan", s.backend,
+                     usable=lambda made: problem is None and builds(made))
+    return chosen.name
+
+
 def _scan(spectra: Spectra, grid: RotationGrid, s: SearchSettings, lattice: int,
           work: BlockWork | None, report: Callable[[float], None],
-          cancel: Callable[[], bool] | None) -> Candidates:
-    """The scan's candidates, block after block (in block order wherever they ran)."""
+          cancel: Callable[[], bool] | None) -> tuple[Candidates, str]:
+    """The scan's candidates and the backend they ran on.
+
+    Block after block, joined in block order wherever they ran.
+    """
     total = s.rotations
     indices = np.arange(total, dtype=np.int64)
     shared: Shared = Shared("spectra", spectra) if work is None else work.share(spectra)
+    backend = scan_backend(spectra, s, lattice)
     blocks = [ScanBlock(shared, grid, s.level, indices[i:i + s.chunk], s.scan_modes, lattice,
-                        s.per_rotation, number=n)
+                        s.per_rotation, number=n, backend=backend)
               for n, i in enumerate(range(0, total, s.chunk))]
     results: dict[int, BlockResult] = {}
     done = 0
@@ -277,4 +302,4 @@ def _scan(spectra: Spectra, grid: RotationGrid, s: SearchSettings, lattice: int,
             for kind in kinds:
                 work.cancel(kind)
             raise
-    return Candidates.join([results[n].candidates for n in sorted(results)])
+    return Candidates.join([results[n].candidates for n in sorted(results)]), backend

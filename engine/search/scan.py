@@ -103,7 +103,10 @@ class ScanBlock:
     """One block of the scan: rotations ``indices`` of the grid at ``level``.
 
     Called with a ``cancelled()`` callable, returns :class:`BlockResult`; raises
-    :class:`engine.errors.Cancelled` once ``cancelled()`` turns True.
+    :class:`engine.errors.Cancelled` once ``cancelled()`` turns True. ``backend`` "opencl"
+    computes the block's landscapes and minima on the OpenCL device of
+    ``engine.backend.get_backend("opencl")`` (:mod:`engine.search.opencl_scan`), "numpy"
+    one landscape at a time with scipy's transforms.
     """
 
     spectra: Shared[Spectra]
@@ -114,12 +117,16 @@ class ScanBlock:
     lattice: int
     per_rotation: int
     number: int = 0
+    backend: str = "numpy"
 
     def __call__(self, cancelled: Callable[[], bool] | None = None) -> BlockResult:
         """Scan the block."""
         start = time.perf_counter()
         spectra = self.spectra.get()
         rotations = self.grid.matrices(self.level, self.indices)
+        if self.backend == "opencl":
+            return BlockResult(self.number, self._on_opencl(spectra, rotations, cancelled),
+                               len(self.indices), time.perf_counter() - start)
         found: list[Candidates] = []
         for index, rot in zip(self.indices, rotations, strict=True):
             if cancelled is not None and cancelled():
@@ -134,6 +141,22 @@ class ScanBlock:
                                     land.energy.ravel()[best].astype(np.float64)))
         return BlockResult(self.number, Candidates.join(found), len(self.indices),
                            time.perf_counter() - start)
+
+    def _on_opencl(self, spectra: Spectra, rotations: np.ndarray,
+                   cancelled: Callable[[], bool] | None) -> Candidates:
+        """The block's candidates from the OpenCL scan (rows in the numpy path's order)."""
+        from engine.backend import get_backend
+        from engine.search.opencl_scan import scan_for
+
+        scan = scan_for(spectra, self.modes, self.lattice, get_backend("opencl"))
+        index, energy = scan.minima(rotations, self.per_rotation, separation=1,
+                                    cancelled=cancelled)
+        axes = scan.axes(rotations)  # (B, 3, M)
+        row, slot = np.nonzero(index >= 0)  # row-major: by rotation, then lowest first
+        cells = np.unravel_index(index[row, slot], (self.lattice,) * 3)
+        translation = np.stack([axes[row, a, cells[a]] for a in range(3)], axis=1)
+        return Candidates(self.indices[row].astype(np.int64), translation,
+                          energy[row, slot].astype(np.float64))
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from engine.backend import check_choice
 from engine.search.rotations import MAX_LEVEL, level_angle, level_size
 
 
@@ -47,6 +48,10 @@ class SearchSettings:
         plain grid).
     chunk : int
         Rotations per unit of work (what a Dask task or a progress step covers).
+    backend : str
+        Where the scan's landscapes are computed: "numpy" (scipy's transforms, one thread
+        a block), "opencl" (:mod:`engine.search.opencl_scan`, a block per launch) or
+        "auto" (OpenCL on a GPU, else numpy: ``engine.backend.CAPABILITIES["scan"]``).
     """
 
     level: int = 1
@@ -61,6 +66,7 @@ class SearchSettings:
     top: int = 5
     seed: int | None = 0
     chunk: int = 64
+    backend: str = "auto"
 
     def __post_init__(self) -> None:
         checks = [
@@ -77,6 +83,10 @@ class SearchSettings:
             (self.top >= 1, "top must be at least 1"),
             (self.chunk >= 1, "chunk must be at least 1"),
         ]
+        try:
+            check_choice("scan", self.backend)
+        except ValueError as exc:
+            checks.append((False, str(exc)))
         for ok, message in checks:
             if not ok:
                 raise ValueError(f"search settings: {message}")
