@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.backend import choices, describe_auto
+
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED = ("peg_in_hole", "boss_pins", "bracket_slot", "dovetail")
 
@@ -49,9 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-modes", type=int, default=16, help="scan modes (default 16)")
     parser.add_argument("--top", type=int, default=5, help="fits kept (default 5)")
     parser.add_argument("--workers", type=int, help="a local Dask cluster of N processes")
-    parser.add_argument("--backend", nargs="+", choices=("numpy", "opencl", "auto"),
-                        default=["auto"], help="where the scan runs; several: each in turn, "
-                        "in one run (default auto: OpenCL on a GPU, else numpy)")
+    parser.add_argument("--backend", nargs="+", choices=choices("scan"), default=["auto"],
+                        help="where the scan runs; several: each in turn, in one run "
+                        f"(default auto: {describe_auto('scan')})")
     parser.add_argument("-o", "--output", default="search_bench.json",
                         help="JSON of every row (default search_bench.json)")
 

@@ -7,6 +7,7 @@ import sys
 import time
 
 from app.commands.arguments import int_in_range, positive_float
+from engine.backend import choices, describe_auto
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -39,9 +40,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="run the scan on a local Dask cluster of N processes")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run the scan on the Dask scheduler at ADDRESS (tcp://host:8786)")
-    parser.add_argument("--backend", choices=("numpy", "opencl", "auto"),
+    parser.add_argument("--backend", choices=choices("scan"),
                         help="where the scan's landscapes are computed (default auto: "
-                        "OpenCL on a GPU, else numpy)")
+                        f"{describe_auto('scan')})")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("-o", "--output", help="write the result as JSON to this file")
     parser.add_argument("--force", action="store_true", help="replace an existing --output")

@@ -156,6 +156,8 @@ def test_a_missing_backend_passes_to_the_reference_under_auto_and_fails_when_nam
 
     monkeypatch.setitem(fresh_registry._FACTORIES, "numba", broken)
     monkeypatch.setitem(fresh_registry._FACTORIES, "opencl", broken)
+    # a device asked for by name makes "auto" refuse to pass over OpenCL (next test file)
+    monkeypatch.delenv("SKELASM_DEVICE", raising=False)
     assert fresh_registry.resolve("per_pose").name == "numpy"
     with pytest.raises(fresh_registry.BackendError) as info:
         fresh_registry.resolve("per_pose", "numba")  # named: no silent fallback
@@ -197,11 +199,11 @@ def test_commands_and_benchmarks_offer_the_registrys_choices():
             offered[" ".join(path)] = action.choices
     # the benchmarks are subcommands of `skelasm bench`: they are looked at too
     assert {"evaluate", "precompute", "bench loop", "bench correlation"} <= set(offered), offered
-    per_pose, descriptor = backend_mod.choices("per_pose"), backend_mod.choices("descriptor")
+    assert {"search", "bench search"} <= set(offered), offered
+    registry = [set(backend_mod.choices(c)) for c in ("per_pose", "descriptor", "scan")]
     for name, names in offered.items():
         assert names is not None, f"{name}: a backend option without the registry's choices"
-        assert set(names) in (set(per_pose), set(descriptor), set(per_pose) - {"auto"},
-                              set(descriptor) - {"auto"}), (name, names)
+        assert set(names) in registry + [c - {"auto"} for c in registry], (name, names)
 
 
 def _sources_beside_the_registry():
