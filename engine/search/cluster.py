@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from engine.backend import thread_budget
+
 
 def surface_spread(points: np.ndarray) -> float:
     """The diagonal of the points' bounding box (the size distances are measured against)."""
@@ -102,14 +104,52 @@ def cluster_poses(rotations: np.ndarray, translations: np.ndarray, energies: np.
             continue
         left[row] = False
         lead = placed(pts, rotations[row], translations[row])
-        tree = cKDTree(lead)
         near = np.flatnonzero(left & (np.linalg.norm(centres - centres[row], axis=1) < reach))
+        near = near[np.lexsort((near, energies[near]))]  # members lowest first
         group = [int(row)]
-        for other in near[np.lexsort((near, energies[near]))]:
-            moved = placed(pts, rotations[other], translations[other])
-            if set_distance(moved, lead, tree) <= radius:
-                group.append(int(other))
-                left[other] = False
+        for other in near[_within(lead, pts, rotations[near], translations[near], radius)]:
+            group.append(int(other))
+            left[other] = False
         leaders.append(int(row))
         members.append(np.array(group, dtype=np.int64))
     return Clusters(np.array(leaders, dtype=np.int64), tuple(members))
+
+
+#: Points of each pose :func:`_within` tries first: enough far ones among them settle it.
+FIRST_POINTS = 64
+
+
+def _within(lead: np.ndarray, points: np.ndarray, rotations: np.ndarray,
+            translations: np.ndarray, radius: float) -> np.ndarray:
+    """(m,) bool: which poses put ``points`` within ``radius`` of ``lead`` (set distance).
+
+    ``set_distance(placed(points, R, t), lead) <= radius`` for each pose, exactly, with
+    most poses settled cheaply. The distance is the larger of two quantiles; the one from
+    the pose's points to ``lead`` is taken for all poses in one query of ``lead``'s tree,
+    the other (a tree per pose) only where the first is within ``radius``. Before that, the
+    first :data:`FIRST_POINTS` points alone rule a pose out when enough of them lie farther
+    than ``radius``: the quantile then exceeds ``radius`` whatever the other points do.
+    """
+    m, p = len(rotations), len(points)
+    out = np.zeros(m, dtype=bool)
+    if m == 0:
+        return out
+    tree = cKDTree(lead)
+    workers = thread_budget()
+    moved = np.einsum("pj,nij->npi", points, rotations) + translations[:, None, :]
+    # the quantile interpolates sorted distances f and f + 1: with more than p - f - 1
+    # distances above radius, both lie above it
+    far_enough = p - int(np.floor(QUANTILE * (p - 1)))
+    first = min(FIRST_POINTS, p)
+    head = tree.query(moved[:, :first].reshape(-1, 3), distance_upper_bound=radius,
+                      workers=workers)[0].reshape(m, first)
+    hopeful = np.flatnonzero(np.sum(head > radius, axis=1) < far_enough)
+    if len(hopeful) == 0:
+        return out
+    ab = np.quantile(tree.query(moved[hopeful].reshape(-1, 3), workers=workers)[0]
+                     .reshape(len(hopeful), p), QUANTILE, axis=1)
+    for i, d in zip(hopeful, ab, strict=True):
+        if d <= radius:
+            ba = float(np.quantile(cKDTree(moved[i]).query(lead)[0], QUANTILE))
+            out[i] = max(float(d), ba) <= radius
+    return out
