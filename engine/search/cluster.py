@@ -16,8 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from engine.backend import thread_budget
-
 
 def surface_spread(points: np.ndarray) -> float:
     """The diagonal of the points' bounding box (the size distances are measured against)."""
@@ -96,6 +94,8 @@ def cluster_poses(rotations: np.ndarray, translations: np.ndarray, energies: np.
     # a symmetric part's centroid stays put under its symmetries, so poses whose centroids
     # lie far apart cannot give the same surface: the set distance is needed only near
     reach = 2.0 * radius + 1e-9
+    # every pose's points, placed once: (n, p, 3)
+    moved = np.matmul(pts[None], np.transpose(rotations, (0, 2, 1))) + translations[:, None, :]
     left = np.ones(n, dtype=bool)
     leaders: list[int] = []
     members: list[np.ndarray] = []
@@ -103,11 +103,10 @@ def cluster_poses(rotations: np.ndarray, translations: np.ndarray, energies: np.
         if not left[row]:
             continue
         left[row] = False
-        lead = placed(pts, rotations[row], translations[row])
         near = np.flatnonzero(left & (np.linalg.norm(centres - centres[row], axis=1) < reach))
         near = near[np.lexsort((near, energies[near]))]  # members lowest first
         group = [int(row)]
-        for other in near[_within(lead, pts, rotations[near], translations[near], radius)]:
+        for other in near[_within(moved[row], moved[near], radius)]:
             group.append(int(other))
             left[other] = False
         leaders.append(int(row))
@@ -115,38 +114,45 @@ def cluster_poses(rotations: np.ndarray, translations: np.ndarray, energies: np.
     return Clusters(np.array(leaders, dtype=np.int64), tuple(members))
 
 
-#: Points of each pose :func:`_within` tries first: enough far ones among them settle it.
-FIRST_POINTS = 64
+#: Points of each pose :func:`_within` tries first, in stages: enough far ones among them
+#: settle it.
+FIRST_POINTS = (48, 64, 96, 128)
 
 
-def _within(lead: np.ndarray, points: np.ndarray, rotations: np.ndarray,
-            translations: np.ndarray, radius: float) -> np.ndarray:
-    """(m,) bool: which poses put ``points`` within ``radius`` of ``lead`` (set distance).
+def _within(lead: np.ndarray, moved: np.ndarray, radius: float) -> np.ndarray:
+    """(m,) bool: which point sets ``moved`` (m, p, 3) lie within ``radius`` of ``lead``.
 
-    ``set_distance(placed(points, R, t), lead) <= radius`` for each pose, exactly, with
-    most poses settled cheaply. The distance is the larger of two quantiles; the one from
-    the pose's points to ``lead`` is taken for all poses in one query of ``lead``'s tree,
-    the other (a tree per pose) only where the first is within ``radius``. Before that, the
-    first :data:`FIRST_POINTS` points alone rule a pose out when enough of them lie farther
-    than ``radius``: the quantile then exceeds ``radius`` whatever the other points do.
+    ``set_distance(moved[i], lead) <= radius`` for each, exactly, with most settled
+    cheaply. The distance is the larger of two quantiles. First, the first
+    :data:`FIRST_POINTS` points of each set (48, then 64, 96 and 128, each stage for the
+    sets left) are looked up in ``lead``'s tree: a set with enough of them farther than
+    ``radius`` is out, its quantile above ``radius`` whatever the other points do. The sets
+    left get the quantile of all their points to ``lead`` (one query for all), and the
+    other way (a tree per set) only where that one is within ``radius``.
     """
-    m, p = len(rotations), len(points)
+    m, p = moved.shape[:2]
     out = np.zeros(m, dtype=bool)
     if m == 0:
         return out
     tree = cKDTree(lead)
-    workers = thread_budget()
-    moved = np.einsum("pj,nij->npi", points, rotations) + translations[:, None, :]
     # the quantile interpolates sorted distances f and f + 1: with more than p - f - 1
     # distances above radius, both lie above it
     far_enough = p - int(np.floor(QUANTILE * (p - 1)))
-    first = min(FIRST_POINTS, p)
-    head = tree.query(moved[:, :first].reshape(-1, 3), distance_upper_bound=radius,
-                      workers=workers)[0].reshape(m, first)
-    hopeful = np.flatnonzero(np.sum(head > radius, axis=1) < far_enough)
-    if len(hopeful) == 0:
-        return out
-    ab = np.quantile(tree.query(moved[hopeful].reshape(-1, 3), workers=workers)[0]
+    hopeful = np.arange(m)
+    far = np.zeros(m, dtype=np.int64)
+    done = 0
+    for first in FIRST_POINTS:
+        first = min(first, p)
+        if first <= done or first < far_enough:
+            continue
+        part = moved[hopeful, done:first].reshape(-1, 3)
+        dist = tree.query(part, distance_upper_bound=radius)[0].reshape(len(hopeful), -1)
+        far[hopeful] += np.sum(dist > radius, axis=1)
+        hopeful = hopeful[far[hopeful] < far_enough]
+        done = first
+        if len(hopeful) == 0:
+            return out
+    ab = np.quantile(tree.query(moved[hopeful].reshape(-1, 3))[0]
                      .reshape(len(hopeful), p), QUANTILE, axis=1)
     for i, d in zip(hopeful, ab, strict=True):
         if d <= radius:
