@@ -403,6 +403,10 @@ class OpenCLScan:
         q.finish()
         return found.astype(np.int64), values
 
+    def landscapes_and_axes(self, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`landscapes` and :meth:`axes`: what the refinement's descent compares."""
+        return self.landscapes(rotations), self.axes(rotations)
+
     def landscapes(self, rotations: np.ndarray) -> np.ndarray:
         """(B, M, M, M) float32: the whole landscapes, masked (for tests and views)."""
         import pyopencl as cl

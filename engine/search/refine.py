@@ -47,15 +47,31 @@ class Refined:
     evaluations: int
 
 
+#: landscapes(rotations (B, 3, 3)) -> (energy (B, M, M, M), translation axes (B, 3, M)).
+Landscapes = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def cpu_landscapes(spectra: Spectra, modes: int, lattice: int) -> Landscapes:
+    """:data:`Landscapes` by :func:`~engine.correlation.landscape.compute_landscape`."""
+    def run(rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lands = [compute_landscape(spectra, r, modes, forces=False, lattice=lattice,
+                                   real=True) for r in rotations]
+        return (np.stack([land.energy for land in lands]),
+                np.stack([np.stack(land.translations) for land in lands]))
+    return run
+
+
 def descend(spectra: Spectra, modes: int, grid: RotationGrid, level: int, index: int,
             translation: np.ndarray, *, levels: int, lattice: int, reach: float,
-            cancel: Callable[[], bool] | None = None) -> tuple[int, int, np.ndarray, float]:
+            cancel: Callable[[], bool] | None = None,
+            landscapes: Landscapes | None = None) -> tuple[int, int, np.ndarray, float]:
     """Follow the best child down ``levels`` levels of the grid.
 
     At each level the current rotation and its eight children are compared by the lowest
     landscape energy within ``reach`` of the current translation (``lattice`` samples per
     axis, ``modes`` per axis of ``spectra``: the scan's trilinear ones suffice to choose a
-    rotation); the best becomes current.
+    rotation); the best becomes current. ``landscapes`` computes them (default
+    :func:`cpu_landscapes`; the OpenCL scan's on a GPU), the eight children at once.
 
     Returns
     -------
@@ -66,27 +82,31 @@ def descend(spectra: Spectra, modes: int, grid: RotationGrid, level: int, index:
         Its landscape energy.
     """
     here = (int(level), int(index), np.asarray(translation, dtype=np.float64))
+    compute = landscapes or cpu_landscapes(spectra, modes, lattice)
 
-    def measure(lev: int, idx: int, t: np.ndarray) -> tuple[float, np.ndarray]:
+    def measure(lev: int, indices: np.ndarray, t: np.ndarray) -> list[tuple[float, np.ndarray]]:
         if cancel is not None and cancel():
             raise Cancelled("the search was cancelled")
-        land = compute_landscape(spectra, grid.matrix(lev, idx), modes, forces=False,
-                                 lattice=lattice, real=True)
-        axes = land.translations
-        near = [np.abs(axes[a] - t[a]) <= reach for a in range(3)]
-        window = land.energy[np.ix_(*near)]
-        if window.size == 0:
-            return np.inf, t
-        k = np.unravel_index(int(np.argmin(window)), window.shape)
-        return float(window[k]), np.array([axes[a][near[a]][k[a]] for a in range(3)])
+        energies, all_axes = compute(grid.matrices(lev, np.asarray(indices, np.int64)))
+        found = []
+        for energy, axes in zip(energies, all_axes, strict=True):
+            near = [np.abs(axes[a] - t[a]) <= reach for a in range(3)]
+            window = energy[np.ix_(*near)]
+            if window.size == 0:
+                found.append((np.inf, t))
+                continue
+            k = np.unravel_index(int(np.argmin(window)), window.shape)
+            found.append((float(window[k]),
+                          np.array([axes[a][near[a]][k[a]] for a in range(3)])))
+        return found
 
-    best, t_best = measure(*here)
+    best, t_best = measure(here[0], np.array([here[1]]), here[2])[0]
     here = (here[0], here[1], t_best)
     for _ in range(levels):
         lev, idx, t = here
         step = None
-        for child in children(lev, idx):
-            energy, t_child = measure(lev + 1, int(child), t)
+        kids = np.asarray(children(lev, idx), dtype=np.int64)
+        for child, (energy, t_child) in zip(kids, measure(lev + 1, kids, t), strict=True):
             if energy < best:
                 best, step = energy, (lev + 1, int(child), t_child)
         if step is None:

@@ -125,3 +125,24 @@ def test_auto_takes_the_opencl_scan_only_on_a_gpu(opencl, spectra):
 def test_an_unknown_scan_backend_is_refused_with_the_choices():
     with pytest.raises(ValueError, match="no backend 'cuda'.*numpy, opencl, auto"):
         SearchSettings(backend="cuda")
+
+
+def test_the_descent_on_opencl_lands_where_the_cpus_does(opencl, spectra):
+    from engine.search.opencl_scan import OpenCLScan
+    from engine.search.refine import descend
+
+    grid = RotationGrid.from_seed(2)
+    gpu = OpenCLScan(spectra, 8, 18, opencl).landscapes_and_axes
+    levels = []
+    for index in (3, 17, 40):
+        rot = grid.matrix(0, index)
+        land = compute_landscape(spectra, rot, 8, forces=False, lattice=18, real=True)
+        start = np.array([ax[len(ax) // 2] for ax in land.translations])
+        kw = dict(levels=2, lattice=18, reach=2.0)
+        cpu_end = descend(spectra, 8, grid, 0, index, start, **kw)
+        gpu_end = descend(spectra, 8, grid, 0, index, start, landscapes=gpu, **kw)
+        assert cpu_end[:2] == gpu_end[:2]
+        levels.append(cpu_end[0])
+        np.testing.assert_allclose(gpu_end[2], cpu_end[2], atol=1e-12)
+        assert gpu_end[3] == pytest.approx(cpu_end[3], rel=1e-4)
+    assert max(levels) == 2  # children were compared and chosen
