@@ -53,6 +53,9 @@ MAX_KEPT = 16
 
 KERNELS = r"""
 #define TW(k, j) tw[(((k) * ((j) - mid)) % m + m) % m]
+/* (re, im) += a w, complex */
+#define CMAC(re, im, a, w) { re += (a).x * (w).x - (a).y * (w).y; \
+                             im += (a).x * (w).y + (a).y * (w).x; }
 
 __kernel void rotated_modes(
     __global const float *table,  /* (side^3, 2) part 2's spectrum near w = 0      */
@@ -88,42 +91,21 @@ __kernel void rotated_modes(
     modes[(size_t)b * nk * nk * nk + mode] = (float2)(re * c.x - im * c.y, re * c.y + im * c.x);
 }
 
-/* (b, ix, iy, z): the sum over kz */
-__kernel void along_z(__global const float2 *in, __global const int *k,
-                      __global const float2 *tw, const int nk, const int m,
-                      __global float2 *out)
+/* out (outer, m, inner) = sum over i of in (outer, nk, inner) times the phases of k[i]:
+   the sum over kz (inner 1), then over ky (inner m) */
+__kernel void along(__global const float2 *in, __global const int *k,
+                    __global const float2 *tw, const int nk, const int m, const int inner,
+                    __global float2 *out)
 {
     const size_t gid = get_global_id(0);
     const int mid = m / 2;
-    const int z = gid % m;
-    const size_t row = gid / m;             /* (b * nk + ix) * nk + iy */
-    __global const float2 *s = in + row * nk;
+    const size_t r = gid % inner;
+    const int j = (gid / inner) % m;
+    const size_t outer = gid / ((size_t)inner * m);
+    __global const float2 *s = in + outer * nk * inner + r;
     float re = 0.0f, im = 0.0f;
-    for (int i = 0; i < nk; ++i) {
-        const float2 a = s[i], w = TW(k[i], z);
-        re += a.x * w.x - a.y * w.y;
-        im += a.x * w.y + a.y * w.x;
-    }
-    out[gid] = (float2)(re, im);
-}
-
-/* (b, ix, y, z): the sum over ky */
-__kernel void along_y(__global const float2 *in, __global const int *k,
-                      __global const float2 *tw, const int nk, const int m,
-                      __global float2 *out)
-{
-    const size_t gid = get_global_id(0);
-    const int mid = m / 2;
-    const int z = gid % m;
-    const int y = (gid / m) % m;
-    const size_t bx = gid / ((size_t)m * m); /* b * nk + ix */
-    __global const float2 *s = in + bx * nk * m + z;
-    float re = 0.0f, im = 0.0f;
-    for (int i = 0; i < nk; ++i) {
-        const float2 a = s[(size_t)i * m], w = TW(k[i], y);
-        re += a.x * w.x - a.y * w.y;
-        im += a.x * w.y + a.y * w.x;
-    }
+    for (int i = 0; i < nk; ++i)
+        CMAC(re, im, s[(size_t)i * inner], TW(k[i], j));
     out[gid] = (float2)(re, im);
 }
 
@@ -287,7 +269,7 @@ class OpenCLScan:
         self._queue = cl.CommandQueue(ctx)
         program = _program(ctx)
         self._kernels = {name: cl.Kernel(program, name) for name in
-                         ("rotated_modes", "along_z", "along_y", "along_x", "lowest_minima")}
+                         ("rotated_modes", "along", "along_x", "lowest_minima")}
         flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         m = self.lattice
         phases = np.exp(2j * np.pi * np.arange(m) / m).astype(np.complex64)
@@ -385,10 +367,10 @@ class OpenCLScan:
         p["rotated_modes"](q, (nk ** 3, rows), None, b["table"], b["fixed"], b["kept"],
                            w["rots"], i32(nk), i32(self._side), f32(self._radius),
                            f32(self._scale), w["modes"])
-        p["along_z"](q, (rows * nk * nk * m,), None, w["modes"], b["k"], b["tw"], i32(nk),
-                     i32(m), w["t1"])
-        p["along_y"](q, (rows * nk * m * m,), None, w["t1"], b["k"], b["tw"], i32(nk),
-                     i32(m), w["t2"])
+        p["along"](q, (rows * nk * nk * m,), None, w["modes"], b["k"], b["tw"], i32(nk),
+                   i32(m), i32(1), w["t1"])
+        p["along"](q, (rows * nk * m * m,), None, w["t1"], b["k"], b["tw"], i32(nk), i32(m),
+                   i32(m), w["t2"])
         p["along_x"](q, (rows * m ** 3,), None, w["t2"], b["k"], b["tw"], i32(nk), i32(m),
                      f32(-self.geometry.kappa), w["energy"])
         local = self._local
