@@ -97,6 +97,18 @@ def overlap_bounds(rot, c1, c2, half1, half2, h):
     return offset, reach
 
 
+def overlap_bounds_many(rots, c1, c2, half1, half2, h):
+    """:func:`overlap_bounds` for a stack of rotations ``rots`` (B, 3, 3): two (B, 3) arrays.
+
+    The same formula over numpy arrays, for the search's blocks of rotations (the scalar
+    form above is the one the numba kernels compile).
+    """
+    rots = np.asarray(rots, dtype=np.float64)
+    offset = rots @ np.asarray(c2, np.float64) - np.asarray(c1, np.float64)
+    reach = np.asarray(half1, np.float64) + np.abs(rots) @ np.asarray(half2, np.float64) + h
+    return offset, reach
+
+
 def boxes_overlap(rot, t, c1, c2, half1, half2, h):
     """Whether the grid boxes meet at the pose ``(rot, t)`` (see :func:`overlap_bounds`)."""
     offset, reach = overlap_bounds(rot, c1, c2, half1, half2, h)

@@ -177,7 +177,7 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
     lattice = s.scan_lattice()
     scan_spectra = correlator.spectra if scan is None else scan
     found, backend = _scan(scan_spectra, grid, s, lattice, work,
-                  lambda f: report(SCAN_SHARE * f), cancel)
+                           lambda f: report(SCAN_SHARE * f), cancel)
     scan_seconds = time.perf_counter() - start
     kept = found.best(s.keep)
     rotations = grid.matrices(s.level, kept.rotation_index)

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from engine.backend import Backend, BackendError
+from engine.correlation.finishing import overlap_bounds_many
 from engine.correlation.tables import Spectra, truncate
 from engine.errors import Cancelled
 
@@ -303,17 +304,16 @@ class OpenCLScan:
         self._work = {name: cl.Buffer(ctx, rw, size) for name, size in sizes.items()}
         self._work_rows = rows
 
-    def inside(self, rotations: np.ndarray) -> np.ndarray:
-        """(B, 3, M) uint8: lattice lines along which the grid boxes meet (per rotation)."""
+    def inside(self, rotations: np.ndarray, axes: np.ndarray | None = None) -> np.ndarray:
+        """(B, 3, M) uint8: lattice lines along which the grid boxes meet (per rotation).
+
+        ``axes``: :meth:`axes` of the same rotations, where the caller has them.
+        """
         g = self.geometry
         rot = np.asarray(rotations, dtype=np.float64)
-        c1, c2 = g.centre_fixed, g.centre_moving
-        moved = rot[:, :, 0] * c2[0] + rot[:, :, 1] * c2[1] + rot[:, :, 2] * c2[2]  # (B, 3)
-        offset = moved - c1
-        reach = (g.half_fixed + np.abs(rot[:, :, 0]) * g.half_moving[0]
-                 + np.abs(rot[:, :, 1]) * g.half_moving[1]
-                 + np.abs(rot[:, :, 2]) * g.half_moving[2] + g.spacing)
-        axes = self.axes(rot)  # (B, 3, M)
+        offset, reach = overlap_bounds_many(rot, g.centre_fixed, g.centre_moving,
+                                            g.half_fixed, g.half_moving, g.spacing)
+        axes = self.axes(rot) if axes is None else axes  # (B, 3, M)
         return (np.abs(axes + offset[:, :, None]) < reach[:, :, None]).astype(np.uint8)
 
     def axes(self, rotations: np.ndarray) -> np.ndarray:

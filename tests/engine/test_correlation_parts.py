@@ -15,7 +15,7 @@ import pytest
 from gaussian_pair import pair
 
 from engine.correlation import Correlator, LandscapeError, interpolation
-from engine.correlation.finishing import boxes_overlap, finish
+from engine.correlation.finishing import boxes_overlap, finish, overlap_bounds, overlap_bounds_many
 from engine.correlation.to_opencl import TranslationError, translate
 from engine.errors import Cancelled
 from engine.pose import rotation_matrix
@@ -100,6 +100,18 @@ def test_boxes_overlap_against_the_box_geometry():
         t = rng.normal(scale=4.0, size=3)
         gap = np.abs(rot @ c2 + t - c1) - (half1 + np.abs(rot) @ half2 + 0.1)
         assert boxes_overlap(rot, t, c1, c2, half1, half2, 0.1) == bool(np.all(gap < 0))
+
+
+def test_the_batched_overlap_bounds_are_the_scalar_ones():
+    rng = np.random.default_rng(5)
+    c1, c2 = rng.normal(size=3), rng.normal(size=3)
+    half1, half2 = rng.uniform(1, 3, size=3), rng.uniform(0.5, 2, size=3)
+    rots = np.stack([rotation_matrix(rng.normal(size=3)) for _ in range(20)])
+    offset, reach = overlap_bounds_many(rots, c1, c2, half1, half2, 0.1)
+    for r, o, w in zip(rots, offset, reach, strict=True):
+        one = overlap_bounds(r, c1, c2, half1, half2, 0.1)
+        np.testing.assert_allclose(o, one[0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(w, one[1], rtol=0, atol=1e-12)
 
 
 def test_finish_signs_and_scales():
