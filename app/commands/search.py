@@ -84,7 +84,6 @@ def result_json(result, scene, scale, where: str) -> dict:
         fits.append({
             "rank": f.rank, "pose": [round(float(v), 6) for v in f.pose],
             "energy": f.energy, "scan_energy": f.scan_energy, "cluster_size": f.cluster_size,
-            "buried": None if f.buried is None else round(f.buried, 4),
             "joint": {
                 "kind": f.joint.kind, "confidence": round(f.joint.confidence, 4),
                 "free_translations": [[round(float(v), 6) for v in d] for d in f.joint.slides],
@@ -184,9 +183,7 @@ def run(args: argparse.Namespace) -> int:
         axes = [f"slide {_vec(d)}" for d in f.joint.slides] + [
             f"turn {_vec(a)} through {_vec(p)}" for a, p in f.joint.turns]
         print(f"fit {f.rank}      pose {pose}  E = {f.energy:.5g} {scale.units.energy}  "
-              f"cluster {f.cluster_size}  "
-              + ("" if f.buried is None else f"buried {100 * f.buried:.0f} %  ")
-              + f"{f.joint.kind} ({f.joint.confidence:.2f})"
+              f"cluster {f.cluster_size}  {f.joint.kind} ({f.joint.confidence:.2f})"
               + (f": {'; '.join(axes)}" if axes else ""))
     if args.output:
         print(f"wrote      {args.output}")

@@ -13,9 +13,7 @@ fine:
 3. each of the best ``clusters`` clusters' leader refined: down the rotation grid's
    children at the refinement's modes, then a local minimisation by force and torque
    (:mod:`engine.search.refine`); refined fits that meet merge;
-4. where the parts' surfaces are given, the fits that bury part 2's surface in part 1's
-   walls ranked after those that do not (:func:`rank_by_burial`);
-5. the joint kind of each fit (:mod:`engine.search.joint`).
+4. the joint kind of each fit (:mod:`engine.search.joint`).
 
 The same settings and seed give the same fits, wherever the blocks run.
 """
@@ -32,7 +30,7 @@ from engine.correlation import Correlator, Spectra
 from engine.errors import Cancelled
 from engine.pose import rotation_vector
 from engine.search.cluster import cluster_poses, surface_spread
-from engine.search.joint import Joint, Surfaces, buried_share, find_joint, motion_joint
+from engine.search.joint import Joint, Surfaces, find_joint, motion_joint
 from engine.search.opencl_scan import scan_for, supports
 from engine.search.refine import Landscapes, descend, minimise
 from engine.search.rotations import RotationGrid
@@ -45,11 +43,6 @@ Progress = Callable[[float, float | None], None]
 
 #: Share of the whole the scan stands for in the progress fraction.
 SCAN_SHARE = 0.85
-#: A surface sample deeper than this share of part 2's size inside part 1 is buried, and
-#: fits burying more than ``BURIAL_MARGIN`` of the samples beyond the least-buried fit are
-#: ranked after the others (:func:`rank_by_burial`).
-BURIAL_DEPTH = 0.01
-BURIAL_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -71,9 +64,6 @@ class Fit:
     joint : Joint
     seconds : float
         Time its refinement and classification took.
-    buried : float or None
-        Share of part 2's surface samples more than ``BURIAL_DEPTH`` of its size inside
-        part 1 (None where the search had no surfaces).
     """
 
     rank: int
@@ -84,7 +74,6 @@ class Fit:
     cluster_size: int
     joint: Joint
     seconds: float
-    buried: float | None = None
 
     @property
     def pose(self) -> np.ndarray:
@@ -209,40 +198,19 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         fits.append((energy, rot, t, float(kept.energy[row]), len(groups.members[i]),
                      time.perf_counter() - began))
         report(SCAN_SHARE + (0.97 - SCAN_SHARE) * (i + 1) / count)
-    merged = _merge(fits, pts, s.cluster_radius * size)
-    buried: list[float | None] = [None] * len(merged)
-    if surfaces is not None:
-        shares = [buried_share(surfaces, f[1], f[2], BURIAL_DEPTH * size) for f in merged]
-        order = rank_by_burial([f[0] for f in merged], shares)
-        merged, buried = [merged[i] for i in order], [shares[i] for i in order]
+    merged = _merge(fits, pts, s.cluster_radius * size)[:s.top]
     out = []
-    for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged[:s.top],
-                                                                          start=1):
+    for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged, start=1):
         began = time.perf_counter()
         joint = _joint(fine, rot, t, 0.5 * size, surfaces)
         out.append(Fit(rank, rot, t, energy, scan_energy, members, joint,
-                       seconds + time.perf_counter() - began, buried[rank - 1]))
+                       seconds + time.perf_counter() - began))
     report(1.0)
     return SearchResult(
         fits=tuple(out), settings=s, modes=fine.modes, lattice=lattice,
         step=fine.size * fine.spacing / lattice, candidates=len(kept),
         clusters=len(groups.leaders), scan_seconds=scan_seconds,
         seconds=time.perf_counter() - start, scan_backend=backend)
-
-
-def rank_by_burial(energies: list[float], buried: list[float]) -> list[int]:
-    """The fits' order: the least buried by energy, then the others by energy.
-
-    The least buried are those burying at most ``BURIAL_MARGIN`` more of part 2's surface
-    than the least-buried fit.
-
-    The truncated energy cannot see a wall thinner than its shortest wavelength: on the
-    real and generated pairs some fits that put a tenth to three quarters of the peg
-    inside the plate scored lower than the seat, which buries none.
-    """
-    least = min(buried, default=0.0)
-    return sorted(range(len(energies)),
-                  key=lambda i: (buried[i] > least + BURIAL_MARGIN, energies[i]))
 
 
 def _even_above(value: int) -> int:

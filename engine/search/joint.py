@@ -284,21 +284,6 @@ class Surfaces:
                    points, normals)
 
 
-def buried_share(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
-                 depth: float) -> float:
-    """The share of part 2's surface samples deeper than ``depth`` inside part 1 at a pose.
-
-    A seat buries none of part 2's surface (its play is a gap, its contact a touch); a
-    pose that puts part 2 partly inside part 1's walls buries some, however low the
-    truncated energy rates it.
-    """
-    from engine.descriptor.compute import signed_distance
-
-    placed = surfaces.points @ np.asarray(rotation, np.float64).T + np.asarray(translation)
-    d = signed_distance(surfaces.fixed_vertices, surfaces.fixed_faces, placed)
-    return float(np.mean(d < -depth)) if len(d) else 0.0
-
-
 def motion_joint(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray, *,
                  length: float, axes: np.ndarray | None = None, reach: float = REACH,
                  angle: float = MOTION_ANGLE, stop: float = STOP_FRACTION) -> Joint | None:

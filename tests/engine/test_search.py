@@ -178,34 +178,3 @@ def test_a_keyed_shaft_through_a_hub_is_found_and_prismatic_along_it(tmp_path):
     assert best.joint.kind == "prismatic"
     (slide,) = best.joint.slides
     assert abs(slide[2]) > 0.97
-
-
-# ------------------------------------------------------------------ burial
-def test_buried_share_is_the_share_of_samples_inside_part_1():
-    import trimesh
-
-    from engine.search.joint import Surfaces, buried_share
-
-    block = trimesh.creation.box(extents=(20.0, 20.0, 20.0))  # part 1: |x|, |y|, |z| < 10
-    peg = trimesh.creation.box(extents=(4.0, 4.0, 4.0))
-    s = Surfaces.of(block.vertices, block.faces, peg.vertices, peg.faces, count=4000)
-    eye = np.eye(3)
-    # far away: none; wholly inside: all; straddling the face x = 10 by a quarter of
-    # its width: the samples with x < 10 - depth, counted from the samples themselves
-    assert buried_share(s, eye, np.array([30.0, 0, 0]), 0.1) == 0.0
-    assert buried_share(s, eye, np.zeros(3), 0.1) == 1.0
-    t = np.array([11.0, 0.0, 0.0])
-    want = float(np.mean(s.points[:, 0] + t[0] < 10.0 - 0.1))
-    assert 0.1 < want < 0.5
-    assert buried_share(s, eye, t, 0.1) == pytest.approx(want, abs=2e-3)
-
-
-def test_fits_that_bury_part_2_rank_after_those_that_do_not():
-    from engine.search.driver import BURIAL_MARGIN, rank_by_burial
-
-    energies = [-5.0, -4.0, -3.0, -2.0]
-    buried = [0.74, 0.0, 0.05, 0.05 + BURIAL_MARGIN + 0.01]
-    assert rank_by_burial(energies, buried) == [1, 2, 0, 3]
-    # where no fit is clear of part 1, the least buried set the bar
-    assert rank_by_burial(energies, [0.38, 0.3, 0.45, 0.9]) == [0, 1, 2, 3]
-    assert rank_by_burial([-1.0, -2.0], [0.0, 0.0]) == [1, 0]
