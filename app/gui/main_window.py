@@ -475,9 +475,19 @@ class MainWindow(QtWidgets.QMainWindow):
         self._default_dock_sizes()
 
     def _available_geometry(self) -> QtCore.QRect:
-        """The part of the screen the window may use (without panels and docks of the OS)."""
-        screen = self.screen() or QtGui.QGuiApplication.primaryScreen()
-        return screen.availableGeometry()
+        """The part of the screen the window may use (without panels and docks of the OS).
+
+        The screen holding the window's centre, found among the application's screens:
+        ``QWidget.screen()`` would tie the wrapper of that application-wide QScreen to this
+        window (PySide's parent heuristic for returned QObjects), and pyvistaqt traced
+        use-after-free crashes far from the cause to exactly that call (its ``rwi.py``,
+        invariant 4).
+        """
+        centre = self.frameGeometry().center()
+        for screen in QtGui.QGuiApplication.screens():
+            if screen.geometry().contains(centre):
+                return screen.availableGeometry()
+        return QtGui.QGuiApplication.primaryScreen().availableGeometry()
 
     def fit_to_screen(self, available: QtCore.QRect | None = None) -> None:
         """Keep the window within the screen it is on (a remembered size is clamped too).

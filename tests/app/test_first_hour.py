@@ -354,6 +354,19 @@ def test_window_fits_a_1280_by_800_screen(settings, qtbot, monkeypatch):
     win.close()
 
 
+def test_the_window_finds_its_screen_without_tying_the_screen_to_itself(make_window):
+    # QWidget.screen() makes PySide file the application-wide QScreen's wrapper as the
+    # widget's child, and pyvistaqt traced use-after-free crashes to it: the window looks
+    # its screen up among the application's instead, and still gets that screen's area
+    import shiboken6
+
+    win = make_window(PEG, first_frame=False)
+    screens = QtGui.QGuiApplication.screens()
+    assert win._available_geometry() in [s.availableGeometry() for s in screens]
+    win.fit_to_screen()
+    assert not any("parent" in shiboken6.dump(s) for s in screens)
+
+
 def test_slider_applies_on_release_only(qtbot):
     field = SliderField(CONTROLS["sigma"], on_release=True)
     qtbot.addWidget(field)
