@@ -304,16 +304,13 @@ class OpenCLScan:
         self._work = {name: cl.Buffer(ctx, rw, size) for name, size in sizes.items()}
         self._work_rows = rows
 
-    def inside(self, rotations: np.ndarray, axes: np.ndarray | None = None) -> np.ndarray:
-        """(B, 3, M) uint8: lattice lines along which the grid boxes meet (per rotation).
-
-        ``axes``: :meth:`axes` of the same rotations, where the caller has them.
-        """
+    def inside(self, rotations: np.ndarray) -> np.ndarray:
+        """(B, 3, M) uint8: lattice lines along which the grid boxes meet (per rotation)."""
         g = self.geometry
         rot = np.asarray(rotations, dtype=np.float64)
         offset, reach = overlap_bounds_many(rot, g.centre_fixed, g.centre_moving,
                                             g.half_fixed, g.half_moving, g.spacing)
-        axes = self.axes(rot) if axes is None else axes  # (B, 3, M)
+        axes = self.axes(rot)  # (B, 3, M)
         return (np.abs(axes + offset[:, :, None]) < reach[:, :, None]).astype(np.uint8)
 
     def axes(self, rotations: np.ndarray) -> np.ndarray:
