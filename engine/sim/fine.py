@@ -56,10 +56,17 @@ MOVING_MARGIN_CELLS = 3.0
 #: finer, 5 seat against 3 (docs/measurements/seating_generated.md, seed 57203), for two to
 #: four times the level's setup.
 SAMPLES_BUDGET = 100 ** 3
-#: The finest level: ``h / MAX_RATIO``. Finer levels are smoothed over their own cell
-#: (:func:`smooths`), a smaller share of a descriptor cell at each step: the 12 mm
-#: rectangular Factory peg seated within 0.04 % of its width at r = 2 and ended 3.9 % off
-#: at r = 3 (unsmoothed at r = 4: 4 %, 3.3 degrees).
+#: The finest level: ``h / MAX_RATIO``. Every level is smoothed over its own cell
+#: (:func:`engine.correlation.near.binomial_smooth`), a smaller share of a descriptor cell
+#: at each step: the 12 mm rectangular Factory peg seated within 0.04 % of its width at
+#: r = 2 and ended 3.9 % off at r = 3 (unsmoothed at r = 4: 4 %, 3.3 degrees). Unsmoothed,
+#: the energy ripples with the fine grid (at r = 2 that peg rested half a cell off its seat,
+#: 5.5 degrees tilted; smoothed, within 0.1 degree). At r = 1 smoothing blurs a whole
+#: descriptor cell, and it was left off there after two pairs of assets/real, then at
+#: r = 1, ended 0.8 mm past a collar and 1 mm short of a floor smoothed. Every pair of
+#: assets/real now has r = 2; of five generated pairs still at r = 1, smoothed, a dovetail
+#: seats (1.20 % of its width, against 8.36 %) and the other four do as they did
+#: (docs/measurements/seating_generated.md).
 MAX_RATIO = 2
 
 
@@ -171,7 +178,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     return NearLevel.from_samples(
         nodes, node_rho, (lo1, hi1, taper), g1, rho1,
         g2, rho2, smooth_window(g2, lo2, hi2, taper),
-        moving_desc.grid, moving_desc.rho, smooth=smooths(ratio), walls=walls,
+        moving_desc.grid, moving_desc.rho, walls=walls,
         anchor=(0.5 * (lo1 + hi1) - pose[:3]) @ rotation_matrix(pose[3:]))
 
 
@@ -194,15 +201,3 @@ def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
     distance = distance_for_part(fixed, grid, progress=progress, cancel=cancel)
     return WallShell(grid=grid, distance=np.ascontiguousarray(distance, np.float32),
                      points=points)
-
-
-def smooths(ratio: int) -> bool:
-    """Whether a level ``ratio`` times finer than the descriptors is smoothed over a cell.
-
-    Finer levels are (:func:`engine.correlation.near.binomial_smooth`: unsmoothed, the
-    energy rippled with the fine grid, and a tight 12 mm rectangular peg rested in a well
-    half a cell off its seat, 5.5 degrees tilted; smoothed it seated within 0.1 degree).
-    A level at the descriptors' own spacing is not: smoothed over a coarse cell, the
-    keyed hub ended 0.8 mm past its collar and the 20 mm shaft 1 mm short of its floor.
-    """
-    return ratio >= 2

@@ -409,7 +409,6 @@ _RUNS: dict = {}
 #: largest angle from the proxy during the push; the hand's wrist stops it at the 3 degree
 #: misaim. The criterion stays.
 NOT_SEATING: dict[str, str] = {
-    "dovetail": "K 25: 8.36 % of the width, 0.37 deg",
     "spline": "K 25: tilt 0.57 deg (0.50 allowed)",
     "rect_blind": "K 25: 85.7 % of the width short, 5.94 deg: turned round the wrist's stop "
                   "at the mouth (3.00 deg from the proxy) and caught on the rim",
