@@ -67,6 +67,11 @@ DESCRIPTOR_KEYS = ("sigma", "penalty", "lambda_out", "grid", "spacing", "padding
 #: fine_modes and selection; a scene may set them once the engine builds its correlator
 #: from ``Scene.correlation`` (until then a key that changed nothing would mislead).
 CORRELATION_KEYS = ("modes",)
+
+#: A setting's value that leaves it to the engine, chosen from the parts and the machine at
+#: hand each time the scene loads (``modes = "auto"``: K follows the machine's budget, so a
+#: scene made beside a CPU gets a GPU's K on a GPU).
+AUTO = "auto"
 #: Keys of ``[simulation]``.
 SIMULATION_KEYS = ("rate_hz", "kappa", "guidance_gain", "body_damping_ratio", "seconds")
 #: Keys of ``[coupling]``.
@@ -357,7 +362,8 @@ def parse_scene(text: str, path: Path) -> Scene:
     )
     given = frozenset(f"{table}.{key}" for table in ("descriptor", "correlation", "simulation",
                                                       "coupling")
-                      if isinstance(data.get(table), dict) for key in data[table])
+                      if isinstance(data.get(table), dict) for key in data[table]
+                      if data[table][key] != AUTO)
     return Scene(path=p, name=name, units=units, units_declared=units_declared,
                  parts=tuple(parts), assembled_pose=assembled, assembled_known=assembled_known,
                  insertion_axis=axis, seat=seat,
@@ -411,10 +417,14 @@ def _descriptor(d: _Table) -> DescriptorParams:
 def _correlation(c: _Table) -> CorrelationParams:
     c.reject_unknown(CORRELATION_KEYS)
     base = CorrelationParams()
+    if c.values.get("modes") == AUTO:  # left to the engine (engine.sim.auto): not given
+        return c.build(CorrelationParams, modes=base.modes)
+    value = c.values.get("modes")
+    if isinstance(value, bool) or not isinstance(value, (int, type(None))) or (
+            isinstance(value, int) and not 1 <= value <= MAX_MODES):
+        raise c._bad("modes", f'an integer from 1 to {MAX_MODES} (each pose sums K^3 terms), '
+                     'or "auto" (chosen from the parts and the machine)', base.modes)
     modes = c.integer("modes", base.modes, minimum=1)
-    if modes > MAX_MODES:
-        raise c._bad("modes", f"an integer from 1 to {MAX_MODES} (each pose sums K^3 terms)",
-                     base.modes)
     return c.build(CorrelationParams, modes=modes)
 
 

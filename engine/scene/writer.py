@@ -27,7 +27,7 @@ from engine.params import (
     gravity_vector,
 )
 from engine.scene.model import Scene, SceneError
-from engine.scene.reader import AXES_WORDS, CORRELATION_KEYS, parse_scene
+from engine.scene.reader import AUTO, AXES_WORDS, CORRELATION_KEYS, parse_scene
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -105,6 +105,8 @@ def scene_to_toml(scene: Scene, folder: Path) -> TomlTable:
         data["descriptor"] = descriptor
     correlation = {k: v for k, v in _given(scene.correlation).items()
                    if k in CORRELATION_KEYS and written("correlation", k)}
+    if "correlation.modes" in chosen:
+        correlation["modes"] = AUTO  # the machine's budget bounds K: chosen again where it loads
     if correlation:
         data["correlation"] = correlation
     config = scene.config
@@ -214,8 +216,10 @@ def save_scene(scene: Scene, path: str | os.PathLike) -> Path:
     if out.suffix.lower() != ".toml":
         out = out.with_suffix(".toml")
     out = out.resolve()
+    notes = tuple((key, value, f"{value} here; {reason}" if key == "correlation.modes"
+                   else reason) for key, value, reason in scene.chosen)
     text = annotate_chosen(compact_arrays(tomli_w.dumps(scene_to_toml(scene, out.parent))),
-                           scene.chosen)
+                           notes)
     try:
         # first: the relative part paths are checked through it ("../" needs it to exist)
         out.parent.mkdir(parents=True, exist_ok=True)

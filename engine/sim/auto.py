@@ -254,8 +254,10 @@ def choose_settings(scene: Scene, parts: list[Part], *, fit: FitMeasure | None =
     else:
         why = (f"five cells per shortest wavelength of the band, {WAVELENGTH_PER_WIDTH:g} of "
                f"the fit's width {fit.width:.4g} {unit}")
-    reasons["descriptor.spacing"] = why
     spacing = float(f"{spacing:.4g}")  # as written into the scene: K follows from it
+    if scene.gives("descriptor.spacing") and scene.descriptor.spacing is not None:
+        spacing, why = float(scene.descriptor.spacing), "the scene's"  # K follows the scene's
+    reasons["descriptor.spacing"] = why
     padding = scene.descriptor.padding
     size = _fft_size(parts, spacing, padding)
     half = math.ceil(size * spacing / wavelength)  # |k| reaching the wavelength
@@ -303,12 +305,13 @@ def _is_step(path: object) -> bool:
     return str(path).lower().endswith((".step", ".stp"))
 
 
-def complete_scene(scene: Scene) -> tuple[Scene, list[Part]]:
+def complete_scene(scene: Scene, *, budget: tuple[int, str] | None = None
+                   ) -> tuple[Scene, list[Part]]:
     """Load a scene's parts and choose every setting the scene does not give from them.
 
     Returns the completed scene (its choices and their reasons in ``Scene.chosen``) and
     its parts. A scene of one part, or one that gives every setting chosen here, comes back
-    as it is. STEP parts without a ``tolerance`` are loaded again at the chosen one, and
+    as it is. ``budget`` is the largest K and why (default: :func:`modes_budget`). STEP parts without a ``tolerance`` are loaded again at the chosen one, and
     the fit measured again on them.
     """
     from engine.scene.parts import load_scene_parts_and_units
@@ -323,7 +326,7 @@ def complete_scene(scene: Scene) -> tuple[Scene, list[Part]]:
              if spec.tolerance is None and _is_step(spec.file) and scene.given is not None]
     if not wants and not steps:
         return scene, parts
-    settings = choose_settings(scene, parts)
+    settings = choose_settings(scene, parts, budget=budget)
     chosen: list[tuple[str, str, str]] = []
     if steps and settings.tolerance is not None:
         specs = list(scene.parts)
@@ -336,7 +339,7 @@ def complete_scene(scene: Scene) -> tuple[Scene, list[Part]]:
                            + f"; written in the file's unit, {file_units[i]}"))
         scene = replace(scene, parts=tuple(specs))
         parts, _ = load_scene_parts_and_units(scene)
-        settings = choose_settings(scene, parts)
+        settings = choose_settings(scene, parts, budget=budget)
     descriptor, correlation = scene.descriptor, scene.correlation
     if "descriptor.grid" in wants:
         descriptor = DescriptorParams(sigma=descriptor.sigma, penalty=descriptor.penalty,

@@ -184,9 +184,16 @@ def test_scene_new_writes_each_choice_with_its_reason(tmp_path, capsys, monkeypa
     text = out.read_text()
     assert text.count("# chosen: ") == 2 + len(SCALE_FREE)
     back = load_scene(out)
-    assert back.modes % 2 == 1 and back.descriptor.spacing is not None
-    # read back, the choices are the file's own: nothing is chosen again
-    assert back.gives("correlation.modes") and back.gives("descriptor.spacing")
+    assert back.descriptor.spacing is not None and back.gives("descriptor.spacing")
+    # K is written "auto" with the value chosen here: the machine's budget bounds it, so it
+    # is chosen again where the scene loads (a GPU's K on a GPU), and the same here
+    assert 'modes = "auto"  # chosen: ' in text and not back.gives("correlation.modes")
+    from engine.sim.auto import complete_scene
+    again, _ = complete_scene(back)
+    assert again.modes % 2 == 1 and f"correlation.modes = {again.modes}:" in printed
+    assert [key for key, _, _ in again.chosen] == ["correlation.modes"]
+    smaller, _ = complete_scene(back, budget=(9, "a smaller machine's budget in this test"))
+    assert smaller.modes <= 9 < again.modes
     # a user's --modes is kept, and not annotated
     out2 = tmp_path / "given.toml"
     assert main(["scene", "new", str(scene.parts[0].file), str(scene.parts[1].file), "-o",

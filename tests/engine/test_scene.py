@@ -150,6 +150,8 @@ def test_simulation_tables_and_mass_keys_are_read_with_the_rest(scene_dir):
         (MINIMAL + "\n[descriptor]\ngrid = 6.5\n", 11,
          "grid in \\[descriptor\\] must be an integer"),
         (MINIMAL + "\n[correlation]\nmodes = 0\n", 11, "modes"),
+        (MINIMAL + "\n[correlation]\nmodes = \"fast\"\n", 11,
+         "modes in \\[correlation\\] must be an integer from 1 to .* or \"auto\""),
         (MINIMAL.replace("pose = [1, 2, 3, 0, 0, 0.5]", "pose = [1, 2, 3]"), 8,
          "pose in \\[\\[part\\]\\] #2 must be six numbers"),
         (MINIMAL.replace("peg.step", "nothing.step"), 7, "part file 'nothing.step' not found"),
