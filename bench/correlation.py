@@ -189,7 +189,7 @@ def interpolation_error(corr, rotation: np.ndarray, modes: int) -> tuple[float, 
         exact[lo : lo + 512] = h**3 * np.einsum("ci,ci->c", tmp, ex)
     wrapped = np.mod(kept, corr.size)
     a = (corr.spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)]
-         * cube_weights(modes)).ravel().astype(np.complex128)
+         * cube_weights(modes, corr.size)).ravel().astype(np.complex128)
     weight = np.abs(a)
     spectral = float(np.sqrt(np.sum(weight * np.abs(approx - exact) ** 2)
                              / np.sum(weight * np.abs(exact) ** 2)))

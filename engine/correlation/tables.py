@@ -368,9 +368,10 @@ def truncate(spectra: Spectra, modes: int) -> ModeTable:
     if spectra.selection == "cube":
         indices = kept_indices(k, n)  # (L,) signed, symmetric: L = K, or K + 1 for even K
         wrapped = np.mod(indices, n)
-        # (L, L, L): rho1c^(w) dw, times the band's weights (1/2 at an even band's ends)
+        # (L, L, L): rho1c^(w) dw, times the band's weights (1/2 at an even band's ends,
+        # and the taper of a truncated band)
         fixed_kept = (spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)]
-                      * (cube_weights(k) * dw)).astype(np.complex64)
+                      * (cube_weights(k, n) * dw)).astype(np.complex64)
         kept = indices.astype(np.float64)
         reach = cube_reach(k)
     else:

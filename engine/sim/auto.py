@@ -311,8 +311,9 @@ def complete_scene(scene: Scene, *, budget: tuple[int, str] | None = None
 
     Returns the completed scene (its choices and their reasons in ``Scene.chosen``) and
     its parts. A scene of one part, or one that gives every setting chosen here, comes back
-    as it is. ``budget`` is the largest K and why (default: :func:`modes_budget`). STEP parts without a ``tolerance`` are loaded again at the chosen one, and
-    the fit measured again on them.
+    as it is. ``budget`` is the largest K and why (default: :func:`modes_budget`). STEP
+    parts without a ``tolerance`` are loaded again at the chosen one, and the fit measured
+    again on them.
     """
     from engine.scene.parts import load_scene_parts_and_units
 

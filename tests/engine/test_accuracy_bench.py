@@ -41,7 +41,7 @@ def test_truncation_profile_matches_a_direct_sum_over_the_kept_cube():
     assert profile[0] == pytest.approx(1.0) and profile[size] == pytest.approx(0.0, abs=1e-12)
     for k in (1, 2, 3, 4, 7, 8, 11):
         kept = np.mod(kept_indices(k, size), size)
-        inside = np.sum((a * b)[np.ix_(kept, kept, kept)] * cube_weights(k))
+        inside = np.sum((a * b)[np.ix_(kept, kept, kept)] * cube_weights(k, size))
         assert profile[k] == pytest.approx(1.0 - inside / total, rel=1e-6, abs=1e-9)  # float32 FFT
     assert np.all(np.diff(profile) <= 1e-12)
     # the force's weight is |k| times the energy's: the zero frequency counts for nothing
@@ -51,7 +51,8 @@ def test_truncation_profile_matches_a_direct_sum_over_the_kept_cube():
                    + signed[None, None, :] ** 2)
     kept = np.mod(kept_indices(4, size), size)
     weight = a * b * norm
-    expected = 1.0 - np.sum(weight[np.ix_(kept, kept, kept)] * cube_weights(4)) / np.sum(weight)
+    inside = np.sum(weight[np.ix_(kept, kept, kept)] * cube_weights(4, size))
+    expected = 1.0 - inside / np.sum(weight)
     assert force[4] == pytest.approx(expected, rel=1e-6)
     assert force[1] == pytest.approx(1.0)  # K = 1 keeps only k = 0, whose |k| is 0
     with pytest.raises(ValueError, match="valid: energy, force"):

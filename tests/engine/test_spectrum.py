@@ -96,19 +96,20 @@ def test_bad_inputs_are_rejected():
 
 def test_kept_band_is_symmetric_with_half_weights_at_an_even_bands_ends():
     np.testing.assert_array_equal(kept_indices(4, 16), [-2, -1, 0, 1, 2])
-    np.testing.assert_array_equal(kept_weights(4), [0.5, 1, 1, 1, 0.5])
+    np.testing.assert_array_equal(kept_weights(4, taper="none"), [0.5, 1, 1, 1, 0.5])
     np.testing.assert_array_equal(kept_indices(3, 16), [-1, 0, 1])
-    np.testing.assert_array_equal(kept_weights(3), [1, 1, 1])
+    np.testing.assert_array_equal(kept_weights(3, taper="none"), [1, 1, 1])
     np.testing.assert_array_equal(kept_indices(1, 16), [0])
     for k in range(1, 17):
         band = kept_indices(k, 16)
         np.testing.assert_array_equal(band, -band[::-1])  # symmetric about zero
-        assert kept_weights(k).sum() == pytest.approx(k)  # K modes' worth per axis
+        # K modes' worth per axis before the taper (tests/engine/test_band_taper.py)
+        assert kept_weights(k, taper="none").sum() == pytest.approx(k)
     # the whole even lattice: both ends wrap onto the Nyquist index, half each
     wrapped = np.mod(kept_indices(16, 16), 16)
-    per_index = np.bincount(wrapped, weights=kept_weights(16), minlength=16)
+    per_index = np.bincount(wrapped, weights=kept_weights(16, 16), minlength=16)
     np.testing.assert_array_equal(per_index, np.ones(16))
-    w = cube_weights(4)
+    w = cube_weights(4, 4)
     assert w.shape == (5, 5, 5) and w[0, 0, 0] == 0.125 and w[2, 2, 2] == 1.0
     with pytest.raises(ValueError):
         kept_indices(17, 16)
