@@ -417,15 +417,13 @@ def _descriptor(d: _Table) -> DescriptorParams:
 def _correlation(c: _Table) -> CorrelationParams:
     c.reject_unknown(CORRELATION_KEYS)
     base = CorrelationParams()
-    if c.values.get("modes") == AUTO:  # left to the engine (engine.sim.auto): not given
-        return c.build(CorrelationParams, modes=base.modes)
     value = c.values.get("modes")
-    if isinstance(value, bool) or not isinstance(value, (int, type(None))) or (
-            isinstance(value, int) and not 1 <= value <= MAX_MODES):
+    if value is None or value == AUTO:  # absent, or left to the engine (engine.sim.auto)
+        return c.build(CorrelationParams, modes=base.modes)
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_MODES:
         raise c._bad("modes", f'an integer from 1 to {MAX_MODES} (each pose sums K^3 terms), '
                      'or "auto" (chosen from the parts and the machine)', base.modes)
-    modes = c.integer("modes", base.modes, minimum=1)
-    return c.build(CorrelationParams, modes=modes)
+    return c.build(CorrelationParams, modes=value)
 
 
 def _simulation(s: _Table) -> SimulationParams:
