@@ -66,6 +66,31 @@ def test_the_fit_is_measured_at_the_seat(clearance):
     assert np.all(fit.box_hi[:2] - fit.box_lo[:2] < 10.0 + 4 * clearance)
 
 
+def test_a_fit_measured_again_comes_from_the_cache_as_it_was(tmp_path, monkeypatch):
+    from engine.sim import auto
+
+    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path / "cache"))
+    block, peg = peg_and_bore(10.0, 0.2, sections=48)
+    calls = []
+    measure = auto._measure_fit
+    monkeypatch.setattr(auto, "_measure_fit", lambda *a: calls.append(a) or measure(*a))
+    first = auto.measure_fit(block, peg, SEAT, AXIS)
+    again = auto.measure_fit(block, peg, SEAT, AXIS)
+    moved = auto.measure_fit(block, peg, SEAT + [0.0, 0.0, 1.0, 0.0, 0.0, 0.0], AXIS)
+    assert len(calls) == 2  # the same parts at the same pose are measured once
+    fresh = measure(block, peg, SEAT, AXIS)
+    for fit in (first, again):
+        assert fit.clearance == fresh.clearance and fit.tightest == fresh.tightest
+        assert (fit.size, fit.width, fit.points) == (fresh.size, fresh.width, fresh.points)
+        np.testing.assert_array_equal(fit.box_lo, fresh.box_lo)
+        np.testing.assert_array_equal(fit.box_hi, fresh.box_hi)
+    assert moved.box_lo[2] != first.box_lo[2]
+    # a pose with no fit (the peg far away) keeps its Nones through the cache
+    away = SEAT + [0.0, 0.0, 100.0, 0.0, 0.0, 0.0]
+    assert auto.measure_fit(block, peg, away, AXIS).clearance is None
+    assert auto.measure_fit(block, peg, away, AXIS).clearance is None
+
+
 def _scene(block: Part, peg: Part, tmp_path, **given):
     """A scene in code for the two parts (saved as STL), giving only ``given``."""
     from engine.params import CorrelationParams, DescriptorParams
