@@ -36,7 +36,6 @@ count K, the STEP chord tolerance and the rest follow from the parts:
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -152,47 +151,37 @@ def _distances(part: Part, points: np.ndarray) -> np.ndarray:
     return np.abs(distance)
 
 
-@functools.lru_cache(maxsize=1)
-def _fit_code_digest() -> str:
-    """Digest of the code a fit's measure comes from (once per process)."""
-    from engine.cache import code_digest
-
-    return "".join(code_digest(m) for m in ("engine.sim.auto", "engine.correlation.walls",
-                                            "engine.descriptor.compute"))
+#: Fits measured in this process, by the meshes, the pose and the axis (the newest last).
+_FITS: dict[str, FitMeasure] = {}
+#: How many :data:`_FITS` keeps.
+FITS_KEPT = 16
 
 
 def measure_fit(fixed: Part, moving: Part, assembled_pose: np.ndarray,
                 axis: np.ndarray | None) -> FitMeasure:
     """Measure the fit of ``moving`` in ``fixed`` at ``assembled_pose`` (see the module).
 
-    Content-keyed in the cache (the meshes, the pose, the axis, the code): opening a scene
-    whose K is chosen measures the fit, and so does the fine level, a second or two each
-    on parts of many triangles, which a reopened scene need not pay again.
+    Kept in this process by the meshes, the pose and the axis: opening a scene whose K is
+    chosen measures the fit, and so does its fine level, a second or two each on parts of
+    many triangles. Not on disk: a command refused after the scene opens leaves nothing in
+    the cache.
     """
-    from engine.cache import load_or_compute
+    from engine.cache import content_key
 
     pose = np.asarray(assembled_pose, np.float64).reshape(6)
-    key = {"fixed_vertices": np.asarray(fixed.vertices, np.float64),
-           "fixed_faces": np.asarray(fixed.faces, np.int64),
-           "moving_vertices": np.asarray(moving.vertices, np.float64),
-           "moving_faces": np.asarray(moving.faces, np.int64),
-           "pose": pose, "axis": None if axis is None else np.asarray(axis, np.float64),
-           "version": 1, "code": _fit_code_digest()}
-
-    def compute() -> dict[str, np.ndarray]:
+    key = content_key("fit", {
+        "fixed_vertices": np.asarray(fixed.vertices, np.float64),
+        "fixed_faces": np.asarray(fixed.faces, np.int64),
+        "moving_vertices": np.asarray(moving.vertices, np.float64),
+        "moving_faces": np.asarray(moving.faces, np.int64),
+        "pose": pose, "axis": None if axis is None else np.asarray(axis, np.float64)})
+    fit = _FITS.pop(key, None)
+    if fit is None:
         fit = _measure_fit(fixed, moving, pose, axis)
-        none = -1.0  # gaps are never negative: -1 stands for None
-        return {"box": np.stack([fit.box_lo, fit.box_hi]).astype(np.float64),
-                "scalars": np.array([fit.size, fit.width,
-                                     none if fit.clearance is None else fit.clearance,
-                                     none if fit.tightest is None else fit.tightest,
-                                     fit.points], np.float64)}
-
-    arrays, _ = load_or_compute("fit", key, compute)
-    size, width, clearance, tightest, points = (float(v) for v in arrays["scalars"])
-    return FitMeasure(size=size, box_lo=arrays["box"][0].copy(), box_hi=arrays["box"][1].copy(),
-                      width=width, clearance=None if clearance < 0 else clearance,
-                      tightest=None if tightest < 0 else tightest, points=int(points))
+    _FITS[key] = fit
+    while len(_FITS) > FITS_KEPT:
+        _FITS.pop(next(iter(_FITS)))
+    return replace(fit, box_lo=fit.box_lo.copy(), box_hi=fit.box_hi.copy())
 
 
 def _measure_fit(fixed: Part, moving: Part, pose: np.ndarray,

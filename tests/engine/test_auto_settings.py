@@ -66,29 +66,30 @@ def test_the_fit_is_measured_at_the_seat(clearance):
     assert np.all(fit.box_hi[:2] - fit.box_lo[:2] < 10.0 + 4 * clearance)
 
 
-def test_a_fit_measured_again_comes_from_the_cache_as_it_was(tmp_path, monkeypatch):
+def test_a_fit_measured_again_is_kept_as_it_was(monkeypatch):
     from engine.sim import auto
 
-    monkeypatch.setenv("SKELASM_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(auto, "_FITS", {})
     block, peg = peg_and_bore(10.0, 0.2, sections=48)
     calls = []
     measure = auto._measure_fit
     monkeypatch.setattr(auto, "_measure_fit", lambda *a: calls.append(a) or measure(*a))
     first = auto.measure_fit(block, peg, SEAT, AXIS)
+    first.box_lo[:] = 0.0  # a caller's change does not reach the kept measure
     again = auto.measure_fit(block, peg, SEAT, AXIS)
     moved = auto.measure_fit(block, peg, SEAT + [0.0, 0.0, 1.0, 0.0, 0.0, 0.0], AXIS)
     assert len(calls) == 2  # the same parts at the same pose are measured once
     fresh = measure(block, peg, SEAT, AXIS)
-    for fit in (first, again):
-        assert fit.clearance == fresh.clearance and fit.tightest == fresh.tightest
-        assert (fit.size, fit.width, fit.points) == (fresh.size, fresh.width, fresh.points)
-        np.testing.assert_array_equal(fit.box_lo, fresh.box_lo)
-        np.testing.assert_array_equal(fit.box_hi, fresh.box_hi)
-    assert moved.box_lo[2] != first.box_lo[2]
-    # a pose with no fit (the peg far away) keeps its Nones through the cache
-    away = SEAT + [0.0, 0.0, 100.0, 0.0, 0.0, 0.0]
-    assert auto.measure_fit(block, peg, away, AXIS).clearance is None
-    assert auto.measure_fit(block, peg, away, AXIS).clearance is None
+    assert again.clearance == fresh.clearance and again.tightest == fresh.tightest
+    assert (again.size, again.width, again.points) == (fresh.size, fresh.width, fresh.points)
+    np.testing.assert_array_equal(again.box_lo, fresh.box_lo)
+    np.testing.assert_array_equal(again.box_hi, fresh.box_hi)
+    assert moved.box_lo[2] != again.box_lo[2]
+    for i in range(auto.FITS_KEPT + 1):  # the oldest are let go
+        auto.measure_fit(block, peg, SEAT + [0.0, 0.0, 0.01 * (i + 2), 0.0, 0.0, 0.0], AXIS)
+    assert len(auto._FITS) == auto.FITS_KEPT
+    auto.measure_fit(block, peg, SEAT, AXIS)
+    assert len(calls) == 2 + auto.FITS_KEPT + 2
 
 
 def _scene(block: Part, peg: Part, tmp_path, **given):
@@ -281,8 +282,9 @@ def test_evaluate_reports_the_choices_of_a_scene_that_leaves_them_open(tmp_path,
         "pose = [0, 0, 0, 0, 0, 0]\nfixed = true\n\n"
         f'[[part]]\nname = "peg"\nfile = "{scene.parts[1].file.name}"\n'
         "pose = [0, 0, 5, 0, 0, 0]\n")
+    # without the fine level (its descriptors, twice as fine, were most of a minute here)
     assert main(["evaluate", str(tmp_path / "open.toml"), "--json", "--repeat", "1",
-                 "--backend", "numba"]) == 0
+                 "--backend", "numba", "--no-fine"]) == 0
     out = json.loads(capsys.readouterr().out)
     keys = [c["key"] for c in out["chosen"]]
     assert keys == ["descriptor.spacing", "correlation.modes", *SCALE_FREE]
