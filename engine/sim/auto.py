@@ -37,6 +37,7 @@ count K, the STEP chord tolerance and the rest follow from the parts:
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -155,6 +156,8 @@ def _distances(part: Part, points: np.ndarray) -> np.ndarray:
 _FITS: dict[str, FitMeasure] = {}
 #: How many :data:`_FITS` keeps.
 FITS_KEPT = 16
+#: The fine level measures on the engine's background thread while a scene may open.
+_FITS_LOCK = threading.Lock()
 
 
 def measure_fit(fixed: Part, moving: Part, assembled_pose: np.ndarray,
@@ -175,12 +178,14 @@ def measure_fit(fixed: Part, moving: Part, assembled_pose: np.ndarray,
         "moving_vertices": np.asarray(moving.vertices, np.float64),
         "moving_faces": np.asarray(moving.faces, np.int64),
         "pose": pose, "axis": None if axis is None else np.asarray(axis, np.float64)})
-    fit = _FITS.pop(key, None)
+    with _FITS_LOCK:
+        fit = _FITS.pop(key, None)
     if fit is None:
         fit = _measure_fit(fixed, moving, pose, axis)
-    _FITS[key] = fit
-    while len(_FITS) > FITS_KEPT:
-        _FITS.pop(next(iter(_FITS)))
+    with _FITS_LOCK:
+        _FITS[key] = fit
+        while len(_FITS) > FITS_KEPT:
+            _FITS.pop(next(iter(_FITS)))
     return replace(fit, box_lo=fit.box_lo.copy(), box_hi=fit.box_hi.copy())
 
 
