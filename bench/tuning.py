@@ -11,6 +11,12 @@ the command:
 - ``swapped``: the new descriptors on the scene's grid are in use;
 - ``fine``: the fine level where the parts meet is back (the guidance is whole again).
 
+Then it waits for the engine's sigma ladders (``engine.runtime.ladder_jobs``, computed in
+the background since the first field; the row "live sigma prepared" gives the seconds its
+nodes took to compute, from the cache entries, and the wait after the last change) and
+sends the new sigma again, its direct descriptors on the scene's grid removed from the
+cache first, so that it is served by the ladders as a sigma never seen would be.
+
 Prints a table and writes a bar plot (``-o``). The machine's load shows in every figure:
 compare the rows of one run, not runs.
 """
@@ -60,6 +66,55 @@ def _wait(engine, sim, t0: float, *, limit: float = 900.0) -> dict[str, float]:
     raise RuntimeError(f"no fine level within {limit:.0f} s")
 
 
+def _wait_ladder(engine, t0: float, *, limit: float = 1800.0) -> float:
+    """Seconds from ``t0`` until the engine says its sigma ladders are complete."""
+    import engine.runtime as rt
+
+    while time.perf_counter() - t0 < limit:
+        for e in engine.poll_events():
+            if isinstance(e, rt.ProgressEvent) and e.task == "ladder" and e.message:
+                if e.message != "done":
+                    raise RuntimeError(f"sigma ladder: {e.message}")
+                return time.perf_counter() - t0
+        engine.poll_frames()
+        time.sleep(0.05)
+    raise RuntimeError(f"no sigma ladder within {limit:.0f} s")
+
+
+def _ladder_seconds(handle) -> float:
+    """Seconds the scene's ladder nodes took to compute (as their cache entries say)."""
+    from engine import cache
+    from engine.descriptor import ladder
+    from engine.descriptor.store import CACHE_KIND, cache_key_parts, grid_for_part, scene_spacing
+
+    parts = list(handle.parts)
+    d = handle.scene.descriptor
+    spacing = scene_spacing(handle.scene, parts)
+    total = 0.0
+    for part in parts:
+        grid = grid_for_part(part, spacing=spacing, padding=d.padding)
+        for s in ladder.ladder_sigmas():
+            key = cache.content_key(CACHE_KIND, cache_key_parts(
+                part, grid, replace(d, sigma=float(s)), "adaptive"))
+            arrays = cache.load(CACHE_KIND, key)
+            total += float(arrays["compute_seconds"]) if arrays is not None else math.nan
+    return total
+
+
+def _forget(handle, sigma: float) -> None:
+    """Remove the scene's direct descriptors at ``sigma`` (scene's grid) from the cache."""
+    from engine import cache
+    from engine.descriptor.store import CACHE_KIND, cache_key_parts, grid_for_part, scene_spacing
+
+    parts = list(handle.parts)
+    d = replace(handle.scene.descriptor, sigma=sigma)
+    spacing = scene_spacing(handle.scene, parts)
+    for part in parts:
+        grid = grid_for_part(part, spacing=spacing, padding=d.padding)
+        key = cache.content_key(CACHE_KIND, cache_key_parts(part, grid, d, "adaptive"))
+        cache.entry_path(CACHE_KIND, key).unlink(missing_ok=True)
+
+
 def measure(scene: str, sigma: float, penalty: float) -> list[dict]:
     """One scene's rows: the first start, then each change."""
     import engine.runtime as rt
@@ -81,6 +136,14 @@ def measure(scene: str, sigma: float, penalty: float) -> list[dict]:
             t0 = time.perf_counter()
             engine.send(rt.SetDescriptorParams(params=params))
             rows.append({"change": label, **_wait(engine, sim, t0)})
+        waited = _wait_ladder(engine, time.perf_counter())
+        rows.append({"change": "live sigma prepared", "ladder": _ladder_seconds(handle),
+                     "waited": waited})
+        _forget(handle, sigma)
+        time.sleep(1.0)
+        t0 = time.perf_counter()
+        engine.send(rt.SetDescriptorParams(params=replace(own, sigma=sigma)))
+        rows.append({"change": f"sigma {sigma:g}, ladder ready", **_wait(engine, sim, t0)})
     finally:
         engine.stop()
     for row in rows:
@@ -93,14 +156,22 @@ def run(args: argparse.Namespace) -> int:
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="skelasm-tuning-") as tmp:
         os.environ["SKELASM_CACHE"] = tmp  # nothing cached: every first computation counts
+        os.environ["SKELASM_LIVE_SIGMA"] = "1"  # the ladders, whatever the caller's setting
         for scene in args.scenes:
             rows += measure(scene, args.sigma, args.penalty)
     print(f"cpu cores: {os.cpu_count()}; load average {os.getloadavg()[0]:.1f} at the end")
     print("| scene | change | coarse field in use, s | scene's grid in use, s | fine level, s |")
     print("|---|---|---|---|---|")
     for r in rows:
+        if "ladder" in r:
+            continue
         cells = [f"{r[k]:.1f}" if k in r else "-" for k in ("coarse", "swapped", "fine")]
         print(f"| {r['scene']} | {r['change']} | {' | '.join(cells)} |")
+    print("\n| scene | ladder nodes computed, s | waited after the last change, s |")
+    print("|---|---|---|")
+    for r in rows:
+        if "ladder" in r:
+            print(f"| {r['scene']} | {r['ladder']:.0f} | {r['waited']:.0f} |")
     _plot(rows, args.output)
     print(f"plot written to {args.output}")
     return 0
@@ -112,7 +183,7 @@ def _plot(rows: list[dict], path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    changes = [r for r in rows if r["change"] != "first start"]
+    changes = [r for r in rows if r["change"] != "first start" and "ladder" not in r]
     fig, ax = plt.subplots(figsize=(9, 4))
     labels = [f"{r['scene']}\n{r['change']}" for r in changes]
     x = range(len(changes))

@@ -1434,6 +1434,12 @@ class MainWindow(QtWidgets.QMainWindow):
         self._show_tasks()
 
     def _progress(self, event: runtime.ProgressEvent) -> None:
+        if event.task == "ladder":  # the sigma ladders: the status bar only, never the panel
+            if event.message:  # done, paused (a field job goes first) or failed
+                self.tasks.finish("ladder")
+            else:
+                self.tasks.progress("ladder", event.fraction)
+            return
         if event.message == "cancelled":
             self.tasks.finish(event.task)
             if event.task == "descriptors":

@@ -24,6 +24,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.gui.widgets import ElidedProgressBar, SliderField
 from engine import runtime
+from engine.descriptor.ladder import LADDER_SPAN
 from engine.params import (
     AXES,
     CONTROLS,
@@ -106,11 +107,15 @@ class ParamsPanel(QtWidgets.QWidget):
         form = QtWidgets.QFormLayout(desc)
         self.sigma = SliderField(CONTROLS["sigma"], on_release=True)
         self.penalty = SliderField(CONTROLS["penalty"], on_release=True)
-        self.sigma.setToolTip("Width of the skeletal density's kernel (dimensionless). Applies "
-                              "when the slider is let go\nor a typed value is entered: the "
-                              "part moves on a coarse grid at the new sigma within seconds,\n"
-                              "then on the scene's grid. While the slider is held the slice "
-                              "view previews it.")
+        lo, hi = LADDER_SPAN
+        self.sigma.setToolTip(
+            "Width of the skeletal density's kernel (dimensionless). Applies when the slider "
+            f"is let go\nor a typed value is entered. Live sigma: {lo:g} to {hi:g} reach the "
+            "scene's grid within seconds,\ninterpolated from descriptors at a few sigmas that "
+            "the engine prepares in the background\nafter a scene opens (\"preparing live "
+            "sigma\" in the status bar; cached for the next time).\nOther sigmas, or before "
+            "then: a coarse grid within seconds, then the scene's grid.\nWhile the slider is "
+            "held the slice view previews it.")
         self.penalty.setToolTip("Penalty P = lambda_in / lambda_out: how much more an overlap "
                                 "costs than a gap.\nA new penalty rescales the descriptors "
                                 "(a second or so); the slice view previews it while held.")

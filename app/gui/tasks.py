@@ -1,9 +1,9 @@
 """The engine's background tasks as the window tells them: what, how far, how long left.
 
 Data: one :class:`Task` per engine task name (the ``task`` of ``engine.runtime.ProgressEvent``:
-"correlator", "descriptors", "field", "landscape"), labelled in words by the window when it
-asks for the work (it knows why: a new K, a locked rotation, new descriptor parameters), and
-advanced by the engine's progress events. No Qt here.
+"correlator", "descriptors", "field", "landscape", "ladder"), labelled in words by the window
+when it asks for the work (it knows why: a new K, a locked rotation, new descriptor
+parameters), and advanced by the engine's progress events. No Qt here.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ class TaskBoard:
         "descriptors": "recomputing descriptors",
         "field": "building the correlation tables",
         "landscape": "computing the energy landscape",
+        "ladder": "preparing live sigma",
     }
 
     def __init__(self) -> None:

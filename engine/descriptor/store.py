@@ -66,9 +66,13 @@ class Descriptor:
     name : str
         The part's name.
     method : str
-        ``"adaptive"``, ``"tree"`` or ``"brute"`` (see ``compute_descriptor``).
+        ``"adaptive"``, ``"tree"`` or ``"brute"`` (see ``compute_descriptor``), or
+        ``"ladder"``: interpolated from other sigmas (:mod:`engine.descriptor.ladder`).
     compute_seconds : float
         Wall time the computation itself took (when it was computed, even if now cached).
+    ladder : tuple of float
+        The sigmas of the ladder nodes it was interpolated from (``method == "ladder"``,
+        :mod:`engine.descriptor.ladder`); empty: computed directly.
     """
 
     rho: np.ndarray
@@ -81,6 +85,7 @@ class Descriptor:
     name: str = ""
     method: str = "tree"
     compute_seconds: float = float("nan")
+    ladder: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         rho = np.asarray(self.rho)
@@ -105,6 +110,7 @@ class Descriptor:
             "method": np.asarray(self.method),
             "name": np.asarray(self.name),
             "compute_seconds": np.asarray(self.compute_seconds, dtype=np.float64),
+            "ladder": np.asarray(self.ladder, dtype=np.float64),
             "format_version": np.asarray(FORMAT_VERSION, dtype=np.int64),
         }
 
@@ -183,6 +189,7 @@ class Descriptor:
             name=str(arrays.get("name", "")),
             method=str(arrays.get("method", "tree")),
             compute_seconds=float(arrays.get("compute_seconds", np.nan)),
+            ladder=tuple(float(s) for s in np.asarray(arrays.get("ladder", ())).reshape(-1)),
         )
 
 

@@ -31,6 +31,7 @@ from engine.runtime.jobs import (
     FieldRequest,
     FieldResponse,
     JobWorker,
+    LadderResponse,
     LandscapeResponse,
     NearResponse,
     RefreshLane,
@@ -38,6 +39,7 @@ from engine.runtime.jobs import (
     build_field,
     next_id,
 )
+from engine.runtime.ladder_jobs import LadderJobs
 from engine.runtime.landscapes import Landscapes
 from engine.runtime.messages import (
     DescriptorsSwapped,
@@ -87,6 +89,7 @@ class Guidance:
         self.handover = Handover(self.attach, self.worker.dispose)  # waits for a cache
         self.landscapes = Landscapes(self.worker, events)
         self.fine = FineLevels(sim, model, self.worker, events)  # the fine level, built after
+        self.ladder = LadderJobs(model, self.worker, events)  # sigma ladders, after both
         #: Refresh rotation caches in the refresh lane (the loop is paced in real time);
         #: False: synchronously, in the step (reproducible, for unpaced runs).
         self.background_refresh = False
@@ -140,17 +143,15 @@ class Guidance:
     def set_descriptor_params(self, params: DescriptorParams) -> None:
         """New descriptor parameters (the scene's replaced whole): recompute in the background.
 
-        A new penalty rescales the cached descriptors. A new sigma gets a coarse field
-        first (seconds), then the scene's own grid; Cancel returns to the sigma before.
+        A new penalty rescales the cached descriptors; a new sigma is interpolated from the
+        sigma ladders where they serve it (:mod:`engine.runtime.ladder_jobs`), else a coarse
+        field comes first (seconds), then the scene's grid; Cancel returns to the sigma before.
         """
         self.descriptor = params
         self._request("descriptors", coarse_first=True)
 
     def set_effects(self, effects: Effects) -> None:
-        """New effects: axes, damping and gravity at once.
-
-        A new guidance kind or rotation lock rebuilds the field in the background.
-        """
+        """New effects (axes, damping, gravity); a new guidance or rotation lock: a new field."""
         old, self.effects = self.effects, effects
         self._physics_dirty = True
         if old.guidance != effects.guidance or old.rotation != effects.rotation:
@@ -213,6 +214,7 @@ class Guidance:
         self._field_id, self._field_task = request.id, task
         self.handover.drop()  # a field held back is superseded
         self.fine.cancel()
+        self.ladder.pause()
         report = task != "field"
         self.recompute = 0.0 if task == "descriptors" else None
 
@@ -279,6 +281,8 @@ class Guidance:
                 self.landscapes.deliver(response)
             elif isinstance(response, NearResponse):
                 self.fine.deliver(response, tuple(self.descriptors))
+            elif isinstance(response, LadderResponse):
+                self.ladder.deliver(response)
             else:
                 self._field(response)
         held = self.handover.due(self.sim.state.rotation)
@@ -307,6 +311,7 @@ class Guidance:
         self.worker.dispose(self.sim.field)  # its arrays are freed there, not in a period
         self.sim.set_field(r.field)
         self.fine.swapped(r, tuple(self.descriptors))
+        self.ladder.resume(r)  # queued behind the fine level
         if not attached:
             self.attach(r.field)
         self.offload(r.field)

@@ -70,6 +70,7 @@ __all__ = [
     "NearResponse",
     "JobWorker",
     "LandscapeRequest",
+    "LadderResponse",
     "LandscapeResponse",
     "RefreshLane",
     "RefreshRequest",
@@ -253,7 +254,19 @@ class LandscapeResponse:
     cancelled: bool = False
 
 
-Response = FieldResponse | LandscapeResponse | NearResponse
+@dataclass(frozen=True)
+class LadderResponse:
+    """The sigma ladders' job ended (``engine.runtime.ladder_jobs``).
+
+    ``complete``: every node is cached; False: it gave way to other work, or failed (``error``).
+    """
+
+    complete: bool
+    seconds: float = 0.0
+    error: BaseException | None = None
+
+
+Response = FieldResponse | LandscapeResponse | NearResponse | LadderResponse
 
 
 def _warm(fld: GeometricField, rotation: np.ndarray) -> None:
@@ -478,6 +491,14 @@ class JobWorker:
         job.cancel.set()
         job.future.cancel()  # succeeds only if it has not started
         return True
+
+    def waiting(self, but: str) -> bool:
+        """Whether a job of a kind other than ``but`` is queued (from a job of kind ``but``).
+
+        A low-priority job polls it to give way (:mod:`engine.runtime.ladder_jobs`).
+        """
+        return any(kind != but and not job.future.done()
+                   for kind, job in list(self._jobs.items()))
 
     def responses(self) -> list[Response]:
         """Responses finished since the last call, in the order they finished."""

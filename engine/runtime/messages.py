@@ -280,8 +280,9 @@ COMMAND_TYPES: tuple[type, ...] = Command.__args__  # type: ignore[attr-defined]
 class ProgressEvent:
     """Progress of a background task.
 
-    ``task`` is "correlator" while preparing after start, "descriptors" for a recompute;
-    ``message`` is "cancelled" when it was.
+    ``task`` is "correlator" while preparing after start, "descriptors" for a recompute,
+    "ladder" for the sigma ladders (:mod:`engine.runtime.ladder_jobs`; its messages are
+    "done", "paused" and "failed: ..."); ``message`` is "cancelled" when it was.
     """
 
     task: str

@@ -734,12 +734,15 @@ class SceneModel:
         from engine.descriptor.store import descriptors_for_scene
 
         scene = self._scene_with(descriptor, grid)
+        # a new sigma inside the ladders' span, on the scene's grid: interpolated (seconds)
+        descs = self._from_ladder(scene) if grid is None and descriptor is not None else None
         # the backend is the registry's choice for the descriptor (engine.backend.resolve:
         # an OpenCL device that cannot build its kernel is passed over there); an error
         # while computing is an error, not a reason to compute again elsewhere
-        descs = descriptors_for_scene(
-            scene, parts=list(self.parts), backend=None, progress=progress, cancel=cancel
-        )
+        if descs is None:
+            descs = descriptors_for_scene(
+                scene, parts=list(self.parts), backend=None, progress=progress, cancel=cancel
+            )
         d1, d2 = descs[0], descs[1]
         if effects.guidance == "collision":
             d1 = collision_descriptor(d1, self.parts[0])
@@ -765,6 +768,39 @@ class SceneModel:
         coarse = scene_spacing(replace(self.scene, descriptor=replace(
             self.scene.descriptor, grid=grid, spacing=None)), self.parts)
         return float(self.scene.descriptor.padding) * own / coarse
+
+    def _from_ladder(self, scene: Scene) -> list[Descriptor] | None:
+        """The scene's descriptors from its sigma ladders (None: computed or loaded as usual).
+
+        Only where the sigma is inside the span, both ladders are cached, and the direct
+        descriptors are not (a cache hit is exact and as quick).
+        """
+        from engine.descriptor import ladder
+        from engine.descriptor.store import descriptors_cached
+
+        parts = list(self.parts)
+        if (not ladder.in_span(scene.descriptor.sigma) or descriptors_cached(scene, parts)
+                or not ladder.scene_ladder_cached(scene, parts)):
+            return None
+        try:
+            return ladder.ladder_descriptors_for_scene(scene, parts)
+        except ladder.LadderIncomplete:  # a node evicted since: computed as usual
+            return None
+
+    def ladder_ready(self, *, descriptor: DescriptorParams | None = None) -> bool:
+        """Whether ``descriptor``'s sigma is served by the scene's cached sigma ladders."""
+        from engine.descriptor import ladder
+
+        scene = self._scene_with(descriptor, None)
+        return (ladder.in_span(scene.descriptor.sigma)
+                and ladder.scene_ladder_cached(scene, list(self.parts)))
+
+    def prepare_ladder(self, *, progress: Callable[[float], None] | None = None,
+                       cancel: Callable[[], bool] | None = None) -> None:
+        """Compute the nodes missing from the scene's sigma ladders (a low-priority job)."""
+        from engine.descriptor.ladder import prepare_scene_ladder
+
+        prepare_scene_ladder(self.scene, list(self.parts), progress=progress, cancel=cancel)
 
     def descriptors_cached(self, *, descriptor: DescriptorParams | None = None) -> bool:
         """Whether the scene's descriptors (at its own grid) are in the cache already."""
@@ -808,13 +844,16 @@ class SceneModel:
                    descriptor: DescriptorParams | None = None) -> int | None:
         """The grid of a scene's first field (None: the scene's own, at once).
 
-        :data:`COARSE_GRID` while the scene's own descriptors are finer and not cached.
+        :data:`COARSE_GRID` while the scene's own descriptors are finer, not cached, and not
+        served by the sigma ladders either.
         """
         d = self.scene.descriptor
         finer = d.spacing is not None or d.grid is None or d.grid > COARSE_GRID
         if effects.guidance == "none" or not self.has_pair or not finer:
             return None
-        return None if self.descriptors_cached(descriptor=descriptor) else COARSE_GRID
+        if self.descriptors_cached(descriptor=descriptor):
+            return None
+        return None if self.ladder_ready(descriptor=descriptor) else COARSE_GRID
 
     def check_memory(self) -> None:
         """Refuse a scene whose correlation FFT would not fit (ResourceError), before work.
