@@ -544,6 +544,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "already is reused)")
     parser.add_argument("--workers", type=int, default=1,
                         help="runs at once, each in its own process (default 1)")
+    parser.add_argument("--symmetric", action="store_true",
+                        help="the options that turn with the parts, off by default: a ball "
+                        "band, each descriptor's tail ended at one distance from its part, "
+                        "the fine level's window a cylinder about the insertion axis "
+                        "(docs/fine_level.md)")
+
+
+def use_symmetric_windows() -> None:
+    """Switch on the windows that turn with the parts (``--symmetric``; docs/fine_level.md)."""
+    from engine.correlation import spectrum, support
+    from engine.sim import fine
+
+    spectrum.BAND_SHAPE, support.SUPPORT_WINDOW, fine.WINDOW_SHAPE = "ball", True, "cylinder"
 
 
 class _Progress:
@@ -583,6 +596,8 @@ class _Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark: table on stdout, plot to ``args.output``."""
+    if getattr(args, "symmetric", False):
+        use_symmetric_windows()  # here; a pool's processes switch them on as they start
     if getattr(args, "generated", None) is not None:
         return run_generated(args)
     names = args.pairs or pair_names()
@@ -752,7 +767,9 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
 
     # fresh interpreters: a fork would copy this process's numba and OpenCL threads' state
     spawn = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn) as pool:
+    start = use_symmetric_windows if getattr(args, "symmetric", False) else None
+    with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn,
+                             initializer=start) as pool:
         futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend,
                                not args.full): (c, g) for c, g in jobs}
         bar.begin(0, f"{args.workers} runs at a time")

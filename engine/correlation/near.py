@@ -62,6 +62,34 @@ if TYPE_CHECKING:
 FINE_SHARE = 0.95
 
 
+def cylinder_window(grid: Grid, centre: np.ndarray, axis: np.ndarray, radius: float,
+                    half_length: float, taper: float) -> np.ndarray:
+    """(nx, ny, nz) float64: 1 in the cylinder, 0 beyond ``taper`` of it.
+
+    The cylinder of ``radius`` about the line through ``centre`` along the unit ``axis``,
+    ``half_length`` either side of ``centre``; a product of raised-cosine ramps in the
+    distance from the axis and along it. It is the same under every turn about its axis
+    and every mirror through it, which a box of the grid's planes is not.
+    """
+    p = grid.points().reshape(-1, 3) - np.asarray(centre, float)
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    s = p @ a
+    r = np.linalg.norm(p - np.outer(s, a), axis=1)
+    d_r = np.clip((r - radius) / taper, 0.0, 1.0)
+    d_s = np.clip((np.abs(s) - half_length) / taper, 0.0, 1.0)
+    w = 0.25 * (1.0 + np.cos(math.pi * d_r)) * (1.0 + np.cos(math.pi * d_s))
+    return w.reshape(grid.shape)
+
+
+def cylinder_box(centre: np.ndarray, axis: np.ndarray, radius: float,
+                 half_length: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (3,) each: the smallest box of the grid's planes around the cylinder."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    e = np.abs(a) * half_length + radius * np.sqrt(np.maximum(0.0, 1.0 - a * a))
+    c = np.asarray(centre, float)
+    return c - e, c + e
+
+
 def smooth_window(grid: Grid, lo: np.ndarray, hi: np.ndarray, taper: float) -> np.ndarray:
     """(nx, ny, nz) float64: 1 inside the box ``[lo, hi]``, 0 beyond ``taper`` of it.
 
@@ -185,6 +213,9 @@ class NearLevel:
         The point of part 2 (its frame) that lies at the centre of the box at the seat:
         how far it is from the box says how near the part is to its fit
         (:meth:`NearField.closeness`). None: unknown, the part counts as near.
+    cylinder : (centre (3,), axis (3,), radius, half_length) or None
+        Where ``w`` is 1 when given (:func:`cylinder_window`, the same ``taper``), the box
+        ``window_box`` then being the cylinder's box of the grid's planes; None: the box.
     """
 
     fixed_nodes: Grid
@@ -200,6 +231,7 @@ class NearLevel:
     smooth: bool = True
     walls: WallShell | None = None
     anchor: np.ndarray | None = None
+    cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None
 
     @classmethod
     def from_samples(cls, fixed_nodes: Grid, fixed_node_rho: np.ndarray,
@@ -208,7 +240,9 @@ class NearLevel:
                      moving_grid: Grid, moving_rho: np.ndarray, moving_window: np.ndarray,
                      coarse_grid: Grid, coarse_rho: np.ndarray, *,
                      smooth: bool = True, walls: WallShell | None = None,
-                     anchor: np.ndarray | None = None) -> NearLevel:
+                     anchor: np.ndarray | None = None,
+                     cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None
+                     ) -> NearLevel:
         """Assemble a level; part 2's fine samples are blended into its coarse ones.
 
         ``moving_window`` (1 inside part 2's fine region, 0 at its edge) blends
@@ -239,11 +273,15 @@ class NearLevel:
                    moving_grid=moving_grid, moving=_pairs(blended),
                    coarse_grid=coarse_grid, coarse=_pairs(coarse_rho), ratio=r,
                    smooth=smooth, walls=walls,
-                   anchor=None if anchor is None else np.asarray(anchor, float).reshape(3))
+                   anchor=None if anchor is None else np.asarray(anchor, float).reshape(3),
+                   cylinder=cylinder)
 
     def window(self, grid: Grid) -> np.ndarray:
-        """``w`` on ``grid``."""
+        """``w`` on ``grid``: over :attr:`cylinder` where there is one, else the box."""
         lo, hi, taper = self.window_box
+        if self.cylinder is not None:
+            centre, axis, radius, half = self.cylinder
+            return cylinder_window(grid, centre, axis, radius, half, taper)
         return smooth_window(grid, lo, hi, taper)
 
 

@@ -243,10 +243,36 @@ def kept_weights(modes: int, size: int | None = None, *, taper: str | None = Non
     return weights
 
 
-def cube_weights(modes: int, size: int | None = None) -> np.ndarray:
-    """(L, L, L) float64: the kept cube's mode weights (outer product of :func:`kept_weights`)."""
+#: The kept band's shape: "ball" keeps the modes of the cube ``-(K // 2) ... K // 2`` whose
+#: signed index ``k`` has ``|k| <= K // 2 + 1/2``; "cube" keeps the whole cube. A cube is
+#: not turned with the parts: a pair mirror-symmetric about a plane that is not a plane of
+#: the grid feels a force across it at a symmetric pose, as the band's corners reach
+#: further along some directions than along their mirror images. The ball is the same
+#: along every direction (the FFT lattice has one size and one spacing along every axis).
+BAND_SHAPE = "cube"
+#: The shapes :func:`cube_weights` knows.
+SHAPES = ("ball", "cube")
+
+
+def cube_weights(modes: int, size: int | None = None, *, shape: str | None = None
+                 ) -> np.ndarray:
+    """(L, L, L) float64: the kept cube's mode weights.
+
+    The outer product of :func:`kept_weights` along the three axes, times 0 outside the
+    ball of radius ``K // 2 + 1/2`` when the band is a ball (:data:`BAND_SHAPE`) and
+    truncated (``modes < size``, or ``size`` None).
+    """
+    shape = BAND_SHAPE if shape is None else shape
+    if shape not in SHAPES:
+        raise ValueError(f"unknown band shape {shape!r}; valid: {', '.join(SHAPES)}")
     w = kept_weights(modes, size)
-    return w[:, None, None] * w[None, :, None] * w[None, None, :]
+    cube = w[:, None, None] * w[None, :, None] * w[None, None, :]
+    if shape == "ball" and (size is None or modes < size):
+        half = int(modes) // 2
+        k = np.arange(-half, half + 1, dtype=np.float64) ** 2
+        cube = cube * ((k[:, None, None] + k[None, :, None] + k[None, None, :])
+                       <= (half + 0.5) ** 2)
+    return cube
 
 
 def refined_table(

@@ -31,6 +31,7 @@ from engine.correlation.spectrum import (
     kept_indices,
     refined_table,
 )
+from engine.correlation.support import supported, window_on
 from engine.errors import Cancelled
 from engine.grid import Grid
 
@@ -223,6 +224,9 @@ def build_spectra(
             progress(fraction)
 
     step(0.0)
+    if window_on():  # each tail ends at one distance from its part, all round
+        fixed_rho = supported(fixed_rho, fixed_grid)
+        moving_rho = supported(moving_rho, moving_grid)
     q = max(1, int(math.ceil(oversample * max(moving_grid.shape) / size)))
     fixed = compute_spectrum(fixed_rho, fixed_grid, size, moments=False, use_cache=use_cache)
     step(0.3)

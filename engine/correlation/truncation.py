@@ -3,9 +3,9 @@
 Works on two descriptors (``rho (nx, ny, nz) complex64`` on grids of one spacing ``h``) and
 the padded FFT size ``N`` of their correlation. The score is a sum over the frequency
 lattice ``w = k / (N h)`` of ``rho1^(w)`` times part 2's spectrum at the rotated frequency
-and a unit phase; keeping the cube of ``K`` modes per axis at the band's weights ``W_K(k)``
-(:func:`engine.correlation.spectrum.kept_weights`: 1 at ``k = 0``, tapered towards the
-band's ends, 0 outside) drops the rest, so at part 2's scene orientation (``R = I``) the
+and a unit phase; keeping the band of ``K`` at its weights ``W_K(k)``
+(:func:`engine.correlation.spectrum.cube_weights`: 1 at ``k = 0``, 0 outside the band's
+ball, or cube) drops the rest, so at part 2's scene orientation (``R = I``) the
 dropped part of the score is at most
 
     sum over k of (1 - W_K(k)) |rho1^(k)| |rho2^(k)|
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
-from engine.correlation.spectrum import kept_indices, kept_weights
+from engine.correlation.spectrum import cube_weights, kept_indices
 
 #: FFT workers (the target machine has two cores).
 WORKERS = 2
@@ -79,8 +79,7 @@ def truncation_profile(fixed, moving, size: int, *, quantity: str = "energy") ->
     inside = np.zeros(size + 1)
     for k in range(1, size):
         index = np.mod(kept_indices(k, size) + size // 2, size)
-        w = kept_weights(k, size)
         block = centred[np.ix_(index, index, index)]
-        inside[k] = float(w @ (np.tensordot(block, w, axes=([2], [0])) @ w))
+        inside[k] = float(np.sum(block * cube_weights(k, size)))
     inside[size] = total  # the whole lattice, untapered (the Nyquist index wraps onto itself)
     return np.clip(1.0 - inside / total, 0.0, 1.0)

@@ -118,6 +118,12 @@ class FitMeasure:
         The 10th percentile of those gaps.
     points : int
         Part 2's surface points within reach of part 1.
+    cylinder : (centre (3,), axis (3,), radius, half_length) or None
+        The same points' cylinder about the insertion axis (part 1's frame): the centre of
+        their extents along the axis and across it, their largest distance from the axis
+        line and half their extent along it. None without an axis. Unlike the box, it
+        turns with the parts: a fit symmetric about a plane through its axis is symmetric
+        in it, whatever the planes of part 1's grid.
     """
 
     size: float
@@ -127,6 +133,7 @@ class FitMeasure:
     clearance: float | None
     tightest: float | None
     points: int
+    cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None
 
 
 def _surface_points(part: Part, count: int) -> np.ndarray:
@@ -208,20 +215,27 @@ def _measure_fit(fixed: Part, moving: Part, pose: np.ndarray,
                 fitting = tighter
     zone = placed[fitting] if fitting.sum() >= 8 else placed[near] if near.sum() >= 8 else v2
     a = None if axis is None else np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    cylinder = None
     if a is None:
         width = float(np.min(np.ptp(zone, axis=0)))
     else:
         across = zone - np.outer(zone @ a, a)  # projected on the plane across the axis
         centred = across - across.mean(axis=0)
         _, _, vt = np.linalg.svd(centred, full_matrices=False)
-        extents = np.ptp(centred @ vt[:2].T, axis=0)
+        spread = centred @ vt[:2].T
+        extents = np.ptp(spread, axis=0)
         width = float(np.min(extents))
+        mid = across.mean(axis=0) + (0.5 * (spread.min(axis=0) + spread.max(axis=0))) @ vt[:2]
+        along = zone @ a
+        centre = mid + a * 0.5 * float(along.min() + along.max())
+        radius = float(np.max(np.linalg.norm(across - mid, axis=1)))
+        cylinder = (centre, a, radius, 0.5 * float(np.ptp(along)))
     open_gaps = gap[fitting]
     clearance = float(np.median(open_gaps)) if len(open_gaps) else None
     tightest = float(np.percentile(open_gaps, 10)) if len(open_gaps) else None
     return FitMeasure(size=size, box_lo=zone.min(axis=0), box_hi=zone.max(axis=0),
                       width=max(width, 1e-9 * size), clearance=clearance, tightest=tightest,
-                      points=int(near.sum()))
+                      points=int(near.sum()), cylinder=cylinder)
 
 
 def _odd_at_most(k: int) -> int:

@@ -64,6 +64,12 @@ def test_the_fit_is_measured_at_the_seat(clearance):
     assert fit.box_lo[2] == pytest.approx(-12.0, abs=0.5)
     assert fit.box_hi[2] == pytest.approx(0.0, abs=1.0)
     assert np.all(fit.box_hi[:2] - fit.box_lo[:2] < 10.0 + 4 * clearance)
+    # and its cylinder about the axis: on the bore's axis, the peg's radius, as deep
+    centre, axis, radius, half = fit.cylinder
+    assert abs(float(axis @ AXIS)) == pytest.approx(1.0, abs=1e-9)
+    assert np.linalg.norm(centre[:2]) < 0.05 and radius == pytest.approx(5.0, rel=0.02)
+    assert centre[2] - half == pytest.approx(fit.box_lo[2], abs=1e-6)
+    assert centre[2] + half == pytest.approx(fit.box_hi[2], abs=1e-6)
 
 
 def test_a_fit_measured_again_is_kept_as_it_was(monkeypatch):

@@ -42,14 +42,14 @@ def ladders(cache, small_peg_scene):
     spacing = scene_spacing(scene, parts)
     grids = [grid_for_part(p, spacing=spacing, padding=scene.descriptor.padding)
              for p in parts]
-    before = [lad.ladder_cached(p, g, scene.descriptor) for p, g in zip(parts, grids)]
+    before = [lad.ladder_cached(p, g, scene.descriptor) for p, g in zip(parts, grids, strict=True)]
     for part, grid in zip(parts, grids, strict=True):
         seen: list[float] = []
         nodes = lad.ladder_for_part(part, grid, scene.descriptor, progress=seen.append)
         assert [d.params.sigma for d in nodes] == pytest.approx(list(lad.ladder_sigmas()))
         assert seen and seen[-1] == 1.0 and seen == sorted(seen)
     assert not any(before), "a fresh cache holds no ladder"
-    assert all(lad.ladder_cached(p, g, scene.descriptor) for p, g in zip(parts, grids))
+    assert all(lad.ladder_cached(p, g, scene.descriptor) for p, g in zip(parts, grids, strict=True))
     assert lad.scene_ladder_cached(scene, parts)
     return scene, parts, grids
 
