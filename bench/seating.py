@@ -549,6 +549,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "band, each descriptor's tail ended at one distance from its part, "
                         "the fine level's window a cylinder about the insertion axis "
                         "(docs/fine_level.md)")
+    parser.add_argument("--taper", choices=("lanczos", "none"), default=None,
+                        help="the kept band's taper (default: the engine's, "
+                        "engine.correlation.spectrum.BAND_TAPER)")
 
 
 def use_symmetric_windows() -> None:
@@ -557,6 +560,16 @@ def use_symmetric_windows() -> None:
     from engine.sim import fine
 
     spectrum.BAND_SHAPE, support.SUPPORT_WINDOW, fine.WINDOW_SHAPE = "ball", True, "cylinder"
+
+
+def use_options(symmetric: bool, taper: str | None) -> None:
+    """The engine options a run asked for: here, and in each pool process as it starts."""
+    if symmetric:
+        use_symmetric_windows()
+    if taper is not None:
+        from engine.correlation import spectrum
+
+        spectrum.BAND_TAPER = taper
 
 
 class _Progress:
@@ -596,8 +609,8 @@ class _Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark: table on stdout, plot to ``args.output``."""
-    if getattr(args, "symmetric", False):
-        use_symmetric_windows()  # here; a pool's processes switch them on as they start
+    # here; a pool's processes switch them on as they start
+    use_options(getattr(args, "symmetric", False), getattr(args, "taper", None))
     if getattr(args, "generated", None) is not None:
         return run_generated(args)
     names = args.pairs or pair_names()
@@ -767,9 +780,10 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
 
     # fresh interpreters: a fork would copy this process's numba and OpenCL threads' state
     spawn = multiprocessing.get_context("spawn")
-    start = use_symmetric_windows if getattr(args, "symmetric", False) else None
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn,
-                             initializer=start) as pool:
+                             initializer=use_options,
+                             initargs=(getattr(args, "symmetric", False),
+                                       getattr(args, "taper", None))) as pool:
         futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend,
                                not args.full): (c, g) for c, g in jobs}
         bar.begin(0, f"{args.workers} runs at a time")
