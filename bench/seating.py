@@ -544,28 +544,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "already is reused)")
     parser.add_argument("--workers", type=int, default=1,
                         help="runs at once, each in its own process (default 1)")
-    parser.add_argument("--symmetric", action="store_true",
-                        help="the options that turn with the parts, off by default: a ball "
-                        "band, each descriptor's tail ended at one distance from its part, "
-                        "the fine level's window a cylinder about the insertion axis "
-                        "(docs/fine_level.md)")
+    parser.add_argument("--windows", choices=("part", "grid"), default=None,
+                        help="part: the engine's default windows, which turn with the parts "
+                        "(a ball band, each descriptor's tail ended at one distance from its "
+                        "part, the fine level's window a cylinder about the insertion axis); "
+                        "grid: the earlier ones along the grid's planes (a cube band, tails "
+                        "cut by the grids, a box window), to compare (docs/fine_level.md)")
     parser.add_argument("--taper", choices=("lanczos", "none"), default=None,
                         help="the kept band's taper (default: the engine's, "
                         "engine.correlation.spectrum.BAND_TAPER)")
 
 
-def use_symmetric_windows() -> None:
-    """Switch on the windows that turn with the parts (``--symmetric``; docs/fine_level.md)."""
+def use_windows(windows: str) -> None:
+    """The windows that turn with the parts ("part") or lie along the grid ("grid")."""
     from engine.correlation import spectrum, support
     from engine.sim import fine
 
-    spectrum.BAND_SHAPE, support.SUPPORT_WINDOW, fine.WINDOW_SHAPE = "ball", True, "cylinder"
+    part = windows == "part"
+    spectrum.BAND_SHAPE = "ball" if part else "cube"
+    support.SUPPORT_WINDOW = part
+    fine.WINDOW_SHAPE = "cylinder" if part else "box"
 
 
-def use_options(symmetric: bool, taper: str | None) -> None:
+def use_options(windows: str | None, taper: str | None) -> None:
     """The engine options a run asked for: here, and in each pool process as it starts."""
-    if symmetric:
-        use_symmetric_windows()
+    if windows is not None:
+        use_windows(windows)
     if taper is not None:
         from engine.correlation import spectrum
 
@@ -610,7 +614,7 @@ class _Progress:
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark: table on stdout, plot to ``args.output``."""
     # here; a pool's processes switch them on as they start
-    use_options(getattr(args, "symmetric", False), getattr(args, "taper", None))
+    use_options(getattr(args, "windows", None), getattr(args, "taper", None))
     if getattr(args, "generated", None) is not None:
         return run_generated(args)
     names = args.pairs or pair_names()
@@ -782,7 +786,7 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn,
                              initializer=use_options,
-                             initargs=(getattr(args, "symmetric", False),
+                             initargs=(getattr(args, "windows", None),
                                        getattr(args, "taper", None))) as pool:
         futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend,
                                not args.full): (c, g) for c, g in jobs}

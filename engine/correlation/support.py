@@ -60,10 +60,12 @@ def hull_distance(inside: np.ndarray) -> np.ndarray | None:
         planes = ConvexHull(rim).equations  # (f, 4): unit normal, offset; inside <= 0
     except (QhullError, ValueError):
         return None
-    # at every second sample along each axis (and the last), read in between linearly:
-    # the distance is Lipschitz and convex, and its taper spans cells
-    axes = [np.unique(np.r_[np.arange(0, n, 2), n - 1]).astype(np.float64)
-            for n in inside.shape]
+    # on a lattice of about half the samples along each axis, read in between linearly:
+    # the distance is Lipschitz and convex, and its taper spans cells. The lattice is
+    # spread evenly from the first sample to the last, so it is as symmetric as the grid
+    # (every second sample from the first is not, on an even count, and a mirror-symmetric
+    # pair then felt a force across its plane)
+    axes = [np.linspace(0.0, n - 1.0, max(2, (n + 1) // 2 + 1)) for n in inside.shape]
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     best = np.empty(len(points))
     for start in range(0, len(points), _CHUNK):  # (chunk, f) plane distances at a time

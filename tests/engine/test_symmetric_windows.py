@@ -114,3 +114,22 @@ def test_no_window_where_there_is_no_room_or_no_volume():
     assert hull_distance(flat) is None  # a plane spans no volume
     with pytest.raises(ValueError, match="shape"):
         support_window(rho[:-1], grid)
+
+
+@pytest.mark.parametrize("shape", [(24, 20, 17), (25, 21, 16)])
+def test_the_support_window_of_a_mirror_symmetric_part_is_mirror_symmetric(shape):
+    """A box centred on its grid, even and odd sample counts: the window is the same at
+    every sample and its mirror images through the grid's mid-planes (its lattice of hull
+    distances is spread evenly over the grid, not every second sample from the first).
+    """
+    grid = Grid((0.0, 0.0, 0.0), 1.0, shape)
+    n = np.array(shape)
+    inside = np.zeros(shape, bool)
+    inside[tuple(slice(k // 2 - k // 4, k - (k // 2 - k // 4)) for k in n)] = True
+    assert all(np.array_equal(inside, np.flip(inside, axis=a)) for a in range(3))
+    rho = np.where(inside, 3.0j, -1.0j).astype(np.complex64)
+    w = support_window(rho, grid)
+    assert w is not None and w.min() == 0.0 and w.max() == 1.0
+    assert np.count_nonzero((w > 0.0) & (w < 1.0)) > 100  # a taper between
+    for axis in range(3):
+        np.testing.assert_allclose(w, np.flip(w, axis=axis), atol=1e-6)
