@@ -58,7 +58,8 @@ def symmetric_scene(tmp_path_factory):
 def test_a_mirror_symmetric_pair_feels_no_side_force_or_tilting_torque(
         symmetric_scene, modes, backend, windows, monkeypatch):
     """With the band and tails as they are ("grid") and with the windows that turn with
-    the parts ("part": a ball band, the tails windowed, docs/fine_level.md), tapered too."""
+    the parts ("part": a ball band, the tails windowed, docs/fine_level.md), tapered too.
+    """
     from engine.correlation import spectrum, support
     from engine.correlation.from_scene import correlator_for_scene
 
