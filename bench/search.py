@@ -41,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``skelasm bench search`` to ``parser``."""
     parser.add_argument("--pairs", choices=("bundled", "real", "all"), default="bundled",
                         help="which scenes (default: the bundled pairs)")
-    parser.add_argument("--scene", nargs="+", help="these scenes instead")
+    parser.add_argument("--scene", nargs="+", help="these scenes instead (a generated "
+                        "pair's, with its fit.json beside it, judged by that truth)")
     parser.add_argument("--generated", type=int, metavar="N",
                         help="N unseen pairs of bench.fitgen instead (with --seed), judged "
                         "against their ground truth (fit.json)")
@@ -147,7 +148,12 @@ def run(args: argparse.Namespace) -> int:
         scenes = sorted(folder.glob("*/scene.toml"))
         truths = {p: read_truth(p.parent / TRUTH_FILE) for p in scenes}
     elif args.scene:
+        from bench.fitgen.truth import TRUTH_FILE, read_truth
+
         scenes = [Path(s) for s in args.scene]
+        # a generated pair kept in its folder (bench seating --keep) is judged by its truth
+        truths = {p: read_truth(p.parent / TRUTH_FILE) for p in scenes
+                  if (p.parent / TRUTH_FILE).is_file()}
     else:
         scenes = []
         if args.pairs in ("bundled", "all"):
