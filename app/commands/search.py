@@ -91,6 +91,9 @@ def result_json(result, scene, scale, where: str) -> dict:
                                     "point": [round(float(v), 6) for v in p]}
                                    for a, p in f.joint.turns],
             },
+            "contact": None if f.contact is None else {
+                "touching": round(f.contact.touching, 4), "inside": round(f.contact.inside, 4),
+                "depth": round(f.contact.depth, 6)},
             "seconds": round(f.seconds, 4),
         })
     return {
@@ -184,7 +187,10 @@ def run(args: argparse.Namespace) -> int:
             f"turn {_vec(a)} through {_vec(p)}" for a, p in f.joint.turns]
         print(f"fit {f.rank}      pose {pose}  E = {f.energy:.5g} {scale.units.energy}  "
               f"cluster {f.cluster_size}  {f.joint.kind} ({f.joint.confidence:.2f})"
-              + (f": {'; '.join(axes)}" if axes else ""))
+              + (f": {'; '.join(axes)}" if axes else "")
+              + ("" if f.contact is None else
+                 f"  touching {100 * f.contact.touching:.0f} %, "
+                 f"inside {100 * f.contact.inside:.0f} %"))
     if args.output:
         print(f"wrote      {args.output}")
     return 0

@@ -13,7 +13,9 @@ fine:
 3. each of the best ``clusters`` clusters' leader refined: down the rotation grid's
    children at the refinement's modes, then a local minimisation by force and torque
    (:mod:`engine.search.refine`); refined fits that meet merge;
-4. the joint kind of each fit (:mod:`engine.search.joint`).
+4. with the parts' meshes, the fits ranked again by how the parts meet there: touching
+   first, then not through a wall, then by energy (:mod:`engine.search.rescore`);
+5. the joint kind of each fit (:mod:`engine.search.joint`).
 
 The same settings and seed give the same fits, wherever the blocks run.
 """
@@ -33,6 +35,7 @@ from engine.search.cluster import cluster_poses, surface_spread
 from engine.search.joint import Joint, Surfaces, find_joint, motion_joint
 from engine.search.opencl_scan import scan_for, supports
 from engine.search.refine import Landscapes, descend, minimise
+from engine.search.rescore import Contact, contact, rerank
 from engine.search.rotations import RotationGrid
 from engine.search.scan import BlockResult, Candidates, ScanBlock
 from engine.search.settings import SearchSettings
@@ -52,7 +55,8 @@ class Fit:
     Attributes
     ----------
     rank : int
-        1 for the lowest energy.
+        1 for the best: the lowest energy, or where the search had the parts' meshes the
+        lowest of the fits that touch without going through a wall.
     rotation : (3, 3) float64
     translation : (3,) float64
     energy : float
@@ -64,6 +68,9 @@ class Fit:
     joint : Joint
     seconds : float
         Time its refinement and classification took.
+    contact : Contact or None
+        How the parts meet there, on the meshes (:mod:`engine.search.rescore`); None where
+        the search had no surfaces (then the rank is the energy's alone).
     """
 
     rank: int
@@ -74,6 +81,7 @@ class Fit:
     cluster_size: int
     joint: Joint
     seconds: float
+    contact: Contact | None = None
 
     @property
     def pose(self) -> np.ndarray:
@@ -198,13 +206,19 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         fits.append((energy, rot, t, float(kept.energy[row]), len(groups.members[i]),
                      time.perf_counter() - began))
         report(SCAN_SHARE + (0.97 - SCAN_SHARE) * (i + 1) / count)
-    merged = _merge(fits, pts, s.cluster_radius * size)[:s.top]
+    merged = _merge(fits, pts, s.cluster_radius * size)
+    contacts: list[Contact | None] = [None] * len(merged)
+    if surfaces is not None:  # ranked again by how the parts meet on their meshes
+        contacts = [contact(surfaces, f[1], f[2], size) for f in merged]
+        order = rerank([c for c in contacts if c is not None], [f[0] for f in merged])
+        merged, contacts = [merged[i] for i in order], [contacts[i] for i in order]
     out = []
-    for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged, start=1):
+    for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged[:s.top],
+                                                                           start=1):
         began = time.perf_counter()
         joint = _joint(fine, rot, t, 0.5 * size, surfaces)
         out.append(Fit(rank, rot, t, energy, scan_energy, members, joint,
-                       seconds + time.perf_counter() - began))
+                       seconds + time.perf_counter() - began, contacts[rank - 1]))
     report(1.0)
     return SearchResult(
         fits=tuple(out), settings=s, modes=fine.modes, lattice=lattice,

@@ -31,6 +31,8 @@ def test_json_gives_the_ranked_fits_with_their_joints(scene, tmp_path, capsys):
     (axis,) = best["joint"]["free_translations"]
     assert abs(axis[2]) > 0.97
     assert abs(best["pose"][0]) < 0.5 and abs(best["pose"][1]) < 0.5
+    # how the parts meet there, on their meshes: touching, not through the bore's wall
+    assert best["contact"]["touching"] > 0.05 and best["contact"]["inside"] < 0.05
 
 
 @pytest.mark.parametrize("argv, message", [
