@@ -13,8 +13,9 @@ fine:
 3. each of the best ``clusters`` clusters' leader refined: down the rotation grid's
    children at the refinement's modes, then a local minimisation by force and torque
    (:mod:`engine.search.refine`); refined fits that meet merge;
-4. with the parts' meshes, the fits ranked again by how the parts meet there: touching
-   first, then not through a wall, then by energy (:mod:`engine.search.rescore`);
+4. with the parts' meshes, each fit moved out of part 1's walls by the least rigid motion
+   and the fits ranked again by how the parts meet there: touching first, then not
+   through a wall, then by energy (:mod:`engine.search.rescore`);
 5. the joint kind of each fit (:mod:`engine.search.joint`).
 
 The same settings and seed give the same fits, wherever the blocks run.
@@ -35,7 +36,7 @@ from engine.search.cluster import cluster_poses, surface_spread
 from engine.search.joint import Joint, Surfaces, find_joint, motion_joint
 from engine.search.opencl_scan import scan_for, supports
 from engine.search.refine import Landscapes, descend, minimise
-from engine.search.rescore import Contact, contact, rerank
+from engine.search.rescore import Contact, contact, polish, rerank
 from engine.search.rotations import RotationGrid
 from engine.search.scan import BlockResult, Candidates, ScanBlock
 from engine.search.settings import SearchSettings
@@ -208,7 +209,8 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         report(SCAN_SHARE + (0.97 - SCAN_SHARE) * (i + 1) / count)
     merged = _merge(fits, pts, s.cluster_radius * size)
     contacts: list[Contact | None] = [None] * len(merged)
-    if surfaces is not None:  # ranked again by how the parts meet on their meshes
+    if surfaces is not None:  # out of the walls, then ranked again by how the parts meet
+        merged = [_polished(fine, surfaces, f, size) for f in merged]
         contacts = [contact(surfaces, f[1], f[2], size) for f in merged]
         order = rerank([c for c in contacts if c is not None], [f[0] for f in merged])
         merged, contacts = [merged[i] for i in order], [contacts[i] for i in order]
@@ -225,6 +227,19 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
         step=fine.size * fine.spacing / lattice, candidates=len(kept),
         clusters=len(groups.leaders), scan_seconds=scan_seconds,
         seconds=time.perf_counter() - start, scan_backend=backend)
+
+
+def _polished(fine: Correlator, surfaces: Surfaces,
+              fit: tuple[float, np.ndarray, np.ndarray, float, int, float], size: float
+              ) -> tuple[float, np.ndarray, np.ndarray, float, int, float]:
+    """A refined fit moved out of part 1's walls (:func:`polish`), its energy there."""
+    began = time.perf_counter()
+    energy, rot, t, scan_energy, members, seconds = fit
+    new_rot, new_t = polish(surfaces, rot, t, size)
+    if not (np.array_equal(new_rot, rot) and np.array_equal(new_t, t)):
+        energy = float(fine.evaluate(new_rot, new_t).energy)
+    return (energy, new_rot, new_t, scan_energy, members,
+            seconds + time.perf_counter() - began)
 
 
 def _even_above(value: int) -> int:

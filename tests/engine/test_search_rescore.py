@@ -64,3 +64,34 @@ def test_rerank_puts_touching_first_then_not_through_a_wall_then_energy():
     # the energy's order where the contacts do not differ
     assert rerank([seat, seat, seat], [-1.0, -3.0, -2.0]) == [1, 2, 0]
     assert rerank([], []) == []
+
+
+@pytest.mark.parametrize("start, turn", [
+    ((1.5, 0.0, -10.0), (0.0, 0.0, 0.0)),       # 1.4 mm through the pocket's wall
+    ((0.0, 0.0, -11.0), (0.0, 0.0, 0.0)),       # 1 mm past the pocket's floor
+    ((0.0, 0.0, -9.0), (0.0, 0.06, 0.04)),      # turned 4 degrees through two walls
+])
+def test_the_polish_moves_a_part_out_of_the_walls_to_its_seat(box_in_pocket, start, turn):
+    from engine.pose import rotation_matrix, rotation_vector
+    from engine.search.rescore import polish
+
+    rot0, t0 = rotation_matrix(np.array(turn)), np.array(start)
+    before = contact(box_in_pocket, rot0, t0, SIZE)
+    assert before.inside > 0.01
+    rot, t = polish(box_in_pocket, rot0, t0, SIZE)
+    after = contact(box_in_pocket, rot, t, SIZE)
+    assert after.inside < 0.1 * before.inside and after.depth < 2 * NEAR
+    assert after.touches
+    # in the pocket, square to it, within the fit's play and the polish's tolerance
+    assert np.degrees(np.linalg.norm(rotation_vector(rot))) < 1.0
+    assert np.all(np.abs(t[:2]) < 0.1 + NEAR * SIZE)
+    assert -10.0 - NEAR * SIZE <= t[2] < -8.0
+
+
+def test_the_polish_leaves_a_part_that_is_not_in_a_wall_where_it_is(box_in_pocket):
+    from engine.search.rescore import polish
+
+    t0 = np.array([0.05, -0.05, -9.5])
+    rot, t = polish(box_in_pocket, np.eye(3), t0, SIZE)
+    np.testing.assert_array_equal(rot, np.eye(3))
+    np.testing.assert_array_equal(t, t0)
