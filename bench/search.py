@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="N unseen pairs of bench.fitgen instead (with --seed), judged "
                         "against their ground truth (fit.json)")
     parser.add_argument("--seed", type=int, help="the seed of --generated")
+    parser.add_argument("--keep", metavar="DIR", help="with --generated: write the pairs "
+                        "into DIR and keep them (a DIR holding this seed and count already is "
+                        "reused; default: a temporary folder)")
     parser.add_argument("--angle", type=float, nargs="+", default=[30.0],
                         help="rotation grid spacings in degrees (default 30)")
     parser.add_argument("--scan-modes", type=int, default=16, help="scan modes (default 16)")
@@ -143,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
 
         if args.seed is None:
             raise ValueError("--generated needs --seed")
-        folder = Path(tempfile.mkdtemp(prefix=f"skelasm-search-{args.seed}-"))
+        folder = (Path(args.keep) if getattr(args, "keep", None)
+                  else Path(tempfile.mkdtemp(prefix=f"skelasm-search-{args.seed}-")))
         generate(args.generated, args.seed, folder)
         scenes = sorted(folder.glob("*/scene.toml"))
         truths = {p: read_truth(p.parent / TRUTH_FILE) for p in scenes}
