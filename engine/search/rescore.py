@@ -96,8 +96,13 @@ def rerank(contacts: list[Contact], energies: list[float]) -> list[int]:
 
 
 #: The polish's rounds, and the share of part 2's size a round may move its samples.
-POLISH_ROUNDS = 12
+POLISH_ROUNDS = 8
 POLISH_STEP = 0.05
+#: The polish moves a fit with at least this share of part 2's samples inside part 1.
+POLISH_FROM = 0.005
+#: The polish moves every this-many-th of the surface samples (1,000 of 3,000): on a part 1
+#: of 16,000 triangles the exact distance costs about 0.2 ms a sample.
+POLISH_STRIDE = 3
 
 
 def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
@@ -107,12 +112,13 @@ def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
     The energy's fit is as sharp as its cell: a peg may end a few degrees tilted through
     both sides of its bore, or a fraction of a cell past a floor. Each round takes the
     samples deeper than :data:`NEAR` of ``size`` inside part 1, the outward direction of
-    part 1's surface at each (central differences of the exact signed distance), and
+    part 1's surface at each (forward differences of the exact signed distance), and
     solves for the small rigid motion (a slide ``v`` and a turn ``w`` about their centre
     ``c``) that carries each out by its depth: ``n_i . (v + w x (p_i - c)) = depth_i``, in
     least squares with a little damping, the move capped at :data:`POLISH_STEP` of
-    ``size``. A round is kept only where it leaves less of part 2 inside; the polish ends
-    where nothing is inside or a round no longer helps. Returns the rotation and
+    ``size``. A round is kept only where it leaves less of part 2 inside (a third of the
+    samples are moved, :data:`POLISH_STRIDE`); the polish ends where under
+    :data:`POLISH_FROM` of them are inside or a round no longer helps. Returns the rotation and
     translation (the given ones where nothing was inside).
     """
     from engine.descriptor.compute import signed_distance
@@ -124,8 +130,10 @@ def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
     length = 0.5 * float(size)
     fixed_v, fixed_f = surfaces.fixed_vertices, surfaces.fixed_faces
 
+    samples = surfaces.points[::POLISH_STRIDE]  # area-uniform still: they are drawn at random
+
     def depths(r: np.ndarray, tt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        placed = surfaces.points @ r.T + tt
+        placed = samples @ r.T + tt
         return placed, signed_distance(fixed_v, fixed_f, placed)
 
     placed, d = depths(rot, t)
@@ -133,12 +141,13 @@ def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
     eps = 0.25 * tol
     for _ in range(POLISH_ROUNDS):
         inside = d < -tol
-        if not inside.any():
+        if np.mean(inside) < POLISH_FROM:
             break
         p = placed[inside]
-        grads = np.stack([
-            signed_distance(fixed_v, fixed_f, p + eps * e) - signed_distance(
-                fixed_v, fixed_f, p - eps * e) for e in np.eye(3)], axis=1) / (2 * eps)
+        # forward differences, the three axes in one call (each call has its own set-up)
+        shifted = signed_distance(fixed_v, fixed_f,
+                                  np.concatenate([p + eps * e for e in np.eye(3)]))
+        grads = (shifted.reshape(3, -1).T - d[inside][:, None]) / eps
         norms = np.linalg.norm(grads, axis=1)
         ok = norms > 0.5  # away from the medial axis, where the direction is a surface's
         if ok.sum() < 3:
@@ -155,15 +164,19 @@ def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
         reach = float(np.linalg.norm(v)) + float(np.linalg.norm(w)) * length
         if reach > POLISH_STEP * size:
             v, w = v * (POLISH_STEP * size / reach), w * (POLISH_STEP * size / reach)
-        for fraction in (1.0, 0.5, 0.25, 0.125):  # the linear model overshoots at edges
+        # the whole step and its halvings (the linear model overshoots at edges), in one
+        # call; the longest that helps is taken
+        tries = []
+        for fraction in (1.0, 0.5, 0.25):
             turn = rotation_matrix(fraction * w)
-            new_rot = turn @ rot
-            new_t = turn @ (t - c) + c + fraction * v
-            new_placed, new_d = depths(new_rot, new_t)
-            new_score = float(np.sum(np.maximum(0.0, -new_d - tol)))
-            if new_score < 0.98 * score:
-                break
-        else:
+            tries.append((turn @ rot, turn @ (t - c) + c + fraction * v))
+        moved = np.concatenate([samples @ r.T + tt for r, tt in tries])
+        found = signed_distance(fixed_v, fixed_f, moved).reshape(len(tries), -1)
+        scores = np.sum(np.maximum(0.0, -found - tol), axis=1)
+        better = np.flatnonzero(scores < 0.98 * score)
+        if not len(better):
             break
-        rot, t, placed, d, score = new_rot, new_t, new_placed, new_d, new_score
+        k = int(better[0])
+        rot, t = tries[k]
+        placed, d, score = moved.reshape(len(tries), -1, 3)[k], found[k], float(scores[k])
     return rot, t
