@@ -211,9 +211,9 @@ def find_fits(correlator: Correlator, settings: SearchSettings | None = None, *,
     contacts: list[Contact | None] = [None] * len(merged)
     if surfaces is not None:  # out of the walls, then ranked again by how the parts meet
         merged = [_polished(fine, surfaces, f, size) for f in merged]
-        contacts = [contact(surfaces, f[1], f[2], size) for f in merged]
-        order = rerank([c for c in contacts if c is not None], [f[0] for f in merged])
-        merged, contacts = [merged[i] for i in order], [contacts[i] for i in order]
+        measured = [contact(surfaces, f[1], f[2], size) for f in merged]
+        order = rerank(measured, [f[0] for f in merged])
+        merged, contacts = [merged[i] for i in order], [measured[i] for i in order]
     out = []
     for rank, (energy, rot, t, scan_energy, members, seconds) in enumerate(merged[:s.top],
                                                                            start=1):

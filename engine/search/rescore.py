@@ -37,8 +37,8 @@ from engine.search.joint import Surfaces
 NEAR = 0.01
 #: Parts touch where at least this share of part 2's samples does.
 TOUCH_FRACTION = 0.01
-#: A fit whose share of samples inside part 1 exceeds the least of all fits by more than
-#: this goes through a wall, where another fit does not.
+#: A fit whose share of samples inside part 1 exceeds the least of the touching fits by
+#: more than this goes through a wall, where another fit does not.
 DEPTH_SLACK = 0.05
 
 
@@ -118,8 +118,8 @@ def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
     least squares with a little damping, the move capped at :data:`POLISH_STEP` of
     ``size``. A round is kept only where it leaves less of part 2 inside (a third of the
     samples are moved, :data:`POLISH_STRIDE`); the polish ends where under
-    :data:`POLISH_FROM` of them are inside or a round no longer helps. Returns the rotation and
-    translation (the given ones where nothing was inside).
+    :data:`POLISH_FROM` of them are inside or a round no longer helps. Returns the rotation
+    and translation (equal to the given ones where too little was inside).
     """
     from engine.descriptor.compute import signed_distance
     from engine.pose import rotation_matrix
