@@ -131,12 +131,8 @@ def polish(surfaces: Surfaces, rotation: np.ndarray, translation: np.ndarray,
     fixed_v, fixed_f = surfaces.fixed_vertices, surfaces.fixed_faces
 
     samples = surfaces.points[::POLISH_STRIDE]  # area-uniform still: they are drawn at random
-
-    def depths(r: np.ndarray, tt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        placed = samples @ r.T + tt
-        return placed, signed_distance(fixed_v, fixed_f, placed)
-
-    placed, d = depths(rot, t)
+    placed = samples @ rot.T + t
+    d = signed_distance(fixed_v, fixed_f, placed)
     score = float(np.sum(np.maximum(0.0, -d - tol)))
     eps = 0.25 * tol
     for _ in range(POLISH_ROUNDS):
