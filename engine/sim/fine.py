@@ -74,6 +74,21 @@ SAMPLES_BUDGET = 100 ** 3
 #: seats (1.20 % of its width, against 8.36 %) and the other four do as they did
 #: (docs/measurements/seating_generated.md).
 MAX_RATIO = 2
+#: Part 1's faces that stop part 2 (outward normal within 60 degrees of against the
+#: insertion axis, where the walls push part 2's leading faces back) are set back into part
+#: 1 by this many fine cells in the level's density (:func:`set_back_stops`). The level
+#: blurs every face by about a fine cell on each side (the trilinear interpolant and the
+#: ``[1, 2, 1] / 4`` smoothing of both parts), and where part 2's inside meets part 1's the
+#: penalty's slope is several times the fit's pull: the blurred penalty balanced that pull
+#: about 1.5 fine cells short of contact, so a hub rested 0.52 mm short of its collar and a
+#: T-slot slide or a dovetail short of its stop. Set back, the level's own pull reaches the
+#: face and the walls, exact there, hold it.
+STOP_CELLS = 1.5
+#: Only the faces part 2 rests on at the seat are set back: within this many fine cells of
+#: its leading points there. Part 1's other faces against the axis (a through hole's rim,
+#: a plate's top) keep theirs: with every such face set back, the 12 mm rectangular Factory
+#: peg, which enters its hole over the rim, jammed 4.09 degrees tilted at the mouth.
+STOP_REACH_CELLS = 3.0
 
 
 def _aligned_grid(lo: np.ndarray, hi: np.ndarray, coarse: Grid, ratio: int,
@@ -198,12 +213,56 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
         np.asarray(assembled_pose, float)[3:]).T @ np.asarray(axis, float)
     walls = wall_shell(fixed, moving, g1 if g1 is not None else nodes, g2, lead=lead,
                        progress=stage(0.8, 1.0), cancel=cancel)
+    if walls is not None and g1 is not None and rho1 is not None and axis is not None:
+        seat = rotation_matrix(pose[3:])
+        rho1 = set_back_stops(rho1, g1, walls.distance, np.asarray(axis, float),
+                              STOP_CELLS * g1.spacing, walls.points @ seat.T + pose[:3])
     return NearLevel.from_samples(
         nodes, node_rho, (lo1, hi1, taper), g1, rho1,
         g2, rho2, smooth_window(g2, lo2, hi2, taper),
         moving_desc.grid, moving_desc.rho, walls=walls,
         anchor=(0.5 * (lo1 + hi1) - pose[:3]) @ rotation_matrix(pose[3:]),
         cylinder=None if cylinder is None else grown_cylinder(cylinder, h))
+
+
+def set_back_stops(rho: np.ndarray, grid: Grid, distance: np.ndarray, axis: np.ndarray,
+                   depth: float, seated: np.ndarray | None = None) -> np.ndarray:
+    """``rho`` on ``grid`` with part 1's stop faces set back by ``depth`` (see :data:`STOP_CELLS`).
+
+    A sample inside part 1 (``distance`` < 0, part 1's signed distance on ``grid``) within
+    ``depth`` of a face whose outward normal (the distance's gradient) points against
+    ``axis`` (part 2's direction of travel, part 1's frame) by less than 60 degrees, and
+    (with ``seated``, part 2's leading points at the seat in part 1's frame) whose nearest
+    point on that face lies within :data:`STOP_REACH_CELLS` cells of one of them, takes
+    the density outside that face, as far out as the sample is in (at least a cell out,
+    where the interpolant reads no sample inside). Other samples keep theirs. Returns a new
+    array (``rho`` unchanged).
+    """
+    d = np.asarray(distance, np.float64)
+    out = np.array(rho, copy=True)
+    if depth <= 0:
+        return out
+    grad = np.stack(list(np.gradient(d, grid.spacing)), axis=-1)
+    norm = np.linalg.norm(grad, axis=-1)
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    stop = (d < 0) & (d > -depth) & (norm > 0) & ((grad @ a) < -0.5 * norm)
+    if stop.any() and seated is not None:  # the faces part 2 rests on, not a hole's rim
+        from scipy.spatial import cKDTree
+
+        where = np.argwhere(stop)
+        face = (grid.points()[stop]
+                - d[stop][:, None] * grad[stop] / norm[stop][:, None])
+        near = cKDTree(np.asarray(seated, np.float64)).query(
+            face, distance_upper_bound=STOP_REACH_CELLS * grid.spacing)[0] < np.inf
+        stop[tuple(where[~near].T)] = False
+    if stop.any():
+        outward = grad[stop] / norm[stop][:, None]
+        # as far out as the sample is in, and at least a cell, where no sample inside
+        # reaches the interpolant
+        out_by = np.maximum(-d[stop], grid.spacing) - d[stop]
+        mirror = grid.points()[stop] + out_by[:, None] * outward
+        out[stop] = trilinear(np.asarray(rho), grid, mirror)
+    return out
 
 
 def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
