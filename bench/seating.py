@@ -545,11 +545,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=1,
                         help="runs at once, each in its own process (default 1)")
     parser.add_argument("--windows", choices=("part", "grid"), default=None,
-                        help="part: the engine's default windows, which turn with the parts "
-                        "(a ball band, each descriptor's tail ended at one distance from its "
-                        "part, the fine level's window a cylinder about the insertion axis); "
-                        "grid: the earlier ones along the grid's planes (a cube band, tails "
-                        "cut by the grids, a box window), to compare (docs/fine_level.md)")
+                        help="part: windows that turn with the parts (a ball band, each "
+                        "descriptor's tail ended at one distance from its part, the fine "
+                        "level's window a cylinder about the insertion axis); grid: the "
+                        "engine's default, along the grid's planes (a cube band, tails cut by "
+                        "the grids, a box window) (default: the engine's; docs/fine_level.md)")
     parser.add_argument("--taper", choices=("lanczos", "none"), default=None,
                         help="the kept band's taper (default: the engine's, "
                         "engine.correlation.spectrum.BAND_TAPER)")
