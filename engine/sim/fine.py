@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from engine.correlation.near import NearLevel, cylinder_box, smooth_window, trilinear
 from engine.correlation.walls import WallShell, shell_points
@@ -82,7 +83,8 @@ MAX_RATIO = 2
 #: penalty's slope is several times the fit's pull: the blurred penalty balanced that pull
 #: about 1.5 fine cells short of contact, so a hub rested 0.52 mm short of its collar and a
 #: T-slot slide or a dovetail short of its stop. Set back, the level's own pull reaches the
-#: face and the walls, exact there, hold it.
+#: face and the walls, exact there, hold it. A level at ``r = 1`` (no finer tier) is the
+#: descriptors' own samples and is not set back.
 STOP_CELLS = 1.5
 #: Only the faces part 2 rests on at the seat are set back: within this many fine cells of
 #: its leading points there. Part 1's other faces against the axis (a through hole's rim,
@@ -246,12 +248,10 @@ def set_back_stops(rho: np.ndarray, grid: Grid, distance: np.ndarray, axis: np.n
     norm = np.linalg.norm(grad, axis=-1)
     a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
     stop = (d < 0) & (d > -depth) & (norm > 0) & ((grad @ a) < -0.5 * norm)
+    points = grid.points()
     if stop.any() and seated is not None:  # the faces part 2 rests on, not a hole's rim
-        from scipy.spatial import cKDTree
-
         where = np.argwhere(stop)
-        face = (grid.points()[stop]
-                - d[stop][:, None] * grad[stop] / norm[stop][:, None])
+        face = points[stop] - d[stop][:, None] * grad[stop] / norm[stop][:, None]
         near = cKDTree(np.asarray(seated, np.float64)).query(
             face, distance_upper_bound=STOP_REACH_CELLS * grid.spacing)[0] < np.inf
         stop[tuple(where[~near].T)] = False
@@ -260,7 +260,7 @@ def set_back_stops(rho: np.ndarray, grid: Grid, distance: np.ndarray, axis: np.n
         # as far out as the sample is in, and at least a cell, where no sample inside
         # reaches the interpolant
         out_by = np.maximum(-d[stop], grid.spacing) - d[stop]
-        mirror = grid.points()[stop] + out_by[:, None] * outward
+        mirror = points[stop] + out_by[:, None] * outward
         out[stop] = trilinear(np.asarray(rho), grid, mirror)
     return out
 
