@@ -192,6 +192,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
         return None
     nodes, ratio, lo1, hi1, g2, lo2, hi2 = grids
     pose = np.asarray(assembled_pose, float).reshape(6)
+    seat = rotation_matrix(pose[3:])  # part 2's frame to part 1's at the seat
     h = fixed_desc.grid.spacing
     taper = TAPER_CELLS * h
 
@@ -211,19 +212,17 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     else:
         rho2 = trilinear(np.asarray(moving_desc.rho, np.complex128), moving_desc.grid,
                          g2.points().reshape(-1, 3)).reshape(g2.shape)
-    lead = None if axis is None else rotation_matrix(
-        np.asarray(assembled_pose, float)[3:]).T @ np.asarray(axis, float)
+    lead = None if axis is None else seat.T @ np.asarray(axis, float)
     walls = wall_shell(fixed, moving, g1 if g1 is not None else nodes, g2, lead=lead,
                        progress=stage(0.8, 1.0), cancel=cancel)
     if walls is not None and g1 is not None and rho1 is not None and axis is not None:
-        seat = rotation_matrix(pose[3:])
         rho1 = set_back_stops(rho1, g1, walls.distance, np.asarray(axis, float),
                               STOP_CELLS * g1.spacing, walls.points @ seat.T + pose[:3])
     return NearLevel.from_samples(
         nodes, node_rho, (lo1, hi1, taper), g1, rho1,
         g2, rho2, smooth_window(g2, lo2, hi2, taper),
         moving_desc.grid, moving_desc.rho, walls=walls,
-        anchor=(0.5 * (lo1 + hi1) - pose[:3]) @ rotation_matrix(pose[3:]),
+        anchor=(0.5 * (lo1 + hi1) - pose[:3]) @ seat,
         cylinder=None if cylinder is None else grown_cylinder(cylinder, h))
 
 
