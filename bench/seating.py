@@ -544,36 +544,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "already is reused)")
     parser.add_argument("--workers", type=int, default=1,
                         help="runs at once, each in its own process (default 1)")
-    parser.add_argument("--windows", choices=("part", "grid"), default=None,
-                        help="part: windows that turn with the parts (a ball band, each "
-                        "descriptor's tail ended at one distance from its part, the fine "
-                        "level's window a cylinder about the insertion axis); grid: the "
-                        "engine's default, along the grid's planes (a cube band, tails cut by "
-                        "the grids, a box window) (default: the engine's; docs/fine_level.md)")
-    parser.add_argument("--taper", choices=("lanczos", "none"), default=None,
-                        help="the kept band's taper (default: the engine's, "
-                        "engine.correlation.spectrum.BAND_TAPER)")
+    parser.add_argument("--band", choices=("smooth", "box"), default=None,
+                        help="the guidance's band: smooth (a ball of modes, Lanczos-tapered, "
+                        "each descriptor's tail ended at one distance from its part, the fine "
+                        "level's window a cylinder about the insertion axis) or box (a cube "
+                        "band, tails cut by the grids, a box window) (default: the engine's, "
+                        "smooth; docs/fine_level.md)")
 
 
-def use_windows(windows: str) -> None:
-    """The windows that turn with the parts ("part") or lie along the grid ("grid")."""
-    from engine.correlation import spectrum, support
+def use_band(band: str | None) -> None:
+    """The guidance band a run asked for: here, and in each pool process as it starts."""
+    if band is None:
+        return
+    import engine.params
     from engine.sim import fine
 
-    part = windows == "part"
-    spectrum.BAND_SHAPE = "ball" if part else "cube"
-    support.SUPPORT_WINDOW = part
-    fine.WINDOW_SHAPE = "cylinder" if part else "box"
-
-
-def use_options(windows: str | None, taper: str | None) -> None:
-    """The engine options a run asked for: here, and in each pool process as it starts."""
-    if windows is not None:
-        use_windows(windows)
-    if taper is not None:
-        from engine.correlation import spectrum
-
-        spectrum.BAND_TAPER = taper
+    engine.params.GUIDANCE_BAND = band
+    fine.WINDOW_SHAPE = "cylinder" if band == "smooth" else "box"
 
 
 class _Progress:
@@ -614,7 +601,7 @@ class _Progress:
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark: table on stdout, plot to ``args.output``."""
     # here; a pool's processes switch them on as they start
-    use_options(getattr(args, "windows", None), getattr(args, "taper", None))
+    use_band(getattr(args, "band", None))
     if getattr(args, "generated", None) is not None:
         return run_generated(args)
     names = args.pairs or pair_names()
@@ -785,9 +772,8 @@ def _push_all(cases: list[SeatingCase], args: argparse.Namespace) -> list[Seatin
     # fresh interpreters: a fork would copy this process's numba and OpenCL threads' state
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn,
-                             initializer=use_options,
-                             initargs=(getattr(args, "windows", None),
-                                       getattr(args, "taper", None))) as pool:
+                             initializer=use_band,
+                             initargs=(getattr(args, "band", None),)) as pool:
         futures = {pool.submit(_job, c, g, args.seconds, args.modes, args.backend,
                                not args.full): (c, g) for c, g in jobs}
         bar.begin(0, f"{args.workers} runs at a time")

@@ -131,6 +131,17 @@ DEFAULT_PADDING = 6.0
 DEFAULT_MODES = 16
 #: Ways of choosing the retained modes (``CorrelationParams.selection``).
 MODE_SELECTIONS = ("cube", "largest")
+#: The bands the modal sum can keep (``CorrelationParams.band``; what each is:
+#: ``engine.correlation.spectrum.BANDS``). "box", the plain truncation, is what a correlator
+#: keeps unless told: the search ranks fits with it and its landscape's minimum is the fit.
+BAND_NAMES = ("box", "smooth")
+#: The band of the field that guides a part: the ball of modes, Lanczos-tapered, of the
+#: densities windowed where their tails end. The box band is a cube along part 1's grid
+#: and rings (Gibbs) at big flat faces: pairs turned in their files felt forces across
+#: their planes of symmetry, and were held at ways' mouths, tilted in T-slots or short of
+#: a cover's seat. On two unseen generated sets (26 pairs each) the smooth band seats 51
+#: where the box band seats 46 (docs/fine_level.md). Read when a guidance field is built.
+GUIDANCE_BAND = "smooth"
 
 # Ranges that keep every computation finite and bounded (docs/limits.md gives the reasons
 # and the measurements behind each).
@@ -319,6 +330,9 @@ class CorrelationParams:
         Largest K that uses the refined table.
     selection : {"cube", "largest"}
         Which modes are retained: the low-frequency cube, or the largest ones.
+    band : {"box", "smooth"}
+        The band kept of the cube (:data:`BAND_NAMES`): its shape, taper and whether the
+        densities are windowed first.
     """
 
     modes: int = DEFAULT_MODES
@@ -326,6 +340,7 @@ class CorrelationParams:
     refine: int = 2
     fine_modes: int = 24
     selection: str = "cube"
+    band: str = "box"
 
     def __post_init__(self) -> None:
         for name in ("modes", "refine", "fine_modes"):
@@ -338,6 +353,9 @@ class CorrelationParams:
         if self.selection not in MODE_SELECTIONS:
             raise InputError(f"correlation selection must be one of "
                              f"{', '.join(MODE_SELECTIONS)}, got {self.selection!r}")
+        if self.band not in BAND_NAMES:
+            raise InputError(f"correlation band must be one of {', '.join(BAND_NAMES)}, "
+                             f"got {self.band!r}")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -69,3 +69,14 @@ def check_rotation_vector(rotation, option: str) -> None:
         raise InputError(f"{option}: a rotation vector of {angle:.3g} rad is longer than "
                          f"{MAX_ROTATION_VECTOR:g} rad: rotations are rotation vectors in "
                          "radians (reduce it modulo 2 pi)")
+
+
+def add_band_argument(parser: argparse.ArgumentParser) -> None:
+    """``--band``: the modal sum's band, the guidance's unless told (engine.params)."""
+    from engine.params import BAND_NAMES, GUIDANCE_BAND
+
+    parser.add_argument("--band", choices=BAND_NAMES, default=None,
+                        help=f"the band of modes kept: smooth (a ball, Lanczos-tapered, of "
+                        f"the densities windowed where their tails end: what guides a part) "
+                        f"or box (the plain cube, what the search ranks with) (default: "
+                        f"{GUIDANCE_BAND}; docs/correlation.md)")

@@ -6,7 +6,12 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from app.commands.arguments import check_rotation_vector, finite_float, int_in_range
+from app.commands.arguments import (
+    add_band_argument,
+    check_rotation_vector,
+    finite_float,
+    int_in_range,
+)
 from app.commands.poses import add_about_argument, typed_pose
 from engine.backend import choices, describe_auto
 
@@ -41,6 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         default=100, metavar="N",
                         help="evaluations to time, 1 to 100,000; the reported microseconds "
                         "are their median")
+    add_band_argument(parser)
     parser.add_argument("--no-fine", action="store_true",
                         help="the modal sum alone, without the fine level where the parts "
                         "meet (docs/fine_level.md)")
@@ -59,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
     from app.commands.scale import energy_scale
     from engine.correlation import add_evaluations, correlator_for_scene
+    from engine.params import GUIDANCE_BAND
     from engine.pose import rotation_matrix
     from engine.runtime import open_scene
     from engine.search.joint import MOTION_ANGLE, REACH, Surfaces, axis_names, motion_joint
@@ -72,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         check_modes(args.modes, "--modes")
     if args.pose is not None:
         check_rotation_vector(args.pose[3:], "--pose")
+    band = args.band or GUIDANCE_BAND  # what the part feels, unless told
     handle = open_scene(args.scene)  # the scene and its parts, read once
     scene = handle.scene
     pose = (typed_pose(handle, args.pose, args.about) if args.pose is not None
@@ -80,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     update, close = progress_bar("preparing", enabled=not args.json)
     try:
         corr = correlator_for_scene(scene, parts=handle.parts, modes=args.modes,
-                                    backend=args.backend,
+                                    backend=args.backend, band=band,
                                     kappa=scale.kappa, progress=update)
     finally:
         close()
@@ -140,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
         "force": [float(x) for x in result.force],
         "torque": [float(x) for x in result.torque] if result.torque is not None else None,
         "modes": result.modes,
+        "band": band,
         "microseconds": micro,
         "backend": corr.backend,
         "backend_detail": corr.backend_name,
@@ -211,7 +220,8 @@ def run(args: argparse.Namespace) -> int:
              "centre of mass": "its centre of mass"}[hold_source]
     print(f"held at    {np.array2string(held, precision=4)} {units.length} in part 2's frame "
           f"({where})")
-    print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), FFT size {corr.size}")
+    print(f"modes      K = {result.modes} (m' = {result.modes ** 3}), {corr.params.band} band, "
+          f"FFT size {corr.size}")
     if near is not None:
         lv = near.level
         print(f"fine level spacing {lv.fixed_nodes.spacing / lv.ratio:.4g} {units.length} "

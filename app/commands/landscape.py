@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from app.commands.arguments import check_rotation_vector, finite_float
+from app.commands.arguments import add_band_argument, check_rotation_vector, finite_float
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--rotation", nargs=3, type=finite_float, metavar=("RX", "RY", "RZ"),
                         help="rotation vector of part 2 (radians); default: the fitted pose's")
     parser.add_argument("--modes", type=int, help="modes per axis K (default: the scene's)")
+    add_band_argument(parser)
     parser.add_argument("-o", "--output", required=True, help="image file to write (PNG)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing image (never an input file)")
@@ -39,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from app.commands.evaluate import progress_bar
     from app.commands.scale import energy_scale
     from engine.correlation import correlator_for_scene
+    from engine.params import GUIDANCE_BAND
     from engine.pose import rotation_matrix
     from engine.scene import load_scene, require_assembled
     from engine.sim.auto import complete_scene
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         corr = correlator_for_scene(
             scene, modes=args.modes, backend="numpy", kappa=scale.kappa,
+            band=args.band or GUIDANCE_BAND,
             progress=None if update is None else (lambda f: update(0.8 * f)))
         land = corr.landscape(rotation_matrix(rotvec), forces=False,
                               progress=None if update is None else (
@@ -76,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     write_section_png(
         args.output, section, u, v, args.plane,
         title=f"{scene.name}: E(t), {args.plane} at {'xyz'[normal]} = {offset:g} {scene.units}, "
-        f"K = {land.modes}\nE in {energy_unit}, kappa = {scale.kappa:.4g} {scale.units.kappa}",
+        f"K = {land.modes}, {corr.params.band} band\nE in {energy_unit}, "
+        f"kappa = {scale.kappa:.4g} {scale.units.kappa}",
         units=scene.units,
         fitted=fitted[axes],
         lowest=np.unravel_index(int(np.argmin(section)), section.shape),

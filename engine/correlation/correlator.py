@@ -35,7 +35,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -44,7 +44,7 @@ import engine.correlation.reference as reference
 from engine.backend import check_choice
 from engine.correlation.finishing import Evaluation, boxes_overlap
 from engine.correlation.landscape import Landscape, compute_landscape
-from engine.correlation.spectrum import fast_size
+from engine.correlation.spectrum import band_named, fast_size
 from engine.correlation.tables import (
     ModeTable,
     PairGeometry,
@@ -134,8 +134,10 @@ class Correlator:
         (:class:`engine.grid.Grid`); both grids must share one spacing.
     params : CorrelationParams, optional
         Modes ``K``, oversampling, refined table, selection (defaults from
-        :mod:`engine.params`). ``modes``, ``oversample``, ``refine``, ``fine_modes`` and
-        ``selection`` given as keywords override its fields.
+        :mod:`engine.params`). ``modes``, ``oversample``, ``refine``, ``fine_modes``,
+        ``selection`` and ``band`` given as keywords override its fields (``band``: "box",
+        the plain truncation, unless told; the guidance's is "smooth",
+        :data:`engine.params.GUIDANCE_BAND`).
     rotation : bool
         Compute the torque (moment spectra). When False, :meth:`evaluate` returns
         ``torque=None``.
@@ -177,6 +179,7 @@ class Correlator:
         refine: int | None = None,
         fine_modes: int | None = None,
         selection: str | None = None,
+        band: str | None = None,
         rotation: bool = True,
         backend: str = "auto",
         kappa: float = 1.0,
@@ -185,14 +188,10 @@ class Correlator:
         progress: Callable[[float], None] | None = None,
         cancel: Callable[[], bool] | None = None,
     ) -> None:
-        base = params or CorrelationParams()
-        params = CorrelationParams(
-            modes=base.modes if modes is None else modes,
-            oversample=base.oversample if oversample is None else oversample,
-            refine=base.refine if refine is None else refine,
-            fine_modes=base.fine_modes if fine_modes is None else fine_modes,
-            selection=base.selection if selection is None else selection,
-        )
+        given: dict[str, Any] = {"modes": modes, "oversample": oversample, "refine": refine,
+                                 "fine_modes": fine_modes, "selection": selection, "band": band}
+        params = dataclasses.replace(params or CorrelationParams(),
+                                     **{k: v for k, v in given.items() if v is not None})
         backend = check_choice("per_pose", backend)
         for name, obj in (("fixed", fixed), ("moving", moving)):
             if not hasattr(obj, "rho") or not hasattr(obj, "grid"):
@@ -226,7 +225,8 @@ class Correlator:
         self.spectra: Spectra = build_spectra(
             fixed.rho, g1, moving.rho, g2, geometry, oversample=params.oversample,
             refine=params.refine, fine_modes=params.fine_modes, selection=params.selection,
-            use_cache=use_cache, progress=stage(0.0, 0.7), cancel=cancel)
+            use_cache=use_cache, band=band_named(params.band), progress=stage(0.0, 0.7),
+            cancel=cancel)
         self.stats: dict[str, int] = {
             "spectra": 2 + (1 if self.spectra.fine_table is not None else 0),
             "moment_spectra": 3 if rotation else 0, "evaluations": 0, "torque_sums": 0,

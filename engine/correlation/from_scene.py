@@ -27,6 +27,7 @@ def correlator_for_scene(
     backend: str = "auto",
     rotation: bool = True,
     kappa: float = 1.0,
+    band: str | None = None,
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> Correlator:
@@ -41,8 +42,8 @@ def correlator_for_scene(
         loaded here.
     modes : int, optional
         Modes per axis (default: the scene's ``[correlation] modes``).
-    backend, rotation, kappa
-        As :class:`Correlator`.
+    backend, rotation, kappa, band
+        As :class:`Correlator` (``band``: "box" unless told; the guidance's is "smooth").
     progress : callable(float), optional
         Fractions 0..1 over the whole preparation: the descriptors (the first 60 %, or
         nothing when cached), then the spectra, tables and kernels.
@@ -63,6 +64,6 @@ def correlator_for_scene(
     return Correlator(
         descriptors[0], descriptors[1],
         modes=int(modes if modes is not None else scene.modes),
-        rotation=rotation, backend=backend, kappa=kappa,
+        rotation=rotation, backend=backend, kappa=kappa, band=band,
         progress=stage(0.6, 1.0), cancel=cancel,
     )

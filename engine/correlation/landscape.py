@@ -340,7 +340,8 @@ def _landscape(
     step(0.3)
     coeff = spectra.fixed.values[in_fixed].astype(np.complex64)
     if spectra.selection == "cube":
-        coeff *= cube_weights(k_modes, big).astype(np.float32)  # the band's weights, tapered
+        # the band's weights: tapered, and 0 outside a ball, where the band says so
+        coeff *= cube_weights(k_modes, big, band=spectra.band).astype(np.float32)
     # f(t0 + h j) = sum_k rho1c^ rho2c^ dw exp(2 pi i k.j / N), with t0 + R c2 - c1 = 0,
     # for j = -N/2 ... N/2 - 1: the centring phase puts j = 0 at index N // 2
     spectrum = np.zeros((n, n, n), dtype=np.complex64)

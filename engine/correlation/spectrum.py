@@ -206,23 +206,71 @@ def kept_indices(modes: int, size: int) -> np.ndarray:
     return np.arange(-half, half + 1, dtype=np.int64)
 
 
-#: The kept band's taper: "lanczos" weighs mode ``k`` of the band ``-(K // 2) ... K // 2`` by
-#: Lanczos' sigma factor ``sinc(k / (K // 2 + 1))`` per axis; "none" keeps the box band.
-#: A box band of a sharp density rings (Gibbs): along the normal of two big flat faces the
-#: energy at K = 25 rose and fell in barriers up to 20 times the correlation's own, and they
-#: held a generated plate 30 % of its width short of its pins, which the taper seats. But
-#: the tapered band is blurrier where part 2 lies outside the fine level's box, and two
-#: pairs that stop on a face ended further short of it (assets/real's keyed hub 1.31 to
-#: 2.21 % of its width, the tests' dovetail 1.20 to 6.81 %): off until the level's bias at
-#: stops is mended (docs/correlation.md).
-BAND_TAPER = "none"
-#: The tapers :func:`kept_weights` knows.
+#: The tapers :func:`kept_weights` knows. "lanczos" weighs mode ``k`` of the band
+#: ``-(K // 2) ... K // 2`` by Lanczos' sigma factor ``sinc(k / (K // 2 + 1))`` per axis;
+#: "none" keeps the box band. A box band of a sharp density rings (Gibbs): along the normal
+#: of two big flat faces the energy at K = 25 rose and fell in barriers up to 20 times the
+#: correlation's own, and they held a generated plate 30 % of its width short of its pins,
+#: which the taper seats (docs/correlation.md).
 TAPERS = ("lanczos", "none")
+#: The shapes :func:`cube_weights` knows. "ball" keeps the modes of the cube
+#: ``-(K // 2) ... K // 2`` whose signed index ``k`` has ``|k| <= K // 2 + 1/2``; "cube" keeps
+#: the whole cube. A cube is not turned with the parts: a pair mirror-symmetric about a plane
+#: that is not a plane of the grid feels a force across it at a symmetric pose, as the
+#: cube's corners reach further along some directions than along their mirror images. The
+#: ball is the same along every direction (the FFT lattice has one size and one spacing
+#: along every axis).
+SHAPES = ("ball", "cube")
 
 
-def kept_weights(modes: int, size: int | None = None, *, taper: str | None = None
+@dataclass(frozen=True)
+class Band:
+    """Which modes the modal sum keeps, how it weighs them, and of which densities.
+
+    Attributes
+    ----------
+    shape : {"cube", "ball"}
+        The kept modes (:data:`SHAPES`).
+    taper : {"none", "lanczos"}
+        Their weights (:data:`TAPERS`).
+    windowed : bool
+        Whether each density's outside tail is ended by a window that follows its part
+        (:func:`engine.correlation.support.supported`) before it is transformed, rather
+        than where its grid's box cuts it.
+    """
+
+    shape: str = "cube"
+    taper: str = "none"
+    windowed: bool = False
+
+    def __post_init__(self) -> None:
+        if self.shape not in SHAPES:
+            raise ValueError(f"unknown band shape {self.shape!r}; valid: {', '.join(SHAPES)}")
+        if self.taper not in TAPERS:
+            raise ValueError(f"unknown band taper {self.taper!r}; valid: {', '.join(TAPERS)}")
+
+
+#: The bands by name (``CorrelationParams.band``). "box": the cube of modes, untapered, of
+#: the densities as their grids cut them: the correlation's plain truncation, what the
+#: search ranks with and the landscape tests judge. "smooth": the ball, Lanczos-tapered, of
+#: the windowed densities: the same along every direction and without the box band's
+#: ringing, what guides a part (:data:`engine.params.GUIDANCE_BAND`; docs/fine_level.md).
+BANDS = {"box": Band(), "smooth": Band("ball", "lanczos", True)}
+
+
+def band_named(name: str | Band) -> Band:
+    """The :class:`Band` called ``name`` in :data:`BANDS` (a Band passes through)."""
+    if isinstance(name, Band):
+        return name
+    try:
+        return BANDS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown band {name!r}; valid: {', '.join(BANDS)}") from None
+
+
+def kept_weights(modes: int, size: int | None = None, *, taper: str = "none"
                  ) -> np.ndarray:
-    """(L,) float64 weights of :func:`kept_indices`'s band (tapered as :data:`BAND_TAPER`).
+    """(L,) float64 weights of :func:`kept_indices`'s band, tapered as ``taper``.
 
     An even K keeps ``+-K/2`` at half weight, between the odd bands ``K - 1`` and ``K + 1``
     (their average), so the correlation changes smoothly with K. With ``taper="lanczos"``
@@ -231,7 +279,6 @@ def kept_weights(modes: int, size: int | None = None, *, taper: str | None = Non
     no truncation and is kept untapered, every mode once. A mode's weight in
     the cube is the product of its three axes' weights.
     """
-    taper = BAND_TAPER if taper is None else taper
     if taper not in TAPERS:
         raise ValueError(f"unknown band taper {taper!r}; valid: {', '.join(TAPERS)}")
     half = int(modes) // 2
@@ -243,31 +290,17 @@ def kept_weights(modes: int, size: int | None = None, *, taper: str | None = Non
     return weights
 
 
-#: The kept band's shape: "ball" keeps the modes of the cube ``-(K // 2) ... K // 2`` whose
-#: signed index ``k`` has ``|k| <= K // 2 + 1/2``; "cube" keeps the whole cube. A cube is
-#: not turned with the parts: a pair mirror-symmetric about a plane that is not a plane of
-#: the grid feels a force across it at a symmetric pose, as the band's corners reach
-#: further along some directions than along their mirror images. The ball is the same
-#: along every direction (the FFT lattice has one size and one spacing along every axis).
-BAND_SHAPE = "cube"
-#: The shapes :func:`cube_weights` knows.
-SHAPES = ("ball", "cube")
-
-
-def cube_weights(modes: int, size: int | None = None, *, shape: str | None = None
+def cube_weights(modes: int, size: int | None = None, *, band: Band = BANDS["box"]
                  ) -> np.ndarray:
-    """(L, L, L) float64: the kept cube's mode weights.
+    """(L, L, L) float64: the kept cube's mode weights for ``band``.
 
     The outer product of :func:`kept_weights` along the three axes, times 0 outside the
-    ball of radius ``K // 2 + 1/2`` when the band is a ball (:data:`BAND_SHAPE`) and
-    truncated (``modes < size``, or ``size`` None).
+    ball of radius ``K // 2 + 1/2`` when the band is a ball and truncated (``modes <
+    size``, or ``size`` None).
     """
-    shape = BAND_SHAPE if shape is None else shape
-    if shape not in SHAPES:
-        raise ValueError(f"unknown band shape {shape!r}; valid: {', '.join(SHAPES)}")
-    w = kept_weights(modes, size)
+    w = kept_weights(modes, size, taper=band.taper)
     cube = w[:, None, None] * w[None, :, None] * w[None, None, :]
-    if shape == "ball" and (size is None or modes < size):
+    if band.shape == "ball" and (size is None or modes < size):
         half = int(modes) // 2
         k = np.arange(-half, half + 1, dtype=np.float64) ** 2
         cube = cube * ((k[:, None, None] + k[None, :, None] + k[None, None, :])

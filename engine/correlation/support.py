@@ -9,7 +9,8 @@ turned in its file is cut nearer on one side than on the other, and the correlat
 pushes a part that sits on a symmetric fit towards one side. On a generated rectangular
 peg 3 mm above its blind pocket (both parts turned at random in their files, grid 2.3 mm,
 K = 25) the band pushed the centred peg sideways with 1.4e4, 3.5 times the coupling's
-force at 1 mm off; with this window (and the ball band, ``engine.correlation.spectrum``)
+force at 1 mm off; with this window (and the ball band: the "smooth" band of
+``engine.correlation.spectrum.BANDS``, which windows the densities)
 2.0e3.
 
 The window is 1 within part's convex hull (of its inside samples) and out to half the
@@ -25,8 +26,6 @@ import numpy as np
 
 from engine.grid import Grid
 
-#: Whether the correlation's spectra are built from the windowed densities.
-SUPPORT_WINDOW = False
 #: The window falls from 1 to 0 between these fractions of the room the grid leaves around
 #: the part's hull (the least distance, in cells, from the hull to the grid's sides).
 SUPPORT_TAPER = (0.5, 1.0)
@@ -106,11 +105,6 @@ def support_window(rho: np.ndarray, grid: Grid) -> np.ndarray | None:
     lo, hi = SUPPORT_TAPER[0] * room, SUPPORT_TAPER[1] * room
     z = np.clip((distance - lo) / (hi - lo), 0.0, 1.0)
     return (1.0 - z * z * (3.0 - 2.0 * z)).astype(np.float32)
-
-
-def window_on() -> bool:
-    """Whether :data:`SUPPORT_WINDOW` is on (read when the spectra are built)."""
-    return bool(SUPPORT_WINDOW)
 
 
 def supported(rho: np.ndarray, grid: Grid) -> np.ndarray:

@@ -25,13 +25,15 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from engine.correlation.spectrum import (
+    BANDS,
+    Band,
     Spectrum,
     compute_spectrum,
     cube_weights,
     kept_indices,
     refined_table,
 )
-from engine.correlation.support import supported, window_on
+from engine.correlation.support import supported
 from engine.errors import Cancelled
 from engine.grid import Grid
 
@@ -115,6 +117,9 @@ class Spectra:
     fine_radius : int
     selection : {"cube", "largest"}
     use_cache : bool
+    band : Band
+        The kept modes' shape and taper (:func:`truncate`), and whether the densities were
+        windowed before they were transformed.
     """
 
     geometry: PairGeometry
@@ -130,6 +135,7 @@ class Spectra:
     fine_radius: int
     selection: str
     use_cache: bool
+    band: Band = BANDS["box"]
     _lazy: dict[str, object] = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -207,13 +213,15 @@ def build_spectra(
     fine_modes: int,
     selection: str,
     use_cache: bool,
+    band: Band = BANDS["box"],
     progress: Callable[[float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> Spectra:
     """Transform a pair once: part 1's spectrum, part 2's refined table (the costly part).
 
-    ``progress`` gets fractions 0..1; ``cancel`` returning True raises
-    :class:`engine.errors.Cancelled` between the steps.
+    ``band``: the :class:`~engine.correlation.spectrum.Band` the truncations keep (its
+    densities windowed here when it says so). ``progress`` gets fractions 0..1;
+    ``cancel`` returning True raises :class:`engine.errors.Cancelled` between the steps.
     """
     size = geometry.size
 
@@ -224,7 +232,7 @@ def build_spectra(
             progress(fraction)
 
     step(0.0)
-    if window_on():  # each tail ends at one distance from its part, all round
+    if band.windowed:  # each tail ends at one distance from its part, all round
         fixed_rho = supported(fixed_rho, fixed_grid)
         moving_rho = supported(moving_rho, moving_grid)
     q = max(1, int(math.ceil(oversample * max(moving_grid.shape) / size)))
@@ -245,7 +253,7 @@ def build_spectra(
         moving_rho=np.asarray(moving_rho).astype(np.complex64, copy=False),
         moving_grid=moving_grid, oversample_factor=q, refine=refine, fine_modes=fine,
         fine_table=fine_table, fine_scale=fine_scale, fine_reach=fine_reach,
-        fine_radius=fine_radius, selection=selection, use_cache=use_cache,
+        fine_radius=fine_radius, selection=selection, use_cache=use_cache, band=band,
     )
 
 
@@ -375,7 +383,7 @@ def truncate(spectra: Spectra, modes: int) -> ModeTable:
         # (L, L, L): rho1c^(w) dw, times the band's weights (1/2 at an even band's ends,
         # and the taper of a truncated band)
         fixed_kept = (spectra.fixed.values[np.ix_(wrapped, wrapped, wrapped)]
-                      * (cube_weights(k, n) * dw)).astype(np.complex64)
+                      * (cube_weights(k, n, band=spectra.band) * dw)).astype(np.complex64)
         kept = indices.astype(np.float64)
         reach = cube_reach(k)
     else:

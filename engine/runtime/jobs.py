@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
+import engine.params
 from engine.backend import spare_cores
 from engine.correlation import Correlator
 from engine.errors import Cancelled
@@ -303,7 +304,7 @@ def build_field(
             if r.correlator is not None and r.correlator.rotation == rotation:
                 return r.correlator.with_modes(r.modes)
             return Correlator(d1, d2, modes=r.modes, rotation=rotation, backend=backend,
-                              kappa=1.0)
+                              kappa=1.0, band=engine.params.GUIDANCE_BAND)
 
         fld = field_for_effects(r.effects, make, kappa=r.kappa,
                                 locked_rotation=r.locked_rotation)

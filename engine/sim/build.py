@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+import engine.params
 from engine.errors import Cancelled, InputError
 from engine.loading import Part
 from engine.params import (
@@ -924,7 +925,8 @@ class SceneModel:
         k = int(modes or self.modes)
 
         def make(rotation: bool) -> Correlator:
-            return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend, kappa=1.0)
+            return Correlator(d1, d2, modes=k, rotation=rotation, backend=self.backend,
+                              kappa=1.0, band=engine.params.GUIDANCE_BAND)
 
         field = field_for_effects(effects, make, kappa=kappa, locked_rotation=locked_rotation)
         if progress is not None:

@@ -44,8 +44,9 @@ BOX_CELLS = 2.0
 #: (:attr:`engine.sim.auto.FitMeasure.cylinder`), or "box", the box of the grid's planes
 #: around them. A box cuts part 1's surfaces near the fit where the grid's planes happen to
 #: lie: the level pushed a centred rectangular peg sideways 12 mm above its pocket with
-#: 7.9e3, twice the coupling's force at 1 mm off (a pair turned at random in its files).
-WINDOW_SHAPE = "box"
+#: 7.9e3, twice the coupling's force at 1 mm off (a pair turned at random in its files);
+#: the cylinder, 16. Goes with the guidance's smooth band (docs/fine_level.md).
+WINDOW_SHAPE = "cylinder"
 #: The window falls from 1 to 0 over this many coarse cells.
 TAPER_CELLS = 2.0
 #: Part 2's fine region reaches this many coarse cells beyond the box's pre-image (a part

@@ -1,16 +1,14 @@
-"""The band's taper (``spectrum.BAND_TAPER``, off by default): no spurious barrier on the way in.
+"""The guidance's band: no spurious barrier on the way in.
 
 A truncated Fourier series of a sharp density rings (Gibbs): the box band ``-K/2 ... K/2``
 of a plate's and a base's big flat faces gives an energy that rises and falls along the
 faces' normal, barriers a user's push must climb that the full correlation does not have.
 Lanczos' sigma factors (``sinc(k / (K // 2 + 1))`` per axis) damp the ringing. Here a
-plate is lowered onto a base along its normal: on the way in, the tapered band's largest
-rise of the energy (its barrier) at K = 13 and 17 is within the full lattice's own (the
-descriptors' outside tails, which repel), where the box band's is larger. A ball band of
-densities whose tails end at one distance from their parts (``spectrum.BAND_SHAPE``,
-``engine.correlation.support``, options, off) rings less than the cube of the densities as
-sampled, but rings. Why neither is the default yet: docs/correlation.md and
-docs/fine_level.md.
+plate is lowered onto a base along its normal: on the way in, the smooth band's largest
+rise of the energy (its barrier) at K = 13 and 17 (a ball of modes, tapered, of densities
+whose tails end at one distance from their parts: the guidance's band) is within its
+densities' own (their outside tails, which repel), where the box band's is larger than
+the correlation's. docs/correlation.md and docs/fine_level.md.
 """
 
 from __future__ import annotations
@@ -18,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.correlation import spectrum
 from engine.correlation.spectrum import kept_indices, kept_weights
 
 SCENE = """name = "plate over a base"
@@ -84,14 +81,15 @@ def plate_scene(tmp_path_factory):
     return load_scene(folder / "scene.toml")
 
 
-def test_the_tapered_band_adds_no_barrier_on_the_way_in(plate_scene, monkeypatch):
-    """(and the cube band does: see the module; the ball band in use does not either)"""
-    from engine.correlation import support
+def test_the_guidance_band_adds_no_barrier_on_the_way_in(plate_scene):
+    """The box band rings: on the way in its barrier exceeds the correlation's own; the
+    smooth band (a ball, Lanczos-tapered, of the windowed tails) adds none to its own.
+    """
     from engine.correlation.from_scene import correlator_for_scene
 
-    def profile(modes: int) -> np.ndarray:
+    def profile(modes: int, band: str) -> np.ndarray:
         """Energy on the plate's axis from its seat up, from the landscape (one FFT)."""
-        corr = correlator_for_scene(plate_scene, modes=modes, backend="numpy")
+        corr = correlator_for_scene(plate_scene, modes=modes, backend="numpy", band=band)
         land = corr.landscape(np.eye(3), modes=modes, forces=False)
         axes = [np.asarray(a) for a in land.translations]
         i, j = (int(np.argmin(np.abs(a))) for a in axes[:2])
@@ -99,31 +97,34 @@ def test_the_tapered_band_adds_no_barrier_on_the_way_in(plate_scene, monkeypatch
         up = (axes[2] >= -1e-9) & (axes[2] <= 40.0)  # past where the grids stop meeting
         return np.asarray(land.energy, np.float64)[i, j, up]
 
-    # the ball band of densities whose tails end at one distance from their parts (an
-    # option, off by default)
-    monkeypatch.setattr(spectrum, "BAND_SHAPE", "ball")
-    monkeypatch.setattr(support, "SUPPORT_WINDOW", True)
-    ball = {modes: profile(modes) for modes in (13, 17)}
-    ball_full = profile(10_000)
-    # the cube band of the densities as sampled, with their tails cut by the grids
-    monkeypatch.setattr(spectrum, "BAND_SHAPE", "cube")
-    monkeypatch.setattr(support, "SUPPORT_WINDOW", False)
-    full = profile(10_000)  # the whole lattice: the correlation itself
+    full = profile(10_000, "box")  # the whole lattice: the correlation itself
     assert full.min() < 0 and _barrier(full) > 0  # outside tails facing each other repel
-    # the windowed tails repel less (14,062 against 21,692 here)
-    assert 0 < _barrier(ball_full) < 0.8 * _barrier(full)
+    # the whole lattice is no truncation: the smooth band's is of the windowed densities,
+    # untapered, and their tails repel less
+    smooth_full = profile(10_000, "smooth")
+    assert 0 < _barrier(smooth_full) < 0.8 * _barrier(full)
     for modes in (13, 17):
-        with monkeypatch.context() as m:
-            m.setattr(spectrum, "BAND_TAPER", "lanczos")
-            tapered = profile(modes)
-            # the whole lattice stays untapered
-            np.testing.assert_allclose(profile(10_000), full, rtol=1e-6)
-        assert tapered.min() < 0
-        assert _barrier(tapered) <= _barrier(full), modes
-        box = profile(modes)
-        # the cube band rings: its barrier exceeds the correlation's own
-        assert _barrier(box) > 1.2 * _barrier(full) and _barrier(box) > 3 * _barrier(tapered)
-        # the ball band of the windowed densities rings less, but rings (10,660
-        # and 23,940 against the cube's 27,415 and 38,705 at K = 13 and 17)
-        assert ball[modes].min() < 0
-        assert 0 < _barrier(ball[modes]) < 0.7 * _barrier(box), modes
+        box = profile(modes, "box")
+        smooth = profile(modes, "smooth")
+        assert box.min() < 0 and smooth.min() < 0
+        # the box band rings: its barrier exceeds the correlation's own
+        assert _barrier(box) > 1.2 * _barrier(full), modes
+        # the smooth band adds none to its densities' own
+        assert _barrier(smooth) <= _barrier(smooth_full), modes
+        assert _barrier(box) > 3 * _barrier(smooth), modes
+
+
+def test_the_bands_are_named_alike_in_the_settings_and_the_engine():
+    from engine.correlation.spectrum import BANDS, Band, band_named
+    from engine.errors import InputError
+    from engine.params import BAND_NAMES, GUIDANCE_BAND, CorrelationParams
+
+    assert tuple(BANDS) == BAND_NAMES and GUIDANCE_BAND in BANDS
+    assert band_named("box") == Band("cube", "none", False)
+    assert band_named("smooth") == Band("ball", "lanczos", True)
+    with pytest.raises(ValueError, match="unknown band"):
+        band_named("round")
+    with pytest.raises(ValueError, match="taper"):
+        Band("cube", "hann")
+    with pytest.raises(InputError, match="band"):
+        CorrelationParams(band="ball")

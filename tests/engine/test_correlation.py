@@ -296,16 +296,13 @@ def test_all_mode_counts_finite_and_converging(fast, full):
     assert errors[0] > errors[7] > errors[11] > errors[-1]
 
 
-def test_interpolation_error_falls_with_refinement_and_gradients(fields, monkeypatch):
+def test_interpolation_error_falls_with_refinement_and_gradients(fields):
     """Rotated spectrum: the refined table and the cubic Hermite interpolant (rotation on)
     each cut the interpolation error; measured against a 4x refined table, so that the
     closed form's own discretisation error (about 1e-5 here) does not hide it. The band is
     kept untapered: the Gaussians' spectra lie within K = 32, so the box band's sum is the
-    closed form's.
+    closed form's (the correlator's band unless told).
     """
-    from engine.correlation import spectrum
-
-    monkeypatch.setattr(spectrum, "BAND_TAPER", "none")
     r1, r2 = fields
     rot = rotation_matrix(np.array([0.4, -0.3, 0.8]))
     t = np.array([0.3, 0.2, -0.4])

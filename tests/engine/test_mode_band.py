@@ -52,23 +52,17 @@ def symmetric_scene(tmp_path_factory):
     return load_scene(folder / "scene.toml")
 
 
-@pytest.mark.parametrize("windows", ["grid", "part"])
+@pytest.mark.parametrize("band", ["box", "smooth"])
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("modes", [7, 8, 9, 16])
 def test_a_mirror_symmetric_pair_feels_no_side_force_or_tilting_torque(
-        symmetric_scene, modes, backend, windows, monkeypatch):
-    """With the band and tails as they are ("grid") and with the windows that turn with
-    the parts ("part": a ball band, the tails windowed, docs/fine_level.md), tapered too.
+        symmetric_scene, modes, backend, band):
+    """With the box band of the tails as the grids cut them, and with the guidance's
+    smooth band (a ball, Lanczos-tapered, of the windowed tails; docs/fine_level.md).
     """
-    from engine.correlation import spectrum, support
     from engine.correlation.from_scene import correlator_for_scene
 
-    if windows == "part":
-        monkeypatch.setattr(spectrum, "BAND_SHAPE", "ball")
-        monkeypatch.setattr(support, "SUPPORT_WINDOW", True)
-        monkeypatch.setattr(spectrum, "BAND_TAPER", "lanczos")
-
-    corr = correlator_for_scene(symmetric_scene, modes=modes, backend=backend)
+    corr = correlator_for_scene(symmetric_scene, modes=modes, backend=backend, band=band)
     # off the axis (along x) the pair does feel a side force and a tilting torque, far
     # above the float32 floor that the mirror plane y = 0 still leaves across it (at low K
     # the tapered band's side force is small: 0.25 of 336 at K = 8)

@@ -218,12 +218,19 @@ def test_collision_only_pair_is_measured(name):
     assert guided["distance"] <= baseline["distance"] + guided["half_cell"]
 
 
-def free_energy_run(axes, start, steps=2000):
+def free_energy_run(axes, start, steps=2000, band="box"):
     """Free part (no proxy, damping off) in the peg's real field at the default 1 ms step:
     (total energy per step, its starting value, the largest kinetic energy).
+
+    ``band``: the modal sum's. The box band's deep well at K = 16 throws the peg about
+    (largest kinetic energies 25,000 to 50,000), the hardest case for the integrator; the
+    guidance's smooth band is lowest at z = -12 at this K (the level brings the peg the
+    last 3 mm to its seat), so a peg let go there hardly moves (0.8 mm, 460 of kinetic
+    energy) and is judged from where it falls.
     """
     from dataclasses import replace
 
+    import engine.params
     from engine.runtime import open_scene
     from engine.sim import build_simulation, kinetic_energy
 
@@ -234,7 +241,11 @@ def free_energy_run(axes, start, steps=2000):
                      start_pose=np.asarray(start, float))
     # the modal field's energy: the fine level (force steps at its cells' faces) has its
     # own test (tests/engine/test_near_level.py: 2.3 % with it)
-    sim, _ = build_simulation(handle, prepare=True, coupled=False, modes=16, fine=False)
+    guidance, engine.params.GUIDANCE_BAND = engine.params.GUIDANCE_BAND, band
+    try:
+        sim, _ = build_simulation(handle, prepare=True, coupled=False, modes=16, fine=False)
+    finally:
+        engine.params.GUIDANCE_BAND = guidance
     sim.evaluate_field()
     e0 = sim.total_energy()
     energy, kinetic = [], []
@@ -258,16 +269,19 @@ def test_energy_bounded_in_the_real_field_translation_only():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("start", [[0.2, 0.0, -14.5, 0.02, 0.0, 0.0],
-                                   [0.3, 0.0, -12.0, 0.03, -0.02, 0.0]])
-def test_energy_bounded_in_the_real_field_with_rotation(start):
+@pytest.mark.parametrize(("start", "band"), [
+    ([0.2, 0.0, -14.5, 0.02, 0.0, 0.0], "box"),
+    ([0.3, 0.0, -12.0, 0.03, -0.02, 0.0], "box"),
+    ([0.2, 0.0, -14.5, 0.02, 0.0, 0.0], "smooth"),  # 0.06 % of 7,306; it rises 7 mm
+])
+def test_energy_bounded_in_the_real_field_with_rotation(start, band):
     """Rotation free: the torque is the derivative of the interpolated energy and the step
     is velocity Verlet with a torque-free drift at fixed angular momentum, so a tilted peg
     rattling in (or dropped into) its hole for 2 s keeps its total energy (measured 0.44 %
     and 0.19 % of the kinetic energy at most; 5.6 % and 20 % with an explicit gyroscopic
     term, and the drop 18 % with the moment-spectrum torque and symplectic Euler).
     """
-    energy, e0, scale = free_energy_run(("x", "y", "z", "rx", "ry", "rz"), start)
+    energy, e0, scale = free_energy_run(("x", "y", "z", "rx", "ry", "rz"), start, band=band)
     assert scale > 1000.0
     assert np.max(np.abs(energy - e0)) < 0.02 * scale
     assert abs(energy[-500:].mean() - energy[:500].mean()) < 0.01 * scale
