@@ -14,8 +14,9 @@ the command:
 Then it waits for the engine's sigma ladders (``engine.runtime.ladder_jobs``, computed in
 the background since the first field; the row "live sigma prepared" gives the seconds its
 nodes took to compute, from the cache entries, and the wait after the last change) and
-sends the new sigma again, its direct descriptors on the scene's grid removed from the
-cache first, so that it is served by the ladders as a sigma never seen would be.
+sends the new sigma again, its direct descriptors (on the scene's grids and the fine
+level's) removed from the cache first, so that it is served by the ladders as a sigma never
+seen would be.
 
 Prints a table and writes a bar plot (``-o``). The machine's load shows in every figure:
 compare the rows of one run, not runs.
@@ -81,18 +82,32 @@ def _wait_ladder(engine, t0: float, *, limit: float = 1800.0) -> float:
     raise RuntimeError(f"no sigma ladder within {limit:.0f} s")
 
 
-def _ladder_seconds(handle) -> float:
-    """Seconds the scene's ladder nodes took to compute (as their cache entries say)."""
-    from engine import cache
-    from engine.descriptor import ladder
-    from engine.descriptor.store import CACHE_KIND, cache_key_parts, grid_for_part, scene_spacing
+def _rungs(handle) -> list:
+    """(part, grid) of every descriptor the engine ladders: the scene's grids, the level's."""
+    from engine.descriptor.store import grid_for_part, scene_spacing
+    from engine.sim.auto import measure_fit
+    from engine.sim.fine import fine_rungs
 
     parts = list(handle.parts)
-    d = handle.scene.descriptor
     spacing = scene_spacing(handle.scene, parts)
+    rungs = [(p, grid_for_part(p, spacing=spacing, padding=handle.scene.descriptor.padding))
+             for p in parts]
+    if len(parts) > 1:
+        pose = handle.scene.assembled_pose
+        fit = measure_fit(parts[0], parts[1], pose, handle.scene.insertion_axis)
+        rungs += fine_rungs(parts[0], parts[1], rungs[0][1], rungs[1][1], pose, fit)
+    return rungs
+
+
+def _ladder_seconds(handle) -> float:
+    """Seconds the ladders' nodes took to compute (as their cache entries say)."""
+    from engine import cache
+    from engine.descriptor import ladder
+    from engine.descriptor.store import CACHE_KIND, cache_key_parts
+
+    d = handle.scene.descriptor
     total = 0.0
-    for part in parts:
-        grid = grid_for_part(part, spacing=spacing, padding=d.padding)
+    for part, grid in _rungs(handle):
         for s in ladder.ladder_sigmas():
             key = cache.content_key(CACHE_KIND, cache_key_parts(
                 part, grid, replace(d, sigma=float(s)), "adaptive"))
@@ -102,15 +117,15 @@ def _ladder_seconds(handle) -> float:
 
 
 def _forget(handle, sigma: float) -> None:
-    """Remove the scene's direct descriptors at ``sigma`` (scene's grid) from the cache."""
-    from engine import cache
-    from engine.descriptor.store import CACHE_KIND, cache_key_parts, grid_for_part, scene_spacing
+    """Remove the direct descriptors at ``sigma`` from the cache (the scene's grids, the level's).
 
-    parts = list(handle.parts)
+    The ladders then serve them as they would a sigma never seen.
+    """
+    from engine import cache
+    from engine.descriptor.store import CACHE_KIND, cache_key_parts
+
     d = replace(handle.scene.descriptor, sigma=sigma)
-    spacing = scene_spacing(handle.scene, parts)
-    for part in parts:
-        grid = grid_for_part(part, spacing=spacing, padding=d.padding)
+    for part, grid in _rungs(handle):
         key = cache.content_key(CACHE_KIND, cache_key_parts(part, grid, d, "adaptive"))
         cache.entry_path(CACHE_KIND, key).unlink(missing_ok=True)
 

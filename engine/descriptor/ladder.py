@@ -28,6 +28,7 @@ from engine.descriptor.store import (
     CACHE_KIND,
     Descriptor,
     cache_key_parts,
+    descriptor_cached,
     descriptor_for_part,
     grid_for_part,
     scene_spacing,
@@ -43,10 +44,12 @@ __all__ = [
     "LadderIncomplete",
     "in_span",
     "interpolated_descriptor",
+    "descriptor_preferring_ladder",
     "ladder_cached",
     "ladder_descriptors_for_scene",
     "ladder_for_part",
     "ladder_sigmas",
+    "prepare_ladders",
     "prepare_scene_ladder",
     "scene_ladder_cached",
 ]
@@ -219,6 +222,37 @@ def interpolated_descriptor(part: Part, grid: Grid, params: DescriptorParams, *,
                       backend=backend, seconds=seconds, from_cache=False,
                       name=str(getattr(part, "name", "")), method="ladder",
                       compute_seconds=seconds, ladder=tuple(float(s) for s in sigmas))
+
+
+def descriptor_preferring_ladder(part: Part, grid: Grid, params: DescriptorParams, *,
+                                 method: str = "adaptive",
+                                 progress: Callable[[float], None] | None = None,
+                                 cancel: Callable[[], bool] | None = None) -> Descriptor:
+    """The part's descriptor on ``grid``: cached, else from its cached ladder, else computed.
+
+    A direct computation in the cache is exact and as quick; a ladder serves a sigma inside
+    :data:`LADDER_SPAN` in about a second where the direct computation takes tens.
+    """
+    if (in_span(float(params.sigma)) and not descriptor_cached(part, grid, params, method=method)
+            and ladder_cached(part, grid, params, method=method)):
+        try:
+            return interpolated_descriptor(part, grid, params, method=method)
+        except LadderIncomplete:  # a node evicted since: computed as usual
+            pass
+    return descriptor_for_part(part, grid, params, method=method, progress=progress,
+                               cancel=cancel)
+
+
+def prepare_ladders(rungs: Sequence[tuple[Part, Grid]], params: DescriptorParams, *,
+                    backend: BackendLike = None, method: str = "adaptive",
+                    progress: Callable[[float], None] | None = None,
+                    cancel: Callable[[], bool] | None = None) -> None:  # fmt: skip
+    """Compute and cache the nodes missing from the ladders of ``(part, grid)`` pairs.
+
+    As :func:`prepare_scene_ladder`, for any grids (the fine level's, for instance).
+    """
+    _compute_missing(list(rungs), params, backend=backend, method=method, span=LADDER_SPAN,
+                     nodes=LADDER_NODES, progress=progress, cancel=cancel)
 
 
 # --------------------------------------------------------------------------- scenes

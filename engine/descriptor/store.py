@@ -361,16 +361,20 @@ def distance_for_part(part: Part, grid: Grid, *, use_cache: bool = True,
     return arrays["distance"]
 
 
+def descriptor_cached(part: Part, grid: Grid, params: DescriptorParams, *,
+                      method: str = "adaptive") -> bool:
+    """Whether the part's descriptor on ``grid`` at ``params`` is in the cache."""
+    key = content_key(CACHE_KIND, cache_key_parts(part, grid, params, method))
+    return entry_path(CACHE_KIND, key).is_file()
+
+
 def descriptors_cached(scene: Scene, parts: Sequence[Part], *,
                        method: str = "adaptive") -> bool:
     """Whether every descriptor of the scene is in the cache (nothing to compute)."""
     spacing = scene_spacing(scene, parts)
-    for part in parts:
-        grid = grid_for_part(part, spacing=spacing, padding=scene.descriptor.padding)
-        key = content_key(CACHE_KIND, cache_key_parts(part, grid, scene.descriptor, method))
-        if not entry_path(CACHE_KIND, key).is_file():
-            return False
-    return True
+    return all(descriptor_cached(part, grid_for_part(part, spacing=spacing,
+                                                     padding=scene.descriptor.padding),
+                                 scene.descriptor, method=method) for part in parts)
 
 
 def descriptors_for_scene(

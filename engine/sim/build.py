@@ -798,10 +798,12 @@ class SceneModel:
 
     def prepare_ladder(self, *, progress: Callable[[float], None] | None = None,
                        cancel: Callable[[], bool] | None = None) -> None:
-        """Compute the nodes missing from the scene's sigma ladders (a low-priority job)."""
-        from engine.descriptor.ladder import prepare_scene_ladder
+        """The nodes missing from the sigma ladders (a low-priority job): scene, then level."""
+        from engine.sim.fine import prepare_ladders
 
-        prepare_scene_ladder(self.scene, list(self.parts), progress=progress, cancel=cancel)
+        fit = self._fit if self.has_pair and self.scene.assembled_known else None
+        prepare_ladders(self.scene, list(self.parts), self.assembled_pose, fit,
+                        progress=progress, cancel=cancel)
 
     def descriptors_cached(self, *, descriptor: DescriptorParams | None = None) -> bool:
         """Whether the scene's descriptors (at its own grid) are in the cache already."""

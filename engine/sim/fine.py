@@ -36,6 +36,7 @@ from engine.pose import rotation_matrix
 if TYPE_CHECKING:
     from engine.descriptor import Descriptor
     from engine.loading import Part
+    from engine.scene import Scene
     from engine.sim.auto import FitMeasure
 
 #: The fit's box grows by this many coarse cells before the taper (a blind bore's floor).
@@ -121,7 +122,7 @@ def fine_ratio(box_lo: np.ndarray, box_hi: np.ndarray, spacing: float) -> int:
     return int(max(1, min(MAX_RATIO, math.floor(r))))
 
 
-def level_grids(fixed_desc: Descriptor, moving_desc: Descriptor, box_lo: np.ndarray,
+def level_grids(fixed_grid: Grid, moving_grid: Grid, box_lo: np.ndarray,
                 box_hi: np.ndarray, assembled_pose: np.ndarray,
                 cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None
                 ) -> tuple[Grid, int, np.ndarray, np.ndarray, Grid, np.ndarray, np.ndarray] | None:
@@ -130,7 +131,7 @@ def level_grids(fixed_desc: Descriptor, moving_desc: Descriptor, box_lo: np.ndar
     The window boxes are where each window is 1 (the taper lies outside them). With the
     fit's ``cylinder`` (grown by :data:`BOX_CELLS` cells), part 1's box is the cylinder's.
     """
-    h = fixed_desc.grid.spacing
+    h = fixed_grid.spacing
     if cylinder is not None:
         centre, axis, radius, half = grown_cylinder(cylinder, h)
         inner_lo, inner_hi = cylinder_box(centre, axis, radius, half)
@@ -139,7 +140,7 @@ def level_grids(fixed_desc: Descriptor, moving_desc: Descriptor, box_lo: np.ndar
         inner_hi = np.asarray(box_hi, float) + BOX_CELLS * h
     taper = TAPER_CELLS * h
     ratio = fine_ratio(inner_lo - taper, inner_hi + taper, h)
-    nodes = _aligned_grid(inner_lo - taper, inner_hi + taper, fixed_desc.grid, 1, clip=False)
+    nodes = _aligned_grid(inner_lo - taper, inner_hi + taper, fixed_grid, 1, clip=False)
     if nodes is None:
         return None
     # the box's corners in part 2's frame at the seat
@@ -151,7 +152,7 @@ def level_grids(fixed_desc: Descriptor, moving_desc: Descriptor, box_lo: np.ndar
     local = (corners - pose[:3]) @ rot
     m_lo = local.min(axis=0) - MOVING_MARGIN_CELLS * h
     m_hi = local.max(axis=0) + MOVING_MARGIN_CELLS * h
-    moving = _aligned_grid(m_lo - taper, m_hi + taper, moving_desc.grid, ratio, clip=True)
+    moving = _aligned_grid(m_lo - taper, m_hi + taper, moving_grid, ratio, clip=True)
     if moving is None:
         return None
     return nodes, ratio, inner_lo, inner_hi, moving, m_lo, m_hi
@@ -164,6 +165,59 @@ def grown_cylinder(cylinder: tuple[np.ndarray, np.ndarray, float, float], spacin
     grow = BOX_CELLS * spacing
     return (np.asarray(centre, float), np.asarray(axis, float), float(radius) + grow,
             float(half) + grow)
+
+
+def fine_nodes(nodes: Grid, ratio: int) -> Grid:
+    """Part 1's fine grid: ``nodes`` (its box at the descriptor's spacing) ``ratio`` times finer."""
+    nx, ny, nz = ((n - 1) * ratio + 1 for n in nodes.shape)
+    return Grid(nodes.origin, nodes.spacing / ratio, (nx, ny, nz))
+
+
+def fine_rungs(fixed: Part, moving: Part, fixed_grid: Grid, moving_grid: Grid,
+               assembled_pose: np.ndarray, fit: FitMeasure) -> list[tuple[Part, Grid]]:
+    """The (part, grid) of each descriptor :func:`build_level` computes for a pair.
+
+    Part 1's and part 2's fine grids where the level is finer than the descriptors (none
+    at ``r = 1``, nor where the parts do not meet): they depend on the meshes, the seat
+    and the descriptors' grids, not on sigma, so a sigma ladder on them serves the level
+    at a new sigma.
+    """
+    if fit.points < 8:
+        return []
+    cylinder = fit.cylinder if WINDOW_SHAPE == "cylinder" else None
+    grids = level_grids(fixed_grid, moving_grid, fit.box_lo, fit.box_hi, assembled_pose,
+                        cylinder)
+    if grids is None or grids[1] <= 1:
+        return []
+    return [(fixed, fine_nodes(grids[0], grids[1])), (moving, grids[4])]
+
+
+def prepare_ladders(scene: Scene, parts: list[Part], assembled_pose: np.ndarray,
+                    fit: FitMeasure | None, *,
+                    progress: Callable[[float], None] | None = None,
+                    cancel: Callable[[], bool] | None = None) -> None:
+    """Compute the nodes missing from the scene's sigma ladders, then its fine level's.
+
+    The scene's grids first (the first 60 % of the progress: a new sigma's field), then the
+    fine level's grids (:func:`fine_rungs`; none without ``fit``): the level at a new sigma,
+    which took 24 to 65 s afresh on the bundled pairs, is then read from them.
+    """
+    from engine.descriptor import grid_for_part, scene_spacing
+    from engine.descriptor.ladder import prepare_ladders as prepare_rungs
+    from engine.descriptor.ladder import prepare_scene_ladder
+
+    def stage(lo: float, hi: float) -> Callable[[float], None] | None:
+        return None if progress is None else (lambda f: progress(lo + (hi - lo) * f))
+
+    prepare_scene_ladder(scene, parts, progress=stage(0.0, 0.6), cancel=cancel)
+    if fit is not None and len(parts) > 1:
+        spacing = scene_spacing(scene, parts)
+        g1, g2 = (grid_for_part(p, spacing=spacing, padding=scene.descriptor.padding)
+                  for p in parts[:2])
+        prepare_rungs(fine_rungs(parts[0], parts[1], g1, g2, assembled_pose, fit),
+                      scene.descriptor, progress=stage(0.6, 1.0), cancel=cancel)
+    if progress is not None:
+        progress(1.0)
 
 
 def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: Descriptor,
@@ -179,7 +233,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     the caller keeps it (it depends on the meshes alone; seconds on a part of many
     triangles, which a new sigma or penalty would pay again).
     """
-    from engine.descriptor.store import descriptor_for_part
+    from engine.descriptor.ladder import descriptor_preferring_ladder
     from engine.sim.auto import measure_fit
 
     if fit is None:
@@ -187,8 +241,8 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     if fit.points < 8:
         return None
     cylinder = fit.cylinder if WINDOW_SHAPE == "cylinder" else None
-    grids = level_grids(fixed_desc, moving_desc, fit.box_lo, fit.box_hi, assembled_pose,
-                        cylinder)
+    grids = level_grids(fixed_desc.grid, moving_desc.grid, fit.box_lo, fit.box_hi,
+                        assembled_pose, cylinder)
     if grids is None:
         return None
     nodes, ratio, lo1, hi1, g2, lo2, hi2 = grids
@@ -203,13 +257,12 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     node_rho = trilinear(np.asarray(fixed_desc.rho, np.complex128), fixed_desc.grid,
                          nodes.points().reshape(-1, 3)).reshape(nodes.shape)
     g1 = rho1 = None
-    if ratio > 1:
-        nx, ny, nz = ((n - 1) * ratio + 1 for n in nodes.shape)
-        g1 = Grid(nodes.origin, h / ratio, (nx, ny, nz))
-        rho1 = descriptor_for_part(fixed, g1, fixed_desc.params, progress=stage(0.0, 0.4),
-                                   cancel=cancel).rho
-        rho2 = descriptor_for_part(moving, g2, moving_desc.params, progress=stage(0.4, 0.8),
-                                   cancel=cancel).rho
+    if ratio > 1:  # from the cache, or the sigma ladder (SceneModel.prepare_ladder)
+        g1 = fine_nodes(nodes, ratio)
+        rho1 = descriptor_preferring_ladder(fixed, g1, fixed_desc.params,
+                                            progress=stage(0.0, 0.4), cancel=cancel).rho
+        rho2 = descriptor_preferring_ladder(moving, g2, moving_desc.params,
+                                            progress=stage(0.4, 0.8), cancel=cancel).rho
     else:
         rho2 = trilinear(np.asarray(moving_desc.rho, np.complex128), moving_desc.grid,
                          g2.points().reshape(-1, 3)).reshape(g2.shape)

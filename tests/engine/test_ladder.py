@@ -20,6 +20,7 @@ from engine import runtime as rt
 from engine.descriptor import descriptor_for_part, grid_for_part, scene_spacing
 from engine.descriptor import ladder as lad
 from engine.errors import Cancelled
+from engine.grid import Grid
 from engine.params import Effects
 from engine.runtime.jobs import FieldRequest, FieldResponse, JobWorker, LadderResponse
 from engine.runtime.ladder_jobs import LadderJobs
@@ -111,6 +112,56 @@ def test_an_incomplete_ladder_is_not_interpolated(cache, tmp_path, small_peg_sce
     assert not lad.ladder_cached(part, grid, scene.descriptor)
     with pytest.raises(lad.LadderIncomplete):
         lad.interpolated_descriptor(part, grid, replace(scene.descriptor, sigma=0.7))
+
+
+def test_the_fine_levels_grids_get_ladders_and_a_new_sigmas_level_reads_them(
+        ladders, small_peg_scene, monkeypatch):
+    """The scene's ladder job also ladders the fine level's two grids (they do not depend
+    on sigma); a level at a new sigma then reads its fine descriptors from them instead of
+    computing them (24 to 65 s afresh on the bundled pairs), and a direct computation in the
+    cache still comes first.
+    """
+    from engine.sim import build_simulation
+    from engine.sim.fine import fine_rungs
+
+    handle = rt.open_scene(small_peg_scene)
+    sim, model = build_simulation(handle, prepare=False, modes=8)
+    scene, parts, grids = ladders
+    rungs = fine_rungs(parts[0], parts[1], grids[0], grids[1], model.assembled_pose,
+                       model._fit)
+    assert len(rungs) == 2  # the level is finer than the descriptors here
+    assert all(g.spacing < grids[0].spacing for _, g in rungs)
+    assert not any(lad.ladder_cached(p, g, scene.descriptor) for p, g in rungs)
+    seen: list[float] = []
+    model.prepare_ladder(progress=seen.append)
+    assert seen[-1] == 1.0 and seen == sorted(seen)
+    assert all(lad.ladder_cached(p, g, scene.descriptor) for p, g in rungs)
+
+    params = replace(scene.descriptor, sigma=0.8)  # not a node, never computed here
+    part, grid = rungs[1]
+    got = lad.descriptor_preferring_ladder(part, grid, params)
+    assert got.method == "ladder"
+    # the level at that sigma computes no descriptor: both fine grids come from the ladders
+    computed: list[Grid] = []
+    real = lad.descriptor_for_part
+
+    def counting(part, grid, params, **kw):
+        if kw.get("progress") is not None or kw.get("cancel") is not None:
+            computed.append(grid)  # a computation asked for (the ladder loads without)
+        return real(part, grid, params, **kw)
+
+    monkeypatch.setattr(lad, "descriptor_for_part", counting)
+    d1, d2 = (replace(lad.interpolated_descriptor(p, g, params), params=params)
+              for p, g in zip(parts, grids, strict=True))
+    near = model.near_field(sim.effects, (d1, d2), cancel=lambda: False)
+    assert near is not None and computed == []
+    # a direct computation in the cache comes first (exact, and as quick)
+    direct = real(part, grid, params)
+    again = lad.descriptor_preferring_ladder(part, grid, params)
+    assert again.method == direct.method == "adaptive"
+    err = np.abs(got.rho.astype(np.complex128) - direct.rho)
+    rms = np.sqrt(np.mean(np.abs(direct.rho) ** 2))
+    assert np.sqrt(np.mean(err ** 2)) / rms < 5e-3  # as on the scene's grids (above)
 
 
 def _wait(engine, events, predicate, timeout=180.0):
