@@ -81,6 +81,7 @@ def test_evaluate_json(scene_file, capsys):
 def test_evaluate_adds_the_fine_level_where_the_parts_meet(scene_file, capsys):
     from app.cli import main
     from engine.correlation import correlator_for_scene
+    from engine.params import GUIDANCE_BAND
     from engine.pose import rotation_matrix
     from engine.scene import load_scene
 
@@ -94,9 +95,11 @@ def test_evaluate_adds_the_fine_level_where_the_parts_meet(scene_file, capsys):
     assert alone["fine_level"] is None
     level = fine["fine_level"]
     assert level["terms"] > 0 and level["ratio"] >= 1
-    # without the level: the modal sum itself, as the correlator gives it
+    # without the level: the modal sum itself, as the correlator gives it, in the band
+    # that guides a part (the one evaluate reports)
+    assert fine["band"] == alone["band"] == GUIDANCE_BAND
     corr = correlator_for_scene(load_scene(scene_file), modes=6, backend="numpy",
-                                kappa=alone["kappa"])
+                                kappa=alone["kappa"], band=alone["band"])
     p = np.array([float(v) for v in pose])
     ev = corr.evaluate(rotation_matrix(p[3:]), p[:3])
     assert alone["energy"] == pytest.approx(ev.energy, rel=1e-6)
