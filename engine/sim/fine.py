@@ -167,6 +167,11 @@ def grown_cylinder(cylinder: tuple[np.ndarray, np.ndarray, float, float], spacin
             float(half) + grow)
 
 
+def _window_cylinder(fit: FitMeasure) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """The fit's cylinder where the level's window is one (:data:`WINDOW_SHAPE`), else None."""
+    return fit.cylinder if WINDOW_SHAPE == "cylinder" else None
+
+
 def fine_nodes(nodes: Grid, ratio: int) -> Grid:
     """Part 1's fine grid: ``nodes`` (its box at the descriptor's spacing) ``ratio`` times finer."""
     nx, ny, nz = ((n - 1) * ratio + 1 for n in nodes.shape)
@@ -184,9 +189,8 @@ def fine_rungs(fixed: Part, moving: Part, fixed_grid: Grid, moving_grid: Grid,
     """
     if fit.points < 8:
         return []
-    cylinder = fit.cylinder if WINDOW_SHAPE == "cylinder" else None
     grids = level_grids(fixed_grid, moving_grid, fit.box_lo, fit.box_hi, assembled_pose,
-                        cylinder)
+                        _window_cylinder(fit))
     if grids is None or grids[1] <= 1:
         return []
     return [(fixed, fine_nodes(grids[0], grids[1])), (moving, grids[4])]
@@ -240,7 +244,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
         fit = measure_fit(fixed, moving, assembled_pose, axis)
     if fit.points < 8:
         return None
-    cylinder = fit.cylinder if WINDOW_SHAPE == "cylinder" else None
+    cylinder = _window_cylinder(fit)
     grids = level_grids(fixed_desc.grid, moving_desc.grid, fit.box_lo, fit.box_hi,
                         assembled_pose, cylinder)
     if grids is None:
