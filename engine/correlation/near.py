@@ -6,7 +6,9 @@ is blurred away. This level adds back, over a box around the fit, what the band 
 
     f(R, t) = f_K(R, t) + integral w(p) (rho1 - P_K rho1)(p) rho2(R^T (p - t)) dp
 
-``w`` is a smooth window, 1 over the fit's box and 0 beyond its margin. With ``w = 1``
+``w`` is a smooth window, 1 over the fit's box and 0 beyond its margin, and (where the
+level has part 1's distance, :class:`SurfaceShell`) 1 only within a cell or so of part 1's
+surface, 0 in the open space of a wide bore and deep in part 1. With ``w = 1``
 everywhere the sum is the full correlation, whatever ``K``; with the window it is the
 correlation of ``P_K rho1 + w (rho1 - P_K rho1)``: part 1's density at full resolution in
 the box and band-limited outside, a field of its own, so the energy stays one function of
@@ -106,6 +108,39 @@ def smooth_window(grid: Grid, lo: np.ndarray, hi: np.ndarray, taper: float) -> n
         shape[axis] = -1
         out = out * ramp.reshape(shape)
     return out
+
+
+@dataclass(frozen=True)
+class SurfaceShell:
+    """Where the level's window reaches from part 1's surface: a shell of its distance.
+
+    ``w`` is 1 where part 1's signed distance is within ``reach`` of zero and falls by a
+    raised cosine to 0 at ``reach + taper``: the level resolves the clearance of a fit and
+    the faces that stop a part, and leaves the open space of a wider bore and the depth of
+    part 1 to the band. Resolved there, the medial peaks of a counterbore's open space and
+    the faces a part passes on its way in drew a stepped peg's pin off the axis at its
+    bore's mouth, where it wedged 6 degrees tilted (docs/fine_level.md).
+
+    Attributes
+    ----------
+    grid : Grid
+        Where ``distance`` is sampled (the level's finest grid over the box).
+    distance : (nx, ny, nz) float32
+        Part 1's signed distance there (+ outside).
+    reach, taper : float
+        Lengths in the scene's unit.
+    """
+
+    grid: Grid
+    distance: np.ndarray
+    reach: float
+    taper: float
+
+    def weight(self, points: np.ndarray) -> np.ndarray:
+        """(n,) float64: the shell's factor of ``w`` at ``points`` (n, 3)."""
+        d = np.abs(trilinear(np.asarray(self.distance, np.float64), self.grid, points))
+        x = np.clip((d - self.reach) / max(self.taper, 1e-300), 0.0, 1.0)
+        return 0.5 * (1.0 + np.cos(math.pi * x))
 
 
 def band_field(fixed_kept: np.ndarray, kept: np.ndarray, centre: np.ndarray, n_h: float,
@@ -216,6 +251,8 @@ class NearLevel:
     cylinder : (centre (3,), axis (3,), radius, half_length) or None
         Where ``w`` is 1 when given (:func:`cylinder_window`, the same ``taper``), the box
         ``window_box`` then being the cylinder's box of the grid's planes; None: the box.
+    surface : SurfaceShell or None
+        ``w`` is also held to a shell about part 1's surface; None: the whole box.
     """
 
     fixed_nodes: Grid
@@ -232,6 +269,7 @@ class NearLevel:
     walls: WallShell | None = None
     anchor: np.ndarray | None = None
     cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None
+    surface: SurfaceShell | None = None
 
     @classmethod
     def from_samples(cls, fixed_nodes: Grid, fixed_node_rho: np.ndarray,
@@ -241,8 +279,8 @@ class NearLevel:
                      coarse_grid: Grid, coarse_rho: np.ndarray, *,
                      smooth: bool = True, walls: WallShell | None = None,
                      anchor: np.ndarray | None = None,
-                     cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None
-                     ) -> NearLevel:
+                     cylinder: tuple[np.ndarray, np.ndarray, float, float] | None = None,
+                     surface: SurfaceShell | None = None) -> NearLevel:
         """Assemble a level; part 2's fine samples are blended into its coarse ones.
 
         ``moving_window`` (1 inside part 2's fine region, 0 at its edge) blends
@@ -274,15 +312,22 @@ class NearLevel:
                    coarse_grid=coarse_grid, coarse=_pairs(coarse_rho), ratio=r,
                    smooth=smooth, walls=walls,
                    anchor=None if anchor is None else np.asarray(anchor, float).reshape(3),
-                   cylinder=cylinder)
+                   cylinder=cylinder, surface=surface)
 
     def window(self, grid: Grid) -> np.ndarray:
-        """``w`` on ``grid``: over :attr:`cylinder` where there is one, else the box."""
+        """``w`` on ``grid``: the cylinder's (where there is one) or the box's, in the shell.
+
+        The shell is :attr:`surface`, where there is one.
+        """
         lo, hi, taper = self.window_box
         if self.cylinder is not None:
             centre, axis, radius, half = self.cylinder
-            return cylinder_window(grid, centre, axis, radius, half, taper)
-        return smooth_window(grid, lo, hi, taper)
+            w = cylinder_window(grid, centre, axis, radius, half, taper)
+        else:
+            w = smooth_window(grid, lo, hi, taper)
+        if self.surface is not None:
+            w = w * self.surface.weight(grid.points().reshape(-1, 3)).reshape(grid.shape)
+        return w
 
 
 def _fine_masses(level: NearLevel) -> tuple[np.ndarray, np.ndarray, float]:

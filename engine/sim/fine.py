@@ -15,8 +15,9 @@ and the assembled pose (6,). The numerics of the level are
   by the protocol's misaim and the taper, aligned with part 2's own grid and clipped to it.
 
 Both fine descriptors come from the descriptor store (cached on disk like the coarse ones),
-and so does part 1's signed distance on the finest grid, the walls' distance map
-(:func:`wall_shell`).
+and so does part 1's signed distance on the finest grid: the walls' distance map
+(:func:`wall_shell`), and the shell about part 1's surface that the level's window keeps
+to (:data:`SURFACE_CELLS`).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
-from engine.correlation.near import NearLevel, cylinder_box, smooth_window, trilinear
+from engine.correlation.near import NearLevel, SurfaceShell, cylinder_box, smooth_window, trilinear
 from engine.correlation.walls import WallShell, shell_points
 from engine.grid import Grid
 from engine.pose import rotation_matrix
@@ -93,6 +94,18 @@ STOP_CELLS = 1.5
 #: a plate's top) keep theirs: with every such face set back, the 12 mm rectangular Factory
 #: peg, which enters its hole over the rim, jammed 4.09 degrees tilted at the mouth.
 STOP_REACH_CELLS = 3.0
+#: The level's window reaches this many coarse cells from part 1's surface (either side),
+#: then falls to zero over :data:`SURFACE_TAPER_CELLS` more
+#: (:class:`engine.correlation.near.SurfaceShell`): the level resolves the clearance of a
+#: fit and the faces that stop a part; the open space of a wider bore and the depth of part
+#: 1 are the band's. Over the whole box, the sharpened medial peaks of a counterbore's open
+#: space and the step a pin passes drew a stepped peg (seed 24683, pair 13) 1.4 mm off the
+#: axis at its bore's mouth with 5 N against the band's 1.8 N back (at 3 % of its width
+#: off), and it wedged 6 degrees tilted; a dovetail slide (pair 7) was pushed sideways at
+#: its way's mouth with ten times the band's pull back. With the shell both seat.
+SURFACE_CELLS = 1.0
+#: The shell's taper, in coarse cells (:data:`SURFACE_CELLS`).
+SURFACE_TAPER_CELLS = 1.0
 
 
 def _aligned_grid(lo: np.ndarray, hi: np.ndarray, coarse: Grid, ratio: int,
@@ -238,6 +251,7 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
     triangles, which a new sigma or penalty would pay again).
     """
     from engine.descriptor.ladder import descriptor_preferring_ladder
+    from engine.descriptor.store import distance_for_part
     from engine.sim.auto import measure_fit
 
     if fit is None:
@@ -271,8 +285,10 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
         rho2 = trilinear(np.asarray(moving_desc.rho, np.complex128), moving_desc.grid,
                          g2.points().reshape(-1, 3)).reshape(g2.shape)
     lead = None if axis is None else seat.T @ np.asarray(axis, float)
-    walls = wall_shell(fixed, moving, g1 if g1 is not None else nodes, g2, lead=lead,
-                       progress=stage(0.8, 1.0), cancel=cancel)
+    finest = g1 if g1 is not None else nodes
+    distance = np.ascontiguousarray(
+        distance_for_part(fixed, finest, progress=stage(0.8, 1.0), cancel=cancel), np.float32)
+    walls = wall_shell(moving, finest, distance, g2, lead=lead)
     if walls is not None and g1 is not None and rho1 is not None and axis is not None:
         rho1 = set_back_stops(rho1, g1, walls.distance, np.asarray(axis, float),
                               STOP_CELLS * g1.spacing, walls.points @ seat.T + pose[:3])
@@ -281,7 +297,8 @@ def build_level(fixed: Part, moving: Part, fixed_desc: Descriptor, moving_desc: 
         g2, rho2, smooth_window(g2, lo2, hi2, taper),
         moving_desc.grid, moving_desc.rho, walls=walls,
         anchor=(0.5 * (lo1 + hi1) - pose[:3]) @ seat,
-        cylinder=None if cylinder is None else grown_cylinder(cylinder, h))
+        cylinder=None if cylinder is None else grown_cylinder(cylinder, h),
+        surface=SurfaceShell(finest, distance, SURFACE_CELLS * h, SURFACE_TAPER_CELLS * h))
 
 
 def set_back_stops(rho: np.ndarray, grid: Grid, distance: np.ndarray, axis: np.ndarray,
@@ -322,22 +339,16 @@ def set_back_stops(rho: np.ndarray, grid: Grid, distance: np.ndarray, axis: np.n
     return out
 
 
-def wall_shell(fixed: Part, moving: Part, grid: Grid, region: Grid, *,
-               lead: np.ndarray | None = None,
-               progress: Callable[[float], None] | None = None,
-               cancel: Callable[[], bool] | None = None) -> WallShell | None:
+def wall_shell(moving: Part, grid: Grid, distance: np.ndarray, region: Grid, *,
+               lead: np.ndarray | None = None) -> WallShell | None:
     """The walls over the level (:mod:`engine.correlation.walls`).
 
-    Part 1's signed distance on ``grid`` (the level's finest over the fit's box, cached
-    like the descriptors) and part 2's shell within ``region`` (its fine grid: what can
-    reach the box). None where no face of part 2 there leads along ``lead``.
+    Part 1's signed ``distance`` on ``grid`` (the level's finest over the fit's box) and
+    part 2's shell within ``region`` (its fine grid: what can reach the box). None where no
+    face of part 2 there leads along ``lead``.
     """
-    from engine.descriptor.store import distance_for_part
-
     points = shell_points(moving.vertices, moving.faces,
                           (np.asarray(region.origin), np.asarray(region.upper)), lead)
     if len(points) == 0:  # nothing leads into the box (a through fit's end is past it)
         return None
-    distance = distance_for_part(fixed, grid, progress=progress, cancel=cancel)
-    return WallShell(grid=grid, distance=np.ascontiguousarray(distance, np.float32),
-                     points=points)
+    return WallShell(grid=grid, distance=np.asarray(distance, np.float32), points=points)

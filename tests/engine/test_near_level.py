@@ -278,3 +278,37 @@ def test_closeness_is_one_in_the_fit_and_falls_smoothly_to_zero_half_a_box_away(
     assert all(a >= b for a, b in zip(ramp[:-1], ramp[1:], strict=True))  # falls
     assert ramp[1] > 0.99 and ramp[-2] < 0.01                # flat at both ends (C1)
     assert at(0, 0, 100.0, anchored=False) == 1.0            # no anchor: near
+
+
+def test_the_shells_factor_is_one_near_part_1s_surface_and_zero_far_from_it():
+    from engine.correlation.near import SurfaceShell
+
+    grid = Grid((-4.0, -4.0, -4.0), 0.5, (17, 17, 17))
+    distance = np.broadcast_to(grid.axes()[2][None, None, :], grid.shape).astype(np.float32)
+    shell = SurfaceShell(grid, distance, reach=1.0, taper=1.0)
+    z = np.array([0.0, 0.9, -0.9, 1.5, -1.5, 2.0, -2.5, 3.5])
+    w = shell.weight(np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=-1))
+    assert np.allclose(w, [1.0, 1.0, 1.0, 0.5, 0.5, 0.0, 0.0, 0.0])
+
+
+def test_the_levels_window_keeps_to_a_shell_about_part_1s_surface(small_peg_scene):
+    """Built for a scene, the level's window is the plain one within the shell's reach of
+    part 1's surface and zero beyond its taper (deep in part 1, far out in open space).
+    """
+    from dataclasses import replace
+
+    from engine.runtime import open_scene
+    from engine.sim import build_simulation
+
+    handle = open_scene(small_peg_scene)
+    sim, _ = build_simulation(handle, backend="numpy")
+    level = sim.near.level
+    shell = level.surface
+    assert shell is not None and shell.reach > 0 and shell.taper > 0
+    nodes = level.fixed_nodes
+    d = np.abs(trilinear(np.asarray(shell.distance, np.float64), shell.grid,
+                         nodes.points().reshape(-1, 3))).reshape(nodes.shape)
+    w, plain = level.window(nodes), replace(level, surface=None).window(nodes)
+    near, far = (d <= shell.reach) & (plain > 0), (d >= shell.reach + shell.taper) & (plain > 0)
+    assert near.any() and far.any()
+    assert np.allclose(w[near], plain[near]) and np.all(w[far] == 0.0)
