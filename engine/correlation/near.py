@@ -7,8 +7,8 @@ is blurred away. This level adds back, over a box around the fit, what the band 
     f(R, t) = f_K(R, t) + integral w(p) (rho1 - P_K rho1)(p) rho2(R^T (p - t)) dp
 
 ``w`` is a smooth window, 1 over the fit's box and 0 beyond its margin, and (where the
-level has part 1's distance, :class:`SurfaceShell`) 1 only within a cell or so of part 1's
-surface, 0 in the open space of a wide bore and deep in part 1. With ``w = 1``
+level has part 1's distance, :class:`SurfaceShell`) 1 only inside part 1 and within a cell
+or so outside it, 0 in the open space of a wide bore. With ``w = 1``
 everywhere the sum is the full correlation, whatever ``K``; with the window it is the
 correlation of ``P_K rho1 + w (rho1 - P_K rho1)``: part 1's density at full resolution in
 the box and band-limited outside, a field of its own, so the energy stays one function of
@@ -112,14 +112,14 @@ def smooth_window(grid: Grid, lo: np.ndarray, hi: np.ndarray, taper: float) -> n
 
 @dataclass(frozen=True)
 class SurfaceShell:
-    """Where the level's window reaches from part 1's surface: a shell of its distance.
+    """How far the level's window reaches out of part 1: a shell of its signed distance.
 
-    ``w`` is 1 where part 1's signed distance is within ``reach`` of zero and falls by a
-    raised cosine to 0 at ``reach + taper``: the level resolves the clearance of a fit and
-    the faces that stop a part, and leaves the open space of a wider bore and the depth of
-    part 1 to the band. Resolved there, the medial peaks of a counterbore's open space and
-    the faces a part passes on its way in drew a stepped peg's pin off the axis at its
-    bore's mouth, where it wedged 6 degrees tilted (docs/fine_level.md).
+    ``w`` is 1 inside part 1 and out to ``reach`` from its surface, and falls by a raised
+    cosine to 0 at ``reach + taper`` out: the level resolves the clearance of a fit, the
+    faces that stop a part and part 1's inside (where an overlap costs), and leaves the
+    open space of a wider bore to the band. Resolved there, the medial peaks of a
+    counterbore's open space drew a stepped peg's pin off the axis at its bore's mouth,
+    where it wedged 6 degrees tilted (docs/fine_level.md).
 
     Attributes
     ----------
@@ -138,7 +138,7 @@ class SurfaceShell:
 
     def weight(self, points: np.ndarray) -> np.ndarray:
         """(n,) float64: the shell's factor of ``w`` at ``points`` (n, 3)."""
-        d = np.abs(trilinear(np.asarray(self.distance, np.float64), self.grid, points))
+        d = trilinear(np.asarray(self.distance, np.float64), self.grid, points)
         x = np.clip((d - self.reach) / max(self.taper, 1e-300), 0.0, 1.0)
         return 0.5 * (1.0 + np.cos(math.pi * x))
 

@@ -94,15 +94,16 @@ STOP_CELLS = 1.5
 #: a plate's top) keep theirs: with every such face set back, the 12 mm rectangular Factory
 #: peg, which enters its hole over the rim, jammed 4.09 degrees tilted at the mouth.
 STOP_REACH_CELLS = 3.0
-#: The level's window reaches this many coarse cells from part 1's surface (either side),
-#: then falls to zero over :data:`SURFACE_TAPER_CELLS` more
-#: (:class:`engine.correlation.near.SurfaceShell`): the level resolves the clearance of a
-#: fit and the faces that stop a part; the open space of a wider bore and the depth of part
-#: 1 are the band's. Over the whole box, the sharpened medial peaks of a counterbore's open
-#: space and the step a pin passes drew a stepped peg (seed 24683, pair 13) 1.4 mm off the
-#: axis at its bore's mouth with 5 N against the band's 1.8 N back (at 3 % of its width
-#: off), and it wedged 6 degrees tilted; a dovetail slide (pair 7) was pushed sideways at
-#: its way's mouth with ten times the band's pull back. With the shell both seat.
+#: The level's window reaches this many coarse cells out of part 1's surface, then falls to
+#: zero over :data:`SURFACE_TAPER_CELLS` more; inside part 1 it is whole
+#: (:class:`engine.correlation.near.SurfaceShell`). Over the whole box, the sharpened medial
+#: peaks of a counterbore's open space drew a stepped peg (seed 24683, pair 13) 1.4 mm off
+#: the axis at its bore's mouth with 5.1 N against the band's 1.8 N back (at 3 % of its
+#: width off; 4.7 N of it from part 1's outside samples, 3.4 N from those more than a cell
+#: out), and it wedged 6 degrees tilted; a dovetail slide (pair 7) was pushed sideways at its
+#: way's mouth with ten times the band's pull back. With the shell both seat. A shell on
+#: both sides seated them too, but let the 50 mm spigot of assets/real drift 4.8 mm
+#: sideways onto its rim (9.2 % of its width): part 1's inside samples centre it.
 SURFACE_CELLS = 1.0
 #: The shell's taper, in coarse cells (:data:`SURFACE_CELLS`).
 SURFACE_TAPER_CELLS = 1.0

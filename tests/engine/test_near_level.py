@@ -280,20 +280,20 @@ def test_closeness_is_one_in_the_fit_and_falls_smoothly_to_zero_half_a_box_away(
     assert at(0, 0, 100.0, anchored=False) == 1.0            # no anchor: near
 
 
-def test_the_shells_factor_is_one_near_part_1s_surface_and_zero_far_from_it():
+def test_the_shells_factor_is_one_in_and_near_part_1_and_zero_far_out_of_it():
     from engine.correlation.near import SurfaceShell
 
     grid = Grid((-4.0, -4.0, -4.0), 0.5, (17, 17, 17))
     distance = np.broadcast_to(grid.axes()[2][None, None, :], grid.shape).astype(np.float32)
     shell = SurfaceShell(grid, distance, reach=1.0, taper=1.0)
-    z = np.array([0.0, 0.9, -0.9, 1.5, -1.5, 2.0, -2.5, 3.5])
+    z = np.array([0.0, 0.9, -0.9, 1.5, -1.5, 2.0, -2.5, 3.5, -3.5])
     w = shell.weight(np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=-1))
-    assert np.allclose(w, [1.0, 1.0, 1.0, 0.5, 0.5, 0.0, 0.0, 0.0])
+    assert np.allclose(w, [1.0, 1.0, 1.0, 0.5, 1.0, 0.0, 1.0, 0.0, 1.0])
 
 
 def test_the_levels_window_keeps_to_a_shell_about_part_1s_surface(small_peg_scene):
-    """Built for a scene, the level's window is the plain one within the shell's reach of
-    part 1's surface and zero beyond its taper (deep in part 1, far out in open space).
+    """Built for a scene, the level's window is the plain one inside part 1 and out to the
+    shell's reach, and zero beyond its taper out of part 1 (in open space).
     """
     from dataclasses import replace
 
@@ -306,9 +306,10 @@ def test_the_levels_window_keeps_to_a_shell_about_part_1s_surface(small_peg_scen
     shell = level.surface
     assert shell is not None and shell.reach > 0 and shell.taper > 0
     nodes = level.fixed_nodes
-    d = np.abs(trilinear(np.asarray(shell.distance, np.float64), shell.grid,
-                         nodes.points().reshape(-1, 3))).reshape(nodes.shape)
+    d = trilinear(np.asarray(shell.distance, np.float64), shell.grid,
+                  nodes.points().reshape(-1, 3)).reshape(nodes.shape)
     w, plain = level.window(nodes), replace(level, surface=None).window(nodes)
-    near, far = (d <= shell.reach) & (plain > 0), (d >= shell.reach + shell.taper) & (plain > 0)
-    assert near.any() and far.any()
-    assert np.allclose(w[near], plain[near]) and np.all(w[far] == 0.0)
+    kept = (d <= shell.reach) & (plain > 0)
+    far = (d >= shell.reach + shell.taper) & (plain > 0)
+    assert kept.any() and far.any() and (kept & (d < -shell.reach - shell.taper)).any()
+    assert np.allclose(w[kept], plain[kept]) and np.all(w[far] == 0.0)
