@@ -7,8 +7,8 @@ is blurred away. This level adds back, over a box around the fit, what the band 
     f(R, t) = f_K(R, t) + integral w(p) (rho1 - P_K rho1)(p) rho2(R^T (p - t)) dp
 
 ``w`` is a smooth window, 1 over the fit's box and 0 beyond its margin, and (where the
-level has part 1's distance, :class:`SurfaceShell`) 1 only inside part 1 and within a cell
-or so outside it, 0 in the open space of a wide bore. With ``w = 1``
+level has part 1's distance, :class:`SurfaceShell`) 1 only inside part 1 and within a few
+cells outside it, 0 in the open space of a wide bore. With ``w = 1``
 everywhere the sum is the full correlation, whatever ``K``; with the window it is the
 correlation of ``P_K rho1 + w (rho1 - P_K rho1)``: part 1's density at full resolution in
 the box and band-limited outside, a field of its own, so the energy stays one function of
